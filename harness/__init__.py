@@ -1,0 +1,1 @@
+"""fmpy co-simulation harness for gyrodiag (master, scenarios, metrics, CLI)."""

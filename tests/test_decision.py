@@ -1,0 +1,145 @@
+"""Known answers of the DTG paper's decision table (DESIGN §2)."""
+
+import numpy as np
+import pytest
+
+from gyrodiag.decision import (
+    UNKNOWN_CODE,
+    SignatureClassifier,
+    ThresholdDecision,
+    feature_vector,
+    parameter_ratios,
+    signature_distance,
+)
+
+THETA_NOM = [1.9951, 0.9959, -0.0288, -0.0303, 0.0002]
+THETA_F = {
+    "f1_step": [1.0055, 0.0058, -0.8660, -0.8881, 0.0032],
+    "f2_noise": [0.3394, -0.3240, 1.2404, 0.9521, 0.0320],
+    "f3_signal_loss": [-0.0040, 0.0604, -0.2406, -0.3054, 0.0081],
+    "f4_drift": [1.9946, 0.9955, -0.0195, -0.0198, 0.00002],
+}
+C_PRINTED = {
+    "f1_step": [0, -2, 1, 1, 1],
+    "f2_noise": [-1, 0, 2, 1, 2],
+    "f3_signal_loss": [-3, -1, 1, 1, 2],
+    "f4_drift": [0, 0, 0, 0, 1],  # the paper's print; the formula gives [0,0,0,0,-1]
+}
+
+
+@pytest.mark.parametrize("fault", ["f1_step", "f2_noise", "f3_signal_loss"])
+def test_feature_vectors_match_the_paper(fault):
+    eta = parameter_ratios(THETA_F[fault], THETA_NOM)
+    np.testing.assert_array_equal(feature_vector(eta), C_PRINTED[fault])
+
+
+def test_paper_eta_values():
+    eta = {f: parameter_ratios(t, THETA_NOM) for f, t in THETA_F.items()}
+    # the paper prints η_f1 = [0.5, 0.0058, 30, 30, 15], η_f3 = [0.002, 0.06, 8.36, 10, 37.4]
+    np.testing.assert_allclose(eta["f1_step"], [0.504, 0.00582, 30.07, 29.31, 16.0], rtol=2e-3)
+    np.testing.assert_allclose(eta["f3_signal_loss"][:4], [0.002, 0.0606, 8.354, 10.08],
+                               rtol=3e-3)
+
+
+def test_f4_drift_printed_ratios_are_reciprocals():
+    """The paper prints η_f4 = [1.00, 1.00, 1.47, 1.5, 10.35]; the formula gives the
+    reciprocals of the last three: [1.00, 1.00, 0.68, 0.65, 0.10], C_f4 = [0,0,0,0,−1]."""
+    eta = parameter_ratios(THETA_F["f4_drift"], THETA_NOM)
+    np.testing.assert_allclose(eta, [0.99975, 0.99960, 0.67708, 0.65347, 0.1], rtol=1e-4)
+    np.testing.assert_allclose(1 / eta[2:4], [1.477, 1.530], rtol=2e-3)
+    np.testing.assert_array_equal(feature_vector(eta), [0, 0, 0, 0, -1])
+
+
+def test_all_four_paper_faults_alarm_and_nominal_does_not():
+    for theta in THETA_F.values():
+        dec = ThresholdDecision(THETA_NOM)
+        assert dec.update(theta).alarm
+    dec = ThresholdDecision(THETA_NOM)
+    out = dec.update(THETA_NOM)
+    assert not out.alarm and not out.violation
+    np.testing.assert_array_equal(out.eta, np.ones(5))
+
+
+def test_which_parameters_leave_the_band():
+    out = ThresholdDecision(THETA_NOM).update(THETA_F["f1_step"])
+    # η_f1 = [0.504, 0.0058, 30, 29, 16]: θ1 stays just inside the 0.5 limit
+    np.testing.assert_array_equal(out.out_of_band, [False, True, True, True, True])
+    out4 = ThresholdDecision(THETA_NOM).update(THETA_F["f4_drift"])
+    np.testing.assert_array_equal(out4.out_of_band, [False, False, False, False, True])
+    masked = ThresholdDecision(THETA_NOM, monitored=[True, True, True, True, False])
+    # without θ5, drift f4 (η3 = 0.68, η4 = 0.65) stays inside the band
+    assert not masked.update(THETA_F["f4_drift"]).alarm
+
+
+def test_eq7_distances_with_printed_vectors():
+    clf = SignatureClassifier(C_PRINTED)
+    d = clf.pairwise_distances()
+    names = list(C_PRINTED)
+    got = {(a, b): d[i, j] for i, a in enumerate(names) for j, b in enumerate(names)}
+    # matches the paper: d(f1,f3) = d(f1,f2) = d(f2,f4) = 1, d(f3,f4) = 1.4
+    assert got["f1_step", "f3_signal_loss"] == pytest.approx(1.0)
+    assert got["f1_step", "f2_noise"] == pytest.approx(1.0)
+    assert got["f2_noise", "f4_drift"] == pytest.approx(1.0)
+    assert got["f3_signal_loss", "f4_drift"] == pytest.approx(1.4)
+    # the paper prints 0.9 for these two; eq. 7 on its own vectors gives 0.8
+    assert got["f1_step", "f4_drift"] == pytest.approx(0.8)
+    assert got["f2_noise", "f3_signal_loss"] == pytest.approx(0.8)
+    np.testing.assert_allclose(np.diag(d), 0.0)
+
+
+def test_classifier_recovers_each_fault_from_its_theta():
+    computed = {
+        f: feature_vector(parameter_ratios(t, THETA_NOM)) for f, t in THETA_F.items()
+    }
+    clf = SignatureClassifier(computed)
+    for code, (fault, theta) in enumerate(THETA_F.items(), start=1):
+        res = clf.classify(feature_vector(parameter_ratios(theta, THETA_NOM)))
+        assert res.label == fault and res.code == code and res.distance == 0.0
+
+
+def test_classifier_unknown_beyond_max_distance():
+    clf = SignatureClassifier(C_PRINTED, max_distance=0.5)
+    res = clf.classify([5, 5, 5, 5, 5])
+    assert res.label == "unknown" and res.code == UNKNOWN_CODE
+    assert res.distance == pytest.approx(min(res.distances.values()))
+    near = clf.classify([0, -2, 1, 1, 2])  # one step from f1
+    assert near.label == "f1_step" and near.distance == pytest.approx(0.2)
+
+
+def test_persistence_k_of_n_and_latching():
+    bad, good = THETA_F["f1_step"], THETA_NOM
+    dec = ThresholdDecision(THETA_NOM, persistence_k=2, persistence_n=3)
+    alarms = [dec.update(t).alarm for t in [bad, good, good, bad, good, bad, good, good]]
+    assert alarms == [False, False, False, False, False, True, False, False]
+    latched = ThresholdDecision(THETA_NOM, latch=True)
+    outs = [latched.update(t) for t in [good, bad, good, good]]
+    assert [o.alarm for o in outs] == [False, True, True, True]
+    assert outs[-1].first_alarm_sample == 1
+    saved = latched.get_state()
+    latched.reset()
+    assert not latched.update(good).alarm
+    latched.set_state(saved)
+    assert latched.update(good).alarm
+
+
+def test_feature_of_vanished_parameter_is_finite():
+    c = feature_vector(parameter_ratios([0.0, 1.0, 1.0, 1.0, 1.0], [1.0] * 5))
+    assert c[0] == -12
+
+
+@pytest.mark.parametrize(
+    ("call", "name"),
+    [
+        (lambda: ThresholdDecision([1.0, 0.0]), "theta0"),
+        (lambda: ThresholdDecision([1.0], low=1.2), "low"),
+        (lambda: ThresholdDecision([1.0], persistence_k=3, persistence_n=2), "persistence_k"),
+        (lambda: ThresholdDecision([1.0, 1.0], monitored=[False, False]), "monitored"),
+        (lambda: SignatureClassifier({}), "signatures"),
+        (lambda: SignatureClassifier({"a": [1, 2], "b": [1]}), "signatures\\['b'\\]"),
+        (lambda: signature_distance([1, 2], [1]), "c_b"),
+        (lambda: parameter_ratios([1.0, np.nan], [1.0, 1.0]), "theta"),
+    ],
+)
+def test_bad_arguments_name_the_argument(call, name):
+    with pytest.raises((ValueError, TypeError), match=name):
+        call()
