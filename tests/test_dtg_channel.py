@@ -1,0 +1,119 @@
+import dataclasses
+
+import numpy as np
+import pytest
+from _dtg_sim import STABLE_ROTOR, simulate_difference_equation
+
+from gyrodiag.decision import UNKNOWN_CODE
+from gyrodiag.dtg import theta_from_physical
+from gyrodiag.dtg_channel import DTGChannel, DTGChannelConfig
+
+T = 1e-3
+
+
+def _record(params, n, seed, noise=0.0):
+    rng = np.random.default_rng(seed)
+    ux, uy = rng.standard_normal(n), rng.standard_normal(n)
+    tx, ty = simulate_difference_equation(theta_from_physical(params, T), ux, uy)
+    tx = tx + noise * rng.standard_normal(n)
+    ty = ty + noise * rng.standard_normal(n)
+    return np.column_stack([tx, ty, ux, uy])
+
+
+def _faulty_record(n_nominal, n_fault, seed):
+    """Nominal rotor, then the torquer gain Ku drops to 30 % (θ5 × 0.3)."""
+    broken = dataclasses.replace(STABLE_ROTOR, Ku=0.3 * STABLE_ROTOR.Ku)
+    a = _record(STABLE_ROTOR, n_nominal, seed)
+    b = _record(broken, n_fault, seed + 1)
+    return np.vstack([a, b])
+
+
+def _run(ch, rec):
+    return [ch.update(*row) for row in rec]
+
+
+def test_learns_theta0_then_detects_and_classifies_a_torquer_fault():
+    cfg = DTGChannelConfig(
+        sample_period_s=T, prefilter_enabled=False, estimator="forgetting", forgetting=0.99,
+        p0=1e8, learn_start_s=0.5, learn_end_s=2.0,
+        signatures={"torquer_gain": [0, 0, 0, 0, -1], "pickoff_loss": [-3, -1, 1, 1, 2]},
+    )
+    ch = DTGChannel(cfg)
+    outs = _run(ch, _faulty_record(3000, 2000, seed=1))
+    truth = theta_from_physical(STABLE_ROTOR, T)
+    np.testing.assert_allclose(ch.theta0, truth, rtol=1e-6)  # noise-free: exact
+    assert outs[1999].learning and not outs[2001].learning
+    assert not any(o.alarm for o in outs[2001:3000])
+    first = ch.last_output.first_alarm_time_s
+    # the fault starts at 3.0 s; with forgetting 0.99 θ5 passes η = 0.5 within ~100 samples
+    assert 3.0 <= first < 3.2
+    assert outs[-1].alarm and outs[-1].fault_code == 1
+    np.testing.assert_allclose(outs[-1].eta[:, 4], 0.3, rtol=1e-3)
+    np.testing.assert_array_equal(outs[-1].feature, [0, 0, 0, 0, -1])
+    phys = outs[2500].physical
+    np.testing.assert_allclose(
+        phys, [STABLE_ROTOR.c, STABLE_ROTOR.k, STABLE_ROTOR.L, STABLE_ROTOR.lam,
+               STABLE_ROTOR.Ku / STABLE_ROTOR.KT], rtol=1e-4)
+
+
+@pytest.mark.parametrize("kind", ["batch", "rls", "forgetting"])
+def test_given_theta0_no_alarm_on_nominal_data(kind):
+    truth = theta_from_physical(STABLE_ROTOR, T)
+    ch = DTGChannel(DTGChannelConfig(
+        sample_period_s=T, estimator=kind, window=200, p0=1e8, theta0=list(truth),
+        persistence_k=1, persistence_n=1))
+    outs = _run(ch, _record(STABLE_ROTOR, 3000, seed=2, noise=1e-4))
+    assert not outs[-1].learning
+    assert not any(o.alarm for o in outs[1000:]), "false alarm on nominal data"
+    np.testing.assert_allclose(outs[-1].theta.mean(axis=0)[:4], truth[:4], rtol=2e-2)
+
+
+def test_unclassified_alarm_has_unknown_code():
+    ch = DTGChannel(DTGChannelConfig(
+        sample_period_s=T, prefilter_enabled=False, p0=1e8,
+        theta0=list(theta_from_physical(STABLE_ROTOR, T))))
+    outs = _run(ch, _faulty_record(500, 1000, seed=3))
+    assert outs[-1].alarm and outs[-1].fault_code == UNKNOWN_CODE
+
+
+def test_nan_sample_is_skipped_and_state_round_trip_is_exact():
+    cfg = DTGChannelConfig(sample_period_s=T, learn_start_s=0.2, learn_end_s=0.5, p0=1e8)
+    rec = _record(STABLE_ROTOR, 1500, seed=4, noise=1e-4)
+    ch = DTGChannel(cfg)
+    _run(ch, rec[:600])
+    before = ch.get_state()
+    out = ch.update(np.nan, 0.0, 0.0, 0.0)
+    assert not out.valid
+    after = ch.get_state()
+    np.testing.assert_array_equal(after["estimators"][0]["theta"],
+                                  before["estimators"][0]["theta"])
+    assert after["n_samples"] == before["n_samples"]
+    ref = _run(ch, rec[600:])
+    ch.set_state(before)
+    again = _run(ch, rec[600:])
+    for a, b in zip(ref, again, strict=True):
+        np.testing.assert_array_equal(a.theta, b.theta)
+        assert a.alarm == b.alarm and a.fault_code == b.fault_code
+    ch.reset()
+    fresh = DTGChannel(cfg)
+    for a, b in zip(_run(ch, rec[:700]), _run(fresh, rec[:700]), strict=True):
+        np.testing.assert_array_equal(a.theta, b.theta)
+
+
+@pytest.mark.parametrize(
+    ("changes", "name"),
+    [
+        ({"sample_period_s": 0.0}, "sample_period_s"),
+        ({"prefilter_cutoff_hz": 600.0}, "cutoff_hz"),
+        ({"estimator": "kalman"}, "estimator"),
+        ({"window": 3}, "window"),
+        ({"forgetting": 1.5}, "forgetting"),
+        ({"theta0": [1.0, 0.0, 1.0, 1.0, 1.0]}, "theta0"),
+        ({"learn_start_s": 2.0, "learn_end_s": 1.0}, "learn_end_s"),
+        ({"low": 2.0}, "low"),
+        ({"signatures": {"a": [0, 0, 0]}}, "signatures"),
+    ],
+)
+def test_invalid_settings_name_the_setting(changes, name):
+    with pytest.raises((ValueError, TypeError), match=name):
+        DTGChannel(DTGChannelConfig(**changes))
