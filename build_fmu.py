@@ -1,0 +1,409 @@
+"""Build every gyrodiag FMU (FMI 2.0 co-simulation, pythonfmu 0.7) and make it valid.
+
+Usage::
+
+    python build_fmu.py [--out build/fmus] [NAME ...]
+
+Each FMU is built in a fresh subprocess (``python build_fmu.py --_one NAME --out DIR``)
+because the pythonfmu builder imports the model script, and two scripts imported into one
+interpreter could shadow each other's modules (DESIGN §6.3, §6.4).  After the build the
+subprocess post-processes ``modelDescription.xml``, which pythonfmu leaves invalid
+(DESIGN §6.1, §6.2):
+
+* ``variability`` on every variable (pythonfmu omits it for Integer/Boolean, for which the
+  FMI default ``continuous`` is illegal);
+* ``<ModelStructure>`` rebuilt: ``<Outputs>`` with direct input dependencies (from the
+  script's ``OUTPUT_DEPENDENCIES``; default none, outputs are computed in ``do_step``)
+  and ``<InitialUnknowns>`` (outputs with initial calculated/approx plus calculated
+  parameters);
+* units, min/max/nominal and descriptions from the script's ``VARIABLE_META``, with every
+  unit declared in ``<UnitDefinitions>`` (SI base-unit exponents where known);
+* ``resources/requirements.txt`` from the script's ``REQUIREMENTS`` (default numpy+scipy),
+  because the FMU runs on the host's Python (DESIGN §6.5).  Hosts that are not Python
+  processes need ``LD_PRELOAD=libpython3.X.so`` on Linux to load these FMUs.
+
+The Linux binary is wrapped by the status shim (``fmu_src/shim/fmi2_status_shim.c``,
+compiled here with the system C compiler against fmpy's FMI headers): pythonfmu 0.7
+turns every Python exception into fmi2Fatal, so our facades log problems at error
+status instead of raising, and the shim returns fmi2Error for such a call. The original
+pythonfmu library is kept next to it as ``pythonfmu-export.so``. Without a C compiler
+the FMU is built unwrapped, with a warning (errors then surface as fmi2OK + log).
+
+Finally every FMU is checked with ``fmpy.validation.validate_fmu``; any problem makes
+the command exit non-zero.  An FMU whose source folder does not exist yet is skipped with
+a message (it is not an error).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import io
+import subprocess
+import sys
+import time
+import xml.etree.ElementTree as ET
+import zipfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent
+DEFAULT_OUT = ROOT / "build" / "fmus"
+
+# (model name, source folder relative to the repository root, script file name)
+REGISTRY: list[tuple[str, str, str]] = [
+    ("FaultInjector", "models/fault_injector", "gd_fault_injector_fmu.py"),
+    ("HRG", "models/hrg", "gd_hrg_fmu.py"),
+    ("Aircraft", "models/aircraft", "gd_aircraft_fmu.py"),
+    ("PitchController", "models/pitch_controller", "gd_pitch_controller_fmu.py"),
+    ("DTG", "models/dtg", "gd_dtg_fmu.py"),
+    ("Diagnoser", "fmu_src", "gd_diagnoser_fmu.py"),
+]
+
+DEFAULT_REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10"]
+SHIM_SOURCE = ROOT / "fmu_src" / "shim" / "fmi2_status_shim.c"
+SHIM_INNER_NAME = "pythonfmu-export.so"
+
+# FMI 2.0 BaseUnit exponents (and factor) of the unit strings used in this project.
+# A unit not listed here is still declared, only without its SI decomposition.
+KNOWN_UNITS: dict[str, dict[str, float]] = {
+    "1": {},
+    "s": {"s": 1},
+    "Hz": {"s": -1},
+    "1/s": {"s": -1},
+    "rad": {"rad": 1},
+    "deg": {"rad": 1, "factor": 0.017453292519943295},
+    "rad/s": {"rad": 1, "s": -1},
+    "rad/s2": {"rad": 1, "s": -2},
+    "deg/s": {"rad": 1, "s": -1, "factor": 0.017453292519943295},
+    "deg/h": {"rad": 1, "s": -1, "factor": 0.017453292519943295 / 3600.0},
+    "m": {"m": 1},
+    "m/s": {"m": 1, "s": -1},
+    "m/s2": {"m": 1, "s": -2},
+    "kg": {"kg": 1},
+    "kg.m2": {"kg": 1, "m": 2},
+    "N": {"kg": 1, "m": 1, "s": -2},
+    "N.m": {"kg": 1, "m": 2, "s": -2},
+    "A": {"A": 1},
+    "V": {"kg": 1, "m": 2, "s": -3, "A": -1},
+    "V/(rad/s)": {"kg": 1, "m": 2, "s": -2, "A": -1, "rad": -1},
+    "N.m/A": {"kg": 1, "m": 2, "s": -2, "A": -1},
+    "rad/s/A": {"rad": 1, "s": 1, "A": -1, "kg": -1, "m": -2},
+    "rpm": {"rad": 1, "s": -1, "factor": 0.10471975511965977},
+    "ohm": {"kg": 1, "m": 2, "s": -3, "A": -2},
+    "H": {"kg": 1, "m": 2, "s": -2, "A": -2},
+}
+_BASE_UNIT_ORDER = ("kg", "m", "s", "A", "K", "mol", "cd", "rad", "factor", "offset")
+
+
+def script_path(entry: tuple[str, str, str]) -> Path:
+    """Absolute path of the pythonfmu script of a registry entry."""
+    _, folder, script = entry
+    return ROOT / folder / script
+
+
+def project_files(entry: tuple[str, str, str]) -> list[Path]:
+    """Files shipped next to the script: sibling modules and sibling packages."""
+    script = script_path(entry)
+    folder = script.parent
+    files = [p for p in sorted(folder.glob("*.py"))
+             if p != script and not p.name.startswith("test_")]
+    packages = [p for p in sorted(folder.iterdir()) if p.is_dir() and (p / "__init__.py").exists()]
+    return files + packages
+
+
+def source_files(entry: tuple[str, str, str]) -> list[Path]:
+    """Every file whose change makes the FMU stale (script, project files, this builder)."""
+    out = [script_path(entry), Path(__file__).resolve(), SHIM_SOURCE]
+    for p in project_files(entry):
+        out.extend(sorted(p.rglob("*.py")) if p.is_dir() else [p])
+    return out
+
+
+def available(entry: tuple[str, str, str]) -> bool:
+    return script_path(entry).exists()
+
+
+def stale_fmus(out_dir: Path, names: list[str] | None = None) -> list[str]:
+    """Names of available FMUs missing from ``out_dir`` or older than one of their sources."""
+    stale = []
+    for entry in REGISTRY:
+        name = entry[0]
+        if (names and name not in names) or not available(entry):
+            continue
+        fmu = Path(out_dir) / f"{name}.fmu"
+        if not fmu.exists():
+            stale.append(name)
+            continue
+        built = fmu.stat().st_mtime
+        if any(src.stat().st_mtime > built for src in source_files(entry)):
+            stale.append(name)
+    return stale
+
+
+# ----------------------------------------------------------------------------------------
+# post-processing of modelDescription.xml
+# ----------------------------------------------------------------------------------------
+
+def _default_variability(causality: str, type_tag: str) -> str:
+    if causality in ("parameter", "calculatedParameter"):
+        return "fixed"
+    return "continuous" if type_tag == "Real" else "discrete"
+
+
+def _format_number(value: float | int) -> str:
+    return str(int(value)) if isinstance(value, int) else f"{float(value):.16g}"
+
+
+def _unit_element(name: str) -> ET.Element:
+    unit = ET.Element("Unit", {"name": name})
+    exps = KNOWN_UNITS.get(name)
+    if exps:
+        attrib = {k: _format_number(exps[k]) for k in _BASE_UNIT_ORDER if k in exps}
+        ET.SubElement(unit, "BaseUnit", attrib)
+    return unit
+
+
+def postprocess_model_description(
+    xml_bytes: bytes,
+    variable_meta: dict[str, dict],
+    output_dependencies: dict[str, list[str]],
+) -> tuple[bytes, list[str]]:
+    """Return the fixed modelDescription and a list of notes (unknown units, bad names).
+
+    Raises
+    ------
+    ValueError
+        If ``variable_meta`` or ``output_dependencies`` name a variable the FMU lacks.
+    """
+    root = ET.fromstring(xml_bytes)
+    notes: list[str] = []
+    model_vars = root.find("ModelVariables")
+    svs = list(model_vars)
+    by_name = {sv.get("name"): sv for sv in svs}
+    index_of = {sv.get("name"): i + 1 for i, sv in enumerate(svs)}
+
+    unknown = sorted(set(variable_meta) - set(by_name))
+    if unknown:
+        raise ValueError(f"VARIABLE_META names unknown variables: {unknown}")
+    unknown = sorted(set(output_dependencies) - set(by_name))
+    if unknown:
+        raise ValueError(f"OUTPUT_DEPENDENCIES names unknown variables: {unknown}")
+
+    units_used: list[str] = []
+    for sv in svs:
+        name = sv.get("name")
+        type_el = sv[0]
+        causality = sv.get("causality", "local")
+        if sv.get("variability") is None:
+            sv.set("variability", _default_variability(causality, type_el.tag))
+        meta = variable_meta.get(name, {})
+        if "description" in meta and not sv.get("description"):
+            sv.set("description", meta["description"])
+        for key in ("unit", "displayUnit", "min", "max", "nominal", "quantity"):
+            if key not in meta:
+                continue
+            if key in ("unit", "displayUnit", "nominal") and type_el.tag != "Real":
+                raise ValueError(f"{key} given for non-Real variable {name!r}")
+            value = meta[key]
+            type_el.set(key, value if isinstance(value, str) else _format_number(value))
+        unit = type_el.get("unit")
+        if unit is not None and unit not in units_used:
+            units_used.append(unit)
+
+    # <UnitDefinitions> goes right after <CoSimulation> (schema order).
+    for old in root.findall("UnitDefinitions"):
+        root.remove(old)
+    if units_used:
+        unit_defs = ET.Element("UnitDefinitions")
+        for unit in sorted(units_used):
+            if unit not in KNOWN_UNITS:
+                notes.append(f"unit {unit!r} has no SI decomposition in KNOWN_UNITS")
+            unit_defs.append(_unit_element(unit))
+        cosim_pos = list(root).index(root.find("CoSimulation"))
+        root.insert(cosim_pos + 1, unit_defs)
+
+    # Rebuild <ModelStructure> from scratch.
+    old_structure = root.find("ModelStructure")
+    if old_structure is not None:
+        root.remove(old_structure)
+    structure = ET.SubElement(root, "ModelStructure")
+    outputs = [sv for sv in svs if sv.get("causality") == "output"]
+    if outputs:
+        out_el = ET.SubElement(structure, "Outputs")
+        for sv in outputs:
+            name = sv.get("name")
+            deps = output_dependencies.get(name, [])
+            for dep in deps:
+                if by_name[dep].get("causality") != "input":
+                    raise ValueError(f"output {name!r} depends on {dep!r}, which is no input")
+            attrib = {"index": str(index_of[name]),
+                      "dependencies": " ".join(str(index_of[d]) for d in deps)}
+            if deps:
+                attrib["dependenciesKind"] = " ".join("dependent" for _ in deps)
+            ET.SubElement(out_el, "Unknown", attrib)
+    initial_unknowns = [
+        sv for sv in svs
+        if (sv.get("causality") == "output"
+            and sv.get("initial", "calculated") in ("approx", "calculated"))
+        or sv.get("causality") == "calculatedParameter"
+    ]
+    if initial_unknowns:
+        init_el = ET.SubElement(structure, "InitialUnknowns")
+        for sv in initial_unknowns:
+            # no dependencies attribute: depends on all knowns (parameters, start values)
+            ET.SubElement(init_el, "Unknown", {"index": str(index_of[sv.get("name")])})
+
+    ET.indent(root, space="  ")
+    return ET.tostring(root, encoding="UTF-8", xml_declaration=True), notes
+
+
+def compile_status_shim(work_dir: Path) -> Path | None:
+    """Compile the Linux status shim into ``work_dir``; None (with a warning) if impossible."""
+    import shutil
+
+    import fmpy
+
+    if not sys.platform.startswith("linux"):
+        print("[build_fmu] warning: status shim is built on Linux only; FMU left unwrapped")
+        return None
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        print("[build_fmu] warning: no C compiler found; FMU left without the status shim "
+              "(errors will be logged but the call returns fmi2OK)")
+        return None
+    headers = Path(fmpy.__file__).parent / "c-code"
+    work_dir.mkdir(parents=True, exist_ok=True)
+    out = work_dir / "fmi2_status_shim.so"
+    cmd = [cc, "-O2", "-shared", "-fPIC", "-Wall", "-Wextra", "-Werror", f"-I{headers}",
+           "-o", str(out), str(SHIM_SOURCE), "-ldl"]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(f"compiling the status shim failed:\n{proc.stderr}")
+    return out
+
+
+def rewrite_fmu(
+    fmu: Path, model_description: bytes, requirements: list[str], model_identifier: str,
+    shim: Path | None,
+) -> None:
+    """Replace modelDescription.xml, add resources/requirements.txt, wrap the binary."""
+    linux_binary = f"binaries/linux64/{model_identifier}.so"
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(fmu) as src, zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as dst:
+        names = set(src.namelist())
+        for info in src.infolist():
+            if info.filename in ("modelDescription.xml", "resources/requirements.txt"):
+                continue
+            if shim is not None and info.filename == linux_binary:
+                continue
+            dst.writestr(info, src.read(info.filename))
+        dst.writestr("modelDescription.xml", model_description)
+        dst.writestr("resources/requirements.txt", "\n".join(requirements) + "\n")
+        if shim is not None:
+            if linux_binary not in names:
+                raise ValueError(f"{fmu.name} has no {linux_binary} to wrap")
+            dst.writestr(f"binaries/linux64/{SHIM_INNER_NAME}", src.read(linux_binary))
+            dst.writestr(linux_binary, shim.read_bytes())
+    fmu.write_bytes(buffer.getvalue())
+
+
+def build_one(name: str, out_dir: Path) -> Path:
+    """Build and post-process one FMU (run this in a fresh process)."""
+    from pythonfmu import FmuBuilder
+
+    entry = next(e for e in REGISTRY if e[0] == name)
+    script = script_path(entry)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    tmp_fmu = out_dir / f".{name}.building.fmu"
+    built = FmuBuilder.build_FMU(
+        script,
+        dest=tmp_fmu,
+        project_files=project_files(entry),
+        canGetAndSetFMUstate=True,
+        canSerializeFMUstate=True,
+    )
+    module = importlib.import_module(script.stem)  # already imported by the builder
+    with zipfile.ZipFile(built) as zf:
+        xml_bytes = zf.read("modelDescription.xml")
+    model_name = ET.fromstring(xml_bytes).get("modelName")
+    if model_name != name:
+        raise ValueError(f"{script.name} defines model {model_name!r}, registry expects {name!r}")
+    fixed, notes = postprocess_model_description(
+        xml_bytes,
+        getattr(module, "VARIABLE_META", {}),
+        getattr(module, "OUTPUT_DEPENDENCIES", {}),
+    )
+    for note in notes:
+        print(f"[build_fmu] {name}: note: {note}")
+    shim = compile_status_shim(out_dir / ".shim" / name)
+    rewrite_fmu(built, fixed, list(getattr(module, "REQUIREMENTS", DEFAULT_REQUIREMENTS)),
+                model_name, shim)
+    final = out_dir / f"{name}.fmu"
+    built.replace(final)
+    return final
+
+
+def validate(fmu: Path) -> list[str]:
+    from fmpy.validation import validate_fmu
+
+    return list(validate_fmu(str(fmu)))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("names", nargs="*", help="FMUs to build (default: all available)")
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output directory")
+    parser.add_argument("--_one", dest="one", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    out_dir = args.out.resolve()
+
+    if args.one:
+        path = build_one(args.one, out_dir)
+        print(f"[build_fmu] built {path}")
+        return 0
+
+    known = [e[0] for e in REGISTRY]
+    unknown = [n for n in args.names if n not in known]
+    if unknown:
+        parser.error(f"unknown FMU name(s) {unknown}; known: {known}")
+    selected = [e for e in REGISTRY if not args.names or e[0] in args.names]
+
+    failed: list[str] = []
+    built: list[Path] = []
+    for entry in selected:
+        name = entry[0]
+        if not available(entry):
+            print(f"[build_fmu] SKIP {name}: {script_path(entry)} does not exist (yet)")
+            continue
+        t0 = time.perf_counter()
+        proc = subprocess.run(
+            [sys.executable, str(Path(__file__).resolve()), "--_one", name, "--out", str(out_dir)],
+            cwd=ROOT, capture_output=True, text=True,
+        )
+        sys.stdout.write(proc.stdout)
+        if proc.returncode != 0:
+            sys.stderr.write(proc.stderr)
+            print(f"[build_fmu] FAILED to build {name} (exit {proc.returncode})")
+            failed.append(name)
+            continue
+        print(f"[build_fmu] {name}: built in {time.perf_counter() - t0:.1f} s")
+        built.append(out_dir / f"{name}.fmu")
+
+    for fmu in built:
+        problems = validate(fmu)
+        if problems:
+            failed.append(fmu.stem)
+            print(f"[build_fmu] {fmu.name}: fmpy validation reports {len(problems)} problem(s):")
+            for p in problems:
+                print(f"    - {p}")
+        else:
+            print(f"[build_fmu] {fmu.name}: fmpy validation OK")
+
+    if failed:
+        print(f"[build_fmu] FAILED: {sorted(set(failed))}")
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,217 @@
+/*
+ * fmi2_status_shim.c: a thin FMI 2.0 co-simulation wrapper around the pythonfmu
+ * export library, so that a Python facade can report fmi2Warning / fmi2Error.
+ *
+ * Why: pythonfmu 0.7 turns every Python exception into fmi2Fatal, and a fatal status
+ * forbids the host to call the instance again. A serious FMU rejects a bad parameter
+ * with fmi2Error and a message naming it. Our facades never raise into the bridge;
+ * they log the problem with status warning or error through the FMU logger. This shim
+ * sits in binaries/<platform>/<modelIdentifier>.so, loads the real pythonfmu library
+ * (renamed pythonfmu-export.so next to it), forwards every call, watches the log
+ * messages emitted during the call, and returns the worst status logged (capped at
+ * fmi2Error) when the call itself returned fmi2OK. A real fmi2Fatal from the bridge
+ * (an exception that escaped a facade) stays fatal.
+ *
+ * The inner library only delivers log messages while debug logging is on, so the shim
+ * keeps it on and filters itself: messages of status warning and worse always reach the
+ * host (the FMI standard expects errors to be reported whatever the debug setting),
+ * others only while the host has debug logging on.
+ *
+ * It also forwards log messages as "%s" arguments: pythonfmu passes the message as the
+ * format string, which would make a '%' in a traceback undefined behaviour in the host.
+ */
+#define _GNU_SOURCE
+#include <dlfcn.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "fmi2Functions.h"
+
+#define REAL_LIB_NAME "pythonfmu-export.so"
+
+typedef struct {
+    fmi2Component inner;
+    fmi2CallbackFunctions host;  /* copy of the host's callbacks */
+    fmi2CallbackFunctions mine;  /* handed to the inner library */
+    fmi2Status worst;            /* worst status logged during the current call */
+    int host_logging;            /* host asked for debug logging */
+} Shim;
+
+static void *real_lib = NULL;
+
+#define REAL(name) static name##TYPE *real_##name = NULL;
+REAL(fmi2GetTypesPlatform) REAL(fmi2GetVersion) REAL(fmi2SetDebugLogging)
+REAL(fmi2Instantiate) REAL(fmi2FreeInstance) REAL(fmi2SetupExperiment)
+REAL(fmi2EnterInitializationMode) REAL(fmi2ExitInitializationMode) REAL(fmi2Terminate)
+REAL(fmi2Reset) REAL(fmi2GetReal) REAL(fmi2GetInteger) REAL(fmi2GetBoolean)
+REAL(fmi2GetString) REAL(fmi2SetReal) REAL(fmi2SetInteger) REAL(fmi2SetBoolean)
+REAL(fmi2SetString) REAL(fmi2GetFMUstate) REAL(fmi2SetFMUstate) REAL(fmi2FreeFMUstate)
+REAL(fmi2SerializedFMUstateSize) REAL(fmi2SerializeFMUstate)
+REAL(fmi2DeSerializeFMUstate) REAL(fmi2GetDirectionalDerivative)
+REAL(fmi2SetRealInputDerivatives) REAL(fmi2GetRealOutputDerivatives) REAL(fmi2DoStep)
+REAL(fmi2CancelStep) REAL(fmi2GetStatus) REAL(fmi2GetRealStatus)
+REAL(fmi2GetIntegerStatus) REAL(fmi2GetBooleanStatus) REAL(fmi2GetStringStatus)
+
+static int load_real(void)
+{
+    if (real_lib) return 1;
+    Dl_info info;
+    if (!dladdr((void *)&load_real, &info) || !info.dli_fname) return 0;
+    char path[4096];
+    const char *slash = strrchr(info.dli_fname, '/');
+    size_t dir_len = slash ? (size_t)(slash - info.dli_fname + 1) : 0;
+    if (dir_len + strlen(REAL_LIB_NAME) + 1 > sizeof path) return 0;
+    memcpy(path, info.dli_fname, dir_len);
+    strcpy(path + dir_len, REAL_LIB_NAME);
+    void *lib = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+    if (!lib) return 0;
+#define LOAD(name) real_##name = (name##TYPE *)dlsym(lib, #name); if (!real_##name) return 0;
+    LOAD(fmi2GetTypesPlatform) LOAD(fmi2GetVersion) LOAD(fmi2SetDebugLogging)
+    LOAD(fmi2Instantiate) LOAD(fmi2FreeInstance) LOAD(fmi2SetupExperiment)
+    LOAD(fmi2EnterInitializationMode) LOAD(fmi2ExitInitializationMode) LOAD(fmi2Terminate)
+    LOAD(fmi2Reset) LOAD(fmi2GetReal) LOAD(fmi2GetInteger) LOAD(fmi2GetBoolean)
+    LOAD(fmi2GetString) LOAD(fmi2SetReal) LOAD(fmi2SetInteger) LOAD(fmi2SetBoolean)
+    LOAD(fmi2SetString) LOAD(fmi2GetFMUstate) LOAD(fmi2SetFMUstate) LOAD(fmi2FreeFMUstate)
+    LOAD(fmi2SerializedFMUstateSize) LOAD(fmi2SerializeFMUstate)
+    LOAD(fmi2DeSerializeFMUstate) LOAD(fmi2GetDirectionalDerivative)
+    LOAD(fmi2SetRealInputDerivatives) LOAD(fmi2GetRealOutputDerivatives) LOAD(fmi2DoStep)
+    LOAD(fmi2CancelStep) LOAD(fmi2GetStatus) LOAD(fmi2GetRealStatus)
+    LOAD(fmi2GetIntegerStatus) LOAD(fmi2GetBooleanStatus) LOAD(fmi2GetStringStatus)
+#undef LOAD
+    real_lib = lib;
+    return 1;
+}
+
+static void shim_logger(fmi2ComponentEnvironment env, fmi2String instance_name,
+                        fmi2Status status, fmi2String category, fmi2String message, ...)
+{
+    Shim *s = (Shim *)env;
+    fmi2Status counted = status == fmi2Fatal ? fmi2Error : status;
+    if ((counted == fmi2Warning || counted == fmi2Error) && counted > s->worst)
+        s->worst = counted;
+    if (status < fmi2Warning && !s->host_logging) return;
+    if (s->host.logger)
+        s->host.logger(s->host.componentEnvironment, instance_name, status, category,
+                       "%s", message ? message : "");
+}
+
+static fmi2Status merge(Shim *s, fmi2Status real)
+{
+    fmi2Status worst = s->worst;
+    s->worst = fmi2OK;
+    if (real == fmi2OK && worst > fmi2OK) return worst;
+    return real;
+}
+
+#define CALL(expr) do { s->worst = fmi2OK; fmi2Status _st = (expr); return merge(s, _st); } while (0)
+#define SHIM(c) Shim *s = (Shim *)(c); if (!s) return fmi2Error;
+
+const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
+const char *fmi2GetVersion(void) { return fmi2Version; }
+
+fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
+                              fmi2String fmuResourceLocation,
+                              const fmi2CallbackFunctions *functions, fmi2Boolean visible,
+                              fmi2Boolean loggingOn)
+{
+    if (!load_real()) {
+        if (functions && functions->logger)
+            functions->logger(functions->componentEnvironment, instanceName, fmi2Fatal,
+                              "logStatusFatal", "%s",
+                              "cannot load " REAL_LIB_NAME " next to the FMU binary");
+        return NULL;
+    }
+    Shim *s = (Shim *)calloc(1, sizeof(Shim));
+    if (!s) return NULL;
+    if (functions) s->host = *functions;
+    s->mine = s->host;
+    s->mine.logger = shim_logger;
+    s->mine.componentEnvironment = s;
+    s->host_logging = loggingOn == fmi2True;
+    s->inner = real_fmi2Instantiate(instanceName, fmuType, fmuGUID, fmuResourceLocation,
+                                    &s->mine, visible, fmi2True);
+    if (!s->inner) {
+        free(s);
+        return NULL;
+    }
+    return s;
+}
+
+void fmi2FreeInstance(fmi2Component c)
+{
+    Shim *s = (Shim *)c;
+    if (!s) return;
+    real_fmi2FreeInstance(s->inner);
+    free(s);
+}
+
+fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean on, size_t n, const fmi2String cats[])
+{
+    /* The inner library keeps logging everything; the shim filters (see above). */
+    SHIM(c)
+    (void)n; (void)cats;
+    s->host_logging = on == fmi2True;
+    CALL(real_fmi2SetDebugLogging(s->inner, fmi2True, 0, NULL));
+}
+fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean td, fmi2Real tol, fmi2Real t0,
+                               fmi2Boolean sd, fmi2Real t1)
+{ SHIM(c) CALL(real_fmi2SetupExperiment(s->inner, td, tol, t0, sd, t1)); }
+fmi2Status fmi2EnterInitializationMode(fmi2Component c)
+{ SHIM(c) CALL(real_fmi2EnterInitializationMode(s->inner)); }
+fmi2Status fmi2ExitInitializationMode(fmi2Component c)
+{ SHIM(c) CALL(real_fmi2ExitInitializationMode(s->inner)); }
+fmi2Status fmi2Terminate(fmi2Component c) { SHIM(c) CALL(real_fmi2Terminate(s->inner)); }
+fmi2Status fmi2Reset(fmi2Component c) { SHIM(c) CALL(real_fmi2Reset(s->inner)); }
+fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Real v[])
+{ SHIM(c) CALL(real_fmi2GetReal(s->inner, vr, n, v)); }
+fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Integer v[])
+{ SHIM(c) CALL(real_fmi2GetInteger(s->inner, vr, n, v)); }
+fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Boolean v[])
+{ SHIM(c) CALL(real_fmi2GetBoolean(s->inner, vr, n, v)); }
+fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2String v[])
+{ SHIM(c) CALL(real_fmi2GetString(s->inner, vr, n, v)); }
+fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Real v[])
+{ SHIM(c) CALL(real_fmi2SetReal(s->inner, vr, n, v)); }
+fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Integer v[])
+{ SHIM(c) CALL(real_fmi2SetInteger(s->inner, vr, n, v)); }
+fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Boolean v[])
+{ SHIM(c) CALL(real_fmi2SetBoolean(s->inner, vr, n, v)); }
+fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2String v[])
+{ SHIM(c) CALL(real_fmi2SetString(s->inner, vr, n, v)); }
+fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *st)
+{ SHIM(c) CALL(real_fmi2GetFMUstate(s->inner, st)); }
+fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate st)
+{ SHIM(c) CALL(real_fmi2SetFMUstate(s->inner, st)); }
+fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *st)
+{ SHIM(c) CALL(real_fmi2FreeFMUstate(s->inner, st)); }
+fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate st, size_t *size)
+{ SHIM(c) CALL(real_fmi2SerializedFMUstateSize(s->inner, st, size)); }
+fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate st, fmi2Byte b[], size_t size)
+{ SHIM(c) CALL(real_fmi2SerializeFMUstate(s->inner, st, b, size)); }
+fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte b[], size_t size, fmi2FMUstate *st)
+{ SHIM(c) CALL(real_fmi2DeSerializeFMUstate(s->inner, b, size, st)); }
+fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference u[], size_t nu,
+                                        const fmi2ValueReference z[], size_t nz,
+                                        const fmi2Real dv[], fmi2Real dz[])
+{ SHIM(c) CALL(real_fmi2GetDirectionalDerivative(s->inner, u, nu, z, nz, dv, dz)); }
+fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t n,
+                                       const fmi2Integer order[], const fmi2Real v[])
+{ SHIM(c) CALL(real_fmi2SetRealInputDerivatives(s->inner, vr, n, order, v)); }
+fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t n,
+                                        const fmi2Integer order[], fmi2Real v[])
+{ SHIM(c) CALL(real_fmi2GetRealOutputDerivatives(s->inner, vr, n, order, v)); }
+fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noPrior)
+{ SHIM(c) CALL(real_fmi2DoStep(s->inner, t, h, noPrior)); }
+fmi2Status fmi2CancelStep(fmi2Component c) { SHIM(c) CALL(real_fmi2CancelStep(s->inner)); }
+fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind k, fmi2Status *v)
+{ SHIM(c) CALL(real_fmi2GetStatus(s->inner, k, v)); }
+fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind k, fmi2Real *v)
+{ SHIM(c) CALL(real_fmi2GetRealStatus(s->inner, k, v)); }
+fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind k, fmi2Integer *v)
+{ SHIM(c) CALL(real_fmi2GetIntegerStatus(s->inner, k, v)); }
+fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind k, fmi2Boolean *v)
+{ SHIM(c) CALL(real_fmi2GetBooleanStatus(s->inner, k, v)); }
+fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind k, fmi2String *v)
+{ SHIM(c) CALL(real_fmi2GetStringStatus(s->inner, k, v)); }

@@ -1,0 +1,126 @@
+"""Aircraft FMU (FMI 2.0 co-simulation): seed-002 longitudinal dynamics, DESIGN §4.
+
+Timing: ``do_step(t, h)`` integrates exactly (ZOH matrix exponential) with throttle and
+elevator held at their values set for t; at t + h it publishes the true states x(t + h)
+and the sensor outputs y(t + h) = C x(t + h) + noise (no direct feedthrough, D = 0).
+Before the first step the outputs are C x0 + noise.  Model: ``gd_aircraft_core``.
+"""
+
+from __future__ import annotations
+
+import traceback
+from typing import Any
+
+import numpy as np
+from gd_aircraft_core import INPUT_NAMES, OUTPUT_NAMES, STATE_NAMES, AircraftModel
+from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real
+from pythonfmu.default_experiment import DefaultExperiment
+from pythonfmu.enums import Fmi2Status
+
+_UNITS = {"v": "m/s", "alpha": "rad", "q": "rad/s", "theta": "rad", "gamma": "rad", "h": "m"}
+_DOC = {"v": "airspeed perturbation", "alpha": "angle of attack", "q": "pitch rate",
+        "theta": "pitch angle", "gamma": "flight-path angle theta - alpha",
+        "h": "altitude perturbation"}
+
+VARIABLE_META: dict[str, dict] = {"throttle": {"unit": "1"}, "elevator": {"unit": "rad"},
+                                  "seed": {"min": 0}}
+for _n in OUTPUT_NAMES:
+    VARIABLE_META[f"y_{_n}"] = {"unit": _UNITS[_n]}
+    VARIABLE_META[f"noise_std_{_n}"] = {"unit": _UNITS[_n], "min": 0.0}
+for _n in STATE_NAMES:
+    VARIABLE_META[f"x_{_n}"] = {"unit": _UNITS[_n]}
+    VARIABLE_META[f"x0_{_n}"] = {"unit": _UNITS[_n]}
+OUTPUT_DEPENDENCIES: dict[str, list[str]] = {}
+REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10"]
+
+
+class Aircraft(Fmi2Slave):
+    author = "gyrodiag"
+    description = (
+        "Seed-002 longitudinal aircraft (Ma 0.8, H 50 m): x=[v, alpha, q, theta, h], "
+        "u=[throttle, elevator]; exact ZOH integration; sensor outputs y = C x + seeded "
+        "noise, y=[v, alpha, q, theta, gamma=theta-alpha, h]. Open loop unstable."
+    )
+    default_experiment = DefaultExperiment(start_time=0.0, stop_time=10.0, step_size=0.01)
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.model = AircraftModel()
+        self._u = np.zeros(2)
+        self._y = self.model.measure()
+        self._x = self.model.x.copy()
+        P, V = Fmi2Causality, Fmi2Variability
+        m = self.model
+        for j, name in enumerate(INPUT_NAMES):
+            self.register_variable(Real(
+                name, causality=P.input, variability=V.continuous, start=0.0,
+                description=f"{name} command (held over the step)",
+                getter=(lambda j=j: float(self._u[j])),
+                setter=(lambda v, j=j: self._u.__setitem__(j, v))))
+        for j, name in enumerate(OUTPUT_NAMES):
+            self.register_variable(Real(
+                f"y_{name}", causality=P.output, variability=V.continuous,
+                description=f"sensor: {_DOC[name]} (with noise)",
+                getter=(lambda j=j: float(self._y[j])),
+                setter=(lambda v, j=j: self._y.__setitem__(j, v))))
+        for j, name in enumerate(STATE_NAMES):
+            self.register_variable(Real(
+                f"x_{name}", causality=P.output, variability=V.continuous,
+                description=f"true state: {_DOC[name]}",
+                getter=(lambda j=j: float(self._x[j])),
+                setter=(lambda v, j=j: self._x.__setitem__(j, v))))
+        for j, name in enumerate(STATE_NAMES):
+            self.register_variable(Real(
+                f"x0_{name}", causality=P.parameter, variability=V.fixed,
+                description=f"initial {_DOC[name]}",
+                getter=(lambda j=j: float(m.x0[j])),
+                setter=(lambda v, j=j: m.x0.__setitem__(j, v))))
+        for j, name in enumerate(OUTPUT_NAMES):
+            self.register_variable(Real(
+                f"noise_std_{name}", causality=P.parameter, variability=V.tunable,
+                description=f"sensor noise standard deviation of y_{name}",
+                getter=(lambda j=j: float(m.noise_std[j])),
+                setter=(lambda v, j=j: m.noise_std.__setitem__(j, v))))
+        self.register_variable(Integer(
+            "seed", causality=P.parameter, variability=V.fixed,
+            description="sensor noise generator seed",
+            getter=lambda: m.seed, setter=lambda v: setattr(m, "seed", int(v))))
+
+    def exit_initialization_mode(self) -> None:
+        try:
+            self.model.check()
+            self.model.reset()
+            self._publish()
+        except Exception:
+            self._fail("exit_initialization_mode")
+
+    def do_step(self, current_time: float, step_size: float) -> bool:
+        try:
+            self.model.check()
+            self.model.step(step_size, self._u)
+            self._publish()
+        except Exception:
+            self._fail("do_step")
+        return True
+
+    def _publish(self) -> None:
+        self._x = self.model.x.copy()
+        self._y = self.model.measure()
+
+    def _fail(self, where: str) -> None:
+        # pythonfmu 0.7 turns any Python exception into fmi2Fatal; instead log the
+        # traceback at error status and return: the status shim in the FMU binary
+        # (fmu_src/shim) turns the logged error into fmi2Error for this call.
+        self.log(f"Aircraft.{where} failed:\n{traceback.format_exc()}", status=Fmi2Status.error)
+
+    def _get_fmu_state(self) -> dict[str, Any]:
+        state = super()._get_fmu_state()
+        model_state = self.model.get_state()
+        state["__model__"] = {"x": model_state["x"].tolist(), "rng": model_state["rng"]}
+        return state
+
+    def _set_fmu_state(self, state: dict[str, Any]) -> None:
+        state = dict(state)
+        model_state = state.pop("__model__")
+        super()._set_fmu_state(state)
+        self.model.set_state(model_state)

@@ -1,0 +1,175 @@
+"""PitchController FMU (FMI 2.0 co-simulation): LQR pitch-attitude hold for the Aircraft.
+
+Reads the (possibly faulty) sensor values alpha_meas, q_meas, theta_meas and a pitch
+command (input ``theta_cmd_in`` or, with ``command_source`` = 1, an internal ±amplitude
+square wave), outputs ``elevator`` and a constant ``throttle``.  Timing: ``do_step(t, h)``
+computes the elevator from the inputs of the step start t and the command at t, then
+integrates the pitch error; the elevator is published at t + h (one communication step
+of latency — keep h ≤ 0.05 s, see the margins in ``gd_pitch_controller_design``).
+Before the first step ``elevator`` is computed from the input start values.
+"""
+
+from __future__ import annotations
+
+import traceback
+from typing import Any
+
+from gd_pitch_controller_design import (
+    PitchController as PitchLaw,
+)
+from gd_pitch_controller_design import (
+    design_pitch_controller,
+    square_wave,
+)
+from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real
+from pythonfmu.default_experiment import DefaultExperiment
+from pythonfmu.enums import Fmi2Status
+
+COMMAND_INPUT = 0
+COMMAND_SQUARE_WAVE = 1
+
+VARIABLE_META: dict[str, dict] = {
+    "alpha_meas": {"unit": "rad"},
+    "q_meas": {"unit": "rad/s"},
+    "theta_meas": {"unit": "rad"},
+    "theta_cmd_in": {"unit": "rad"},
+    "elevator": {"unit": "rad"},
+    "throttle": {"unit": "1"},
+    "theta_cmd": {"unit": "rad"},
+    "command_source": {"min": COMMAND_INPUT, "max": COMMAND_SQUARE_WAVE},
+    "cmd_amplitude": {"unit": "rad"},
+    "cmd_period": {"unit": "s", "min": 0.0},
+    "throttle_trim": {"unit": "1"},
+    "q_alpha": {"min": 0.0},
+    "q_q": {"min": 0.0},
+    "q_theta": {"min": 0.0},
+    "q_int": {"min": 0.0},
+    "r": {"min": 0.0},
+    "k_alpha": {"unit": "1"},
+    "k_q": {"unit": "s"},
+    "k_theta": {"unit": "1"},
+    "k_int": {"unit": "1/s"},
+}
+OUTPUT_DEPENDENCIES: dict[str, list[str]] = {}
+REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10"]
+
+
+class PitchController(Fmi2Slave):
+    author = "gyrodiag"
+    description = (
+        "LQR pitch-attitude controller (integral action, exact trim feed-forward) for the "
+        "seed-002 aircraft. elevator(t+h) computed from sensor inputs at t. Command: input "
+        "theta_cmd_in (command_source=0) or internal square wave (command_source=1)."
+    )
+    default_experiment = DefaultExperiment(start_time=0.0, stop_time=120.0, step_size=0.01)
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.alpha_meas = 0.0
+        self.q_meas = 0.0
+        self.theta_meas = 0.0
+        self.theta_cmd_in = 0.0
+        self.command_source = COMMAND_SQUARE_WAVE
+        self.cmd_amplitude = 0.25
+        self.cmd_period = 20.0
+        self.throttle_trim = 0.0
+        self.q_alpha, self.q_q, self.q_theta, self.q_int, self.r = 1.0, 1.0, 10.0, 1.0e-3, 100.0
+        self._t0 = 0.0
+        self.law = PitchLaw(design_pitch_controller())
+        self._publish_gains()
+        self.theta_cmd = 0.0
+        self.elevator = 0.0
+        self.throttle = 0.0
+        P, V = Fmi2Causality, Fmi2Variability
+        for name, doc in [("alpha_meas", "measured angle of attack"),
+                          ("q_meas", "measured pitch rate"),
+                          ("theta_meas", "measured pitch angle"),
+                          ("theta_cmd_in", "pilot pitch command (used if command_source=0)")]:
+            self.register_variable(Real(name, causality=P.input, variability=V.continuous,
+                                        start=0.0, description=doc))
+        for name, doc in [("elevator", "elevator deflection command"),
+                          ("throttle", "throttle command (= throttle_trim)"),
+                          ("theta_cmd", "pitch command used for the published elevator")]:
+            self.register_variable(Real(name, causality=P.output, variability=V.continuous,
+                                        description=doc))
+        self.register_variable(Integer(
+            "command_source", causality=P.parameter, variability=V.tunable,
+            description="0: theta_cmd_in input, 1: internal square wave"))
+        for name, var, doc in [
+            ("cmd_amplitude", V.tunable, "square-wave amplitude (+A first half period, -A second)"),
+            ("cmd_period", V.tunable, "square-wave period"),
+            ("throttle_trim", V.tunable, "constant throttle output"),
+            ("q_alpha", V.fixed, "LQR weight on alpha"),
+            ("q_q", V.fixed, "LQR weight on q"),
+            ("q_theta", V.fixed, "LQR weight on theta"),
+            ("q_int", V.fixed, "LQR weight on the pitch-error integral"),
+            ("r", V.fixed, "LQR weight on the elevator"),
+        ]:
+            self.register_variable(Real(name, causality=P.parameter, variability=var,
+                                        description=doc))
+        for name, doc in [("k_alpha", "LQR gain on alpha (rad/rad)"),
+                          ("k_q", "LQR gain on q (rad per rad/s)"),
+                          ("k_theta", "LQR gain on theta (rad/rad)"),
+                          ("k_int", "LQR gain on the pitch-error integral (rad per rad s)")]:
+            self.register_variable(Real(name, causality=P.calculatedParameter,
+                                        variability=V.fixed, description=doc))
+
+    def _publish_gains(self) -> None:
+        self.k_alpha, self.k_q, self.k_theta, self.k_int = (float(v) for v in self.law.design.k)
+
+    def _command(self, t: float) -> float:
+        if self.command_source == COMMAND_SQUARE_WAVE:
+            if not self.cmd_period > 0.0:
+                raise ValueError(f"cmd_period must be > 0 s, got {self.cmd_period!r}")
+            return square_wave(t, self.cmd_amplitude, self.cmd_period)
+        if self.command_source == COMMAND_INPUT:
+            return self.theta_cmd_in
+        raise ValueError(f"command_source must be 0 or 1, got {self.command_source!r}")
+
+    def setup_experiment(self, start_time: float, stop_time: float | None = None,
+                         tolerance: float | None = None) -> None:
+        self._t0 = float(start_time)
+
+    def exit_initialization_mode(self) -> None:
+        try:
+            self.law = PitchLaw(design_pitch_controller(
+                self.q_alpha, self.q_q, self.q_theta, self.q_int, self.r))
+            self._publish_gains()
+            self.theta_cmd = self._command(self._t0)
+            self.elevator = self.law.elevator(self.alpha_meas, self.q_meas, self.theta_meas,
+                                              self.theta_cmd)
+            self.throttle = float(self.throttle_trim)
+        except Exception:
+            self._fail("exit_initialization_mode")
+
+    def do_step(self, current_time: float, step_size: float) -> bool:
+        try:
+            cmd = self._command(current_time)
+            self.elevator = self.law.update(step_size, self.alpha_meas, self.q_meas,
+                                            self.theta_meas, cmd)
+            self.theta_cmd = cmd
+            self.throttle = float(self.throttle_trim)
+        except Exception:
+            self._fail("do_step")
+        return True
+
+    def _fail(self, where: str) -> None:
+        # pythonfmu 0.7 turns any Python exception into fmi2Fatal; instead log the
+        # traceback at error status and return: the status shim in the FMU binary
+        # (fmu_src/shim) turns the logged error into fmi2Error for this call.
+        self.log(f"PitchController.{where} failed:\n{traceback.format_exc()}",
+                 status=Fmi2Status.error)
+
+    def _get_fmu_state(self) -> dict[str, Any]:
+        state = super()._get_fmu_state()
+        state["__law__"] = self.law.get_state()
+        return state
+
+    def _set_fmu_state(self, state: dict[str, Any]) -> None:
+        state = dict(state)
+        law_state = state.pop("__law__")
+        super()._set_fmu_state(state)
+        # gains are calculated parameters of fixed weights: rebuild, then restore ξ
+        self.law = PitchLaw(design_pitch_controller(
+            self.q_alpha, self.q_q, self.q_theta, self.q_int, self.r))
+        self.law.set_state(law_state)

@@ -1,0 +1,149 @@
+"""Shared pytest fixtures: FMUs built once per session, FMU scenarios in fresh processes.
+
+* ``fmu_dir`` (session): builds every available FMU with ``python build_fmu.py --out DIR``
+  in a subprocess (DESIGN §6.4: never build and simulate in one process) unless all FMUs
+  in DIR are newer than their sources; returns DIR.  DIR is ``build/fmus`` or
+  ``$GYRODIAG_FMU_DIR``.  A file lock serialises concurrent pytest sessions.
+* ``run_fmu_script`` (session): runs ``python SCRIPT FMU_DIR OUT.npz [ARGS]`` in a fresh
+  process (DESIGN §6.11) and returns the arrays saved in OUT.npz.
+* :class:`FmuSlave`: a thin fmpy ``FMU2Slave`` loop helper for those scripts
+  (``sys.path.insert(0, tests_dir); from conftest import FmuSlave``).  It never unloads
+  the shared library, because unloading and reloading a pythonfmu binary in one process
+  has crashed before.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import importlib.util
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def load_builder() -> Any:
+    """Import build_fmu.py as a module (registry and staleness helpers only)."""
+    spec = importlib.util.spec_from_file_location("gd_build_fmu_for_tests", ROOT / "build_fmu.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="session")
+def fmu_dir() -> Path:
+    """Directory holding every available FMU, freshly built if any is stale."""
+    out = Path(os.environ.get("GYRODIAG_FMU_DIR", ROOT / "build" / "fmus")).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    builder = load_builder()
+    with open(out / ".build.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        stale = builder.stale_fmus(out)
+        if stale:
+            proc = subprocess.run(
+                [sys.executable, str(ROOT / "build_fmu.py"), "--out", str(out)],
+                cwd=ROOT, capture_output=True, text=True,
+            )
+            if proc.returncode != 0:
+                pytest.fail(f"build_fmu.py failed (stale: {stale}):\n{proc.stdout[-4000:]}\n"
+                            f"{proc.stderr[-4000:]}")
+    return out
+
+
+@pytest.fixture(scope="session")
+def run_fmu_script(fmu_dir: Path, tmp_path_factory: pytest.TempPathFactory):
+    """Return ``run(script, *args) -> dict[str, ndarray]`` running SCRIPT in a new process."""
+
+    def run(script: Path | str, *args: str) -> dict[str, np.ndarray]:
+        out = tmp_path_factory.mktemp("fmu_run") / "result.npz"
+        proc = subprocess.run(
+            [sys.executable, str(script), str(fmu_dir), str(out), *args],
+            cwd=ROOT, capture_output=True, text=True,
+        )
+        if proc.returncode != 0:
+            pytest.fail(f"{Path(script).name} failed (exit {proc.returncode}):\n"
+                        f"{proc.stdout[-3000:]}\n{proc.stderr[-6000:]}")
+        with np.load(out) as data:
+            return {k: data[k] for k in data.files}
+
+    return run
+
+
+class FmuSlave:
+    """One co-simulation instance of an FMU through fmpy, addressed by variable name.
+
+    Parameters
+    ----------
+    fmu : path
+        The .fmu file (extracted once per process and path).
+    instance_name : str
+        FMI instance name.
+    parameters : dict
+        Start values (parameters or inputs) set before initialisation.
+    start_time : float
+        Experiment start time (s).
+    """
+
+    _extracted: ClassVar[dict[str, str]] = {}
+
+    def __init__(self, fmu: Path | str, instance_name: str = "instance",
+                 parameters: dict[str, Any] | None = None, start_time: float = 0.0) -> None:
+        from fmpy import extract, read_model_description
+        from fmpy.fmi2 import FMU2Slave
+
+        key = str(Path(fmu).resolve())
+        if key not in self._extracted:
+            self._extracted[key] = extract(key)
+        unzipdir = self._extracted[key]
+        self.md = read_model_description(unzipdir)
+        self.vars = {v.name: v for v in self.md.modelVariables}
+        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=unzipdir,
+                             modelIdentifier=self.md.coSimulation.modelIdentifier,
+                             instanceName=instance_name)
+        self.fmu.instantiate(loggingOn=True)
+        self.fmu.setupExperiment(startTime=start_time)
+        for name, value in (parameters or {}).items():
+            self.set(name, value)
+        self.fmu.enterInitializationMode()
+        self.fmu.exitInitializationMode()
+        self.time = start_time
+
+    def set(self, name: str, value: Any) -> None:
+        v = self.vars[name]
+        if v.type == "Real":
+            self.fmu.setReal([v.valueReference], [float(value)])
+        elif v.type in ("Integer", "Enumeration"):
+            self.fmu.setInteger([v.valueReference], [int(value)])
+        elif v.type == "Boolean":
+            self.fmu.setBoolean([v.valueReference], [bool(value)])
+        else:
+            raise TypeError(f"unsupported type {v.type} of {name}")
+
+    def get(self, name: str) -> Any:
+        v = self.vars[name]
+        if v.type == "Real":
+            return self.fmu.getReal([v.valueReference])[0]
+        if v.type in ("Integer", "Enumeration"):
+            return self.fmu.getInteger([v.valueReference])[0]
+        if v.type == "Boolean":
+            return bool(self.fmu.getBoolean([v.valueReference])[0])
+        raise TypeError(f"unsupported type {v.type} of {name}")
+
+    def get_many(self, names: list[str]) -> list[float]:
+        """Real values of several variables in one call."""
+        return list(self.fmu.getReal([self.vars[n].valueReference for n in names]))
+
+    def step(self, h: float) -> None:
+        self.fmu.doStep(currentCommunicationPoint=self.time, communicationStepSize=h)
+        self.time += h
+
+    def close(self) -> None:
+        """Terminate and free the instance, keeping the shared library loaded."""
+        self.fmu.terminate()
+        self.fmu.fmi2FreeInstance(self.fmu.component)
