@@ -282,23 +282,89 @@ def compile_status_shim(work_dir: Path) -> Path | None:
     return out
 
 
+HOST_NOTES = """
+<h2>Using this FMU</h2>
+<p>This is an FMI 2.0 co-simulation FMU made with pythonfmu 0.7: its binary starts the
+<em>host's</em> Python interpreter and imports the model from <code>resources/</code>.
+The Python packages in <code>resources/requirements.txt</code> must be installed in that
+interpreter (<code>pip install -r requirements.txt</code>).</p>
+<ul>
+<li><b>Python hosts</b> (FMPy, the gyrodiag harness): nothing else to do.</li>
+<li><b>Hosts that are not Python processes</b> (Simulink, OMSimulator, libcosim, a C
+master) on Linux: the binary needs the Python shared library already loaded; start the
+host with <code>LD_PRELOAD=/path/to/libpython3.X.so</code> (the library of the Python
+whose packages are installed, e.g. <code>$(python3 -c "import sysconfig,os;
+print(os.path.join(sysconfig.get_config_var('LIBDIR'),
+sysconfig.get_config_var('LDLIBRARY')))")</code>), and make sure that interpreter's
+<code>PYTHONHOME</code>/<code>PYTHONPATH</code> find the packages.</li>
+<li>All pythonfmu FMUs in one process share one interpreter: load each FMU once per
+process and run long campaigns in separate processes.</li>
+<li>Errors: a bad parameter or an unexpected problem is logged through the FMU logger and
+the call returns fmi2Error (binaries/linux64 carries a small status shim around
+pythonfmu's library, which itself would report fmi2Fatal). The Windows binary is
+pythonfmu's own, without the shim.</li>
+<li>The FMU supports fmi2Get/SetFMUstate and state serialisation; the saved state holds
+every internal filter state, covariance and window.</li>
+</ul>
+"""
+
+
+def documentation_html(model_description: bytes, module_doc: str) -> bytes:
+    """documentation/index.html: the script's docstring, usage notes, variable table."""
+    import html
+
+    root = ET.fromstring(model_description)
+    rows = []
+    for sv in root.find("ModelVariables"):
+        t = sv[0]
+        cells = [
+            sv.get("name"), t.tag, sv.get("causality", "local"), sv.get("variability", ""),
+            t.get("unit", ""), t.get("start", ""), t.get("min", ""), t.get("max", ""),
+            sv.get("description", ""),
+        ]
+        rows.append("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in cells) + "</tr>")
+    head = ("name", "type", "causality", "variability", "unit", "start", "min", "max",
+            "description")
+    name = html.escape(root.get("modelName", "FMU"))
+    doc = html.escape(module_doc.strip() or root.get("description", ""))
+    page = f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>{name}</title>
+<style>body{{font-family:sans-serif;max-width:70em;margin:auto}}
+table{{border-collapse:collapse;font-size:90%}}td,th{{border:1px solid #ccc;padding:2px 6px}}
+pre{{white-space:pre-wrap}}</style></head><body>
+<h1>{name}</h1>
+<p>{html.escape(root.get("description", ""))}</p>
+<pre>{doc}</pre>
+{HOST_NOTES}
+<h2>Variables</h2>
+<table><tr>{"".join(f"<th>{h}</th>" for h in head)}</tr>
+{chr(10).join(rows)}
+</table></body></html>
+"""
+    return page.encode("utf-8")
+
+
 def rewrite_fmu(
     fmu: Path, model_description: bytes, requirements: list[str], model_identifier: str,
-    shim: Path | None,
+    shim: Path | None, documentation: bytes | None = None,
 ) -> None:
-    """Replace modelDescription.xml, add resources/requirements.txt, wrap the binary."""
+    """Replace modelDescription.xml, add resources/requirements.txt and the
+    documentation, wrap the Linux binary with the status shim."""
     linux_binary = f"binaries/linux64/{model_identifier}.so"
     buffer = io.BytesIO()
     with zipfile.ZipFile(fmu) as src, zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as dst:
         names = set(src.namelist())
         for info in src.infolist():
-            if info.filename in ("modelDescription.xml", "resources/requirements.txt"):
+            if info.filename in ("modelDescription.xml", "resources/requirements.txt",
+                                 "documentation/index.html"):
                 continue
             if shim is not None and info.filename == linux_binary:
                 continue
             dst.writestr(info, src.read(info.filename))
         dst.writestr("modelDescription.xml", model_description)
         dst.writestr("resources/requirements.txt", "\n".join(requirements) + "\n")
+        if documentation is not None:
+            dst.writestr("documentation/index.html", documentation)
         if shim is not None:
             if linux_binary not in names:
                 raise ValueError(f"{fmu.name} has no {linux_binary} to wrap")
@@ -337,7 +403,7 @@ def build_one(name: str, out_dir: Path) -> Path:
         print(f"[build_fmu] {name}: note: {note}")
     shim = compile_status_shim(out_dir / ".shim" / name)
     rewrite_fmu(built, fixed, list(getattr(module, "REQUIREMENTS", DEFAULT_REQUIREMENTS)),
-                model_name, shim)
+                model_name, shim, documentation_html(fixed, module.__doc__ or ""))
     final = out_dir / f"{name}.fmu"
     built.replace(final)
     return final

@@ -58,6 +58,9 @@ DF_N, DF_P, DF_M = SEED.A.shape[0], SEED.B.shape[1], SEED.C.shape[0]
 PHYSICAL_NAMES = ("c_over_J", "k_over_J", "L_over_J", "lambda_over_J", "Ku_over_KT_J")
 PHYSICAL_UNITS = ("1/s", "1/s2", "rad/s", "1/s2", "1/s2")
 
+#: Packages the host's Python needs (written to resources/requirements.txt).
+REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10", "control>=0.10"]
+
 VARIABLE_META: dict[str, dict[str, Any]] = {}
 
 
