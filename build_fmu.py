@@ -91,6 +91,15 @@ KNOWN_UNITS: dict[str, dict[str, float]] = {
     "rpm": {"rad": 1, "s": -1, "factor": 0.10471975511965977},
     "ohm": {"kg": 1, "m": 2, "s": -3, "A": -2},
     "H": {"kg": 1, "m": 2, "s": -2, "A": -2},
+    "1/s2": {"s": -2},
+    "m/rad": {"m": 1, "rad": -1},
+    "rad/m": {"rad": 1, "m": -1},
+    "m.s/rad": {"m": 1, "s": 1, "rad": -1},
+    "rad.s/m": {"rad": 1, "s": 1, "m": -1},
+    "m/(rad.s)": {"m": 1, "s": -1, "rad": -1},
+    "rad/(m.s)": {"rad": 1, "s": -1, "m": -1},
+    "m/(rad.s2)": {"m": 1, "s": -2, "rad": -1},
+    "rad/(m.s2)": {"rad": 1, "s": -2, "m": -1},
 }
 _BASE_UNIT_ORDER = ("kg", "m", "s", "A", "K", "mol", "cd", "rad", "factor", "offset")
 

@@ -23,7 +23,10 @@ Errors: an invalid parameter, a wrong step or an unexpected exception is logged 
 the FMU logger with the parameter name and allowed range, and the call returns
 fmi2Error (never fmi2Fatal): the status shim in the FMU binary maps the logged error.
 NaN/Inf on a channel's input clears that channel's ``valid`` output, leaves its state
-untouched, and the channel resumes on the next valid sample.
+untouched, and the channel resumes on the next valid sample: its outputs are then those
+of a run without that sample (the channels' own clocks count valid samples, e.g. for the
+learning and calibration windows). Reported times (``dtg.first_alarm_time``) are
+simulation times.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import re
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -62,6 +66,31 @@ PHYSICAL_UNITS = ("1/s", "1/s2", "rad/s", "1/s2", "1/s2")
 REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10", "control>=0.10"]
 
 VARIABLE_META: dict[str, dict[str, Any]] = {}
+
+#: SI exponents of the seed aircraft's signal units (for the units of A, B, C entries).
+_UNIT_EXPONENTS: dict[str, dict[str, int]] = {
+    "1": {}, "m": {"m": 1}, "m/s": {"m": 1, "s": -1}, "rad": {"rad": 1},
+    "rad/s": {"rad": 1, "s": -1},
+}
+
+
+def _unit_ratio(num: str, den: str, per_second: bool = False) -> str:
+    """Unit of num/den (/s), e.g. ("m/s", "rad", True) → "m/(rad.s2)"."""
+    exps = dict(_UNIT_EXPONENTS[num])
+    for base, e in _UNIT_EXPONENTS[den].items():
+        exps[base] = exps.get(base, 0) - e
+    if per_second:
+        exps["s"] = exps.get("s", 0) - 1
+
+    def part(base: str, e: int) -> str:
+        return base if abs(e) == 1 else f"{base}{abs(e)}"
+
+    order = ("m", "rad", "s")
+    top = ".".join(part(b, exps[b]) for b in order if exps.get(b, 0) > 0) or "1"
+    bottom = [part(b, exps[b]) for b in order if exps.get(b, 0) < 0]
+    if not bottom:
+        return top
+    return f"{top}/{bottom[0]}" if len(bottom) == 1 else f"{top}/({'.'.join(bottom)})"
 
 
 def _meta(name: str, unit: str | None = None, lo: float | None = None,
@@ -95,6 +124,9 @@ class Diagnoser(FacadeBase):
         self._df: DFChannel | None = None
         self._ready = False
         self._start_time = 0.0
+        # Host time of the first DTG alarm: the channel's own clock counts valid samples
+        # only, so after a skipped NaN sample it would lag the simulation time.
+        self._dtg_first_alarm_time = math.nan
 
     # ------------------------------------------------------------------ variables
     def _declare(self) -> None:
@@ -123,6 +155,7 @@ class Diagnoser(FacadeBase):
           "Learn nominal theta0 from the learning window (else use dtg.theta0[i])")
         for i in range(1, N_THETA + 1):
             p(f"dtg.theta0[{i}]", "Real", "parameter", 1.0, f"Nominal theta{i}")
+            _meta(f"dtg.theta0[{i}]", "1")
         p("dtg.learn_start_s", "Real", "parameter", 1.0,
           "Start of the theta0 learning window after the first sample")
         _meta("dtg.learn_start_s", "s", 0.0)
@@ -152,6 +185,7 @@ class Diagnoser(FacadeBase):
           "are resolved in the FMU resources; overrides the parameter table")
         p("dtg.max_distance", "Real", "parameter", -1.0,
           "Eq. 7 distance beyond which a fault is unknown (code -1); < 0: no limit")
+        _meta("dtg.max_distance", "1")
         for name in ("Utx", "Uty", "Ux", "Uy"):
             p(f"dtg.{name}", "Real", "input", 0.0, f"DTG signal {name}")
             _meta(f"dtg.{name}", "V")
@@ -159,12 +193,14 @@ class Diagnoser(FacadeBase):
             for i in range(1, N_THETA + 1):
                 p(f"dtg.theta_{axis}[{i}]", "Real", "output", 0.0,
                   f"Identified theta{i}, {axis} axis")
+                _meta(f"dtg.theta_{axis}[{i}]", "1")
                 p(f"dtg.eta_{axis}[{i}]", "Real", "output", 1.0,
                   f"Ratio |theta{i}|/|theta0_{i}|, {axis} axis")
                 _meta(f"dtg.eta_{axis}[{i}]", "1")
         for i in range(1, N_THETA + 1):
             p(f"dtg.theta0_used[{i}]", "Real", "output", 0.0,
               f"Nominal theta{i} in use (0 while learning)")
+            _meta(f"dtg.theta0_used[{i}]", "1")
         for name, unit in zip(PHYSICAL_NAMES, PHYSICAL_UNITS, strict=True):
             p(f"dtg.{name}", "Real", "output", 0.0, f"Identified {name}")
             _meta(f"dtg.{name}", unit)
@@ -173,7 +209,7 @@ class Diagnoser(FacadeBase):
         p("dtg.fault_code", "Integer", "output", 0,
           "0 none, j = nearest signature j, -1 unknown/unclassified")
         p("dtg.first_alarm_time", "Real", "output", -1.0,
-          "Time of the first DTG alarm, -1 if none")
+          "Simulation time of the first DTG alarm (its sample's time), -1 if none")
         _meta("dtg.first_alarm_time", "s")
         p("dtg.valid", "Boolean", "output", True, "Last DTG sample was finite")
         # Grey channel
@@ -214,19 +250,26 @@ class Diagnoser(FacadeBase):
             for j in range(DF_N):
                 p(f"df.A[{i + 1},{j + 1}]", "Real", "parameter", float(A[i, j]),
                   f"Plant matrix A, row {i + 1} ({SEED.state_names[i]})")
+                _meta(f"df.A[{i + 1},{j + 1}]",
+                      _unit_ratio(SEED.state_units[i], SEED.state_units[j], True))
             for j in range(DF_P):
                 p(f"df.B[{i + 1},{j + 1}]", "Real", "parameter", float(B[i, j]),
                   f"Input matrix B, row {i + 1}, input {SEED.input_names[j]}")
+                _meta(f"df.B[{i + 1},{j + 1}]",
+                      _unit_ratio(SEED.state_units[i], SEED.input_units[j], True))
         for i in range(DF_M):
             for j in range(DF_N):
                 p(f"df.C[{i + 1},{j + 1}]", "Real", "parameter", float(C[i, j]),
                   f"Output matrix C, sensor {SEED.output_names[i]}")
+                _meta(f"df.C[{i + 1},{j + 1}]",
+                      _unit_ratio(SEED.output_units[i], SEED.state_units[j]))
         for i in range(DF_N):
             p(f"df.eigenvalue[{i + 1}]", "Real", "parameter", -float(i + 1),
               f"Eigenvalue {i + 1} of A - KC (real, negative, distinct)")
             _meta(f"df.eigenvalue[{i + 1}]", "1/s")
             p(f"df.x0[{i + 1}]", "Real", "parameter", 0.0,
               f"Initial estimate of state {SEED.state_names[i]}")
+            _meta(f"df.x0[{i + 1}]", SEED.state_units[i])
         p("df.calibrate_s", "Real", "parameter", 10.0,
           "Fault-free calibration window for the thresholds; 0: use df.threshold[i]")
         _meta("df.calibrate_s", "s", 0.0)
@@ -236,15 +279,21 @@ class Diagnoser(FacadeBase):
         p("df.k_sigma", "Real", "parameter", 6.0, "Thresholds at k standard deviations")
         _meta("df.k_sigma", "1", 0.0)
         for i in range(DF_M):
+            unit = SEED.output_units[i]
             p(f"df.threshold[{i + 1}]", "Real", "parameter", 1.0,
               f"Main residual threshold of sensor {SEED.output_names[i]} "
               "(used when df.calibrate_s = 0)")
+            _meta(f"df.threshold[{i + 1}]", unit)
             p(f"df.noise_std[{i + 1}]", "Real", "parameter", -1.0,
               f"Noise std of sensor {SEED.output_names[i]}; < 0: threshold / k_sigma")
+            _meta(f"df.noise_std[{i + 1}]", unit)
+            used = [k for k in range(DF_M) if k != i]
             for j in range(DF_M - 1):
                 p(f"df.bank_threshold[{i + 1},{j + 1}]", "Real", "parameter", 1.0,
                   f"Threshold of observer {i + 1} (without sensor {i + 1}) on its "
-                  f"residual {j + 1} (used when df.calibrate_s = 0)")
+                  f"residual {j + 1}, sensor {SEED.output_names[used[j]]} "
+                  "(used when df.calibrate_s = 0)")
+                _meta(f"df.bank_threshold[{i + 1},{j + 1}]", SEED.output_units[used[j]])
         p("df.persistence_k", "Integer", "parameter", 3, "Residual alarm: k of the last n")
         _meta("df.persistence_k", None, 1)
         p("df.persistence_n", "Integer", "parameter", 5, "Residual alarm persistence n")
@@ -254,10 +303,13 @@ class Diagnoser(FacadeBase):
         _meta("df.confirm_samples", None, 1)
         for j in range(DF_P):
             p(f"df.u[{j + 1}]", "Real", "input", 0.0, f"Plant input {SEED.input_names[j]}")
+            _meta(f"df.u[{j + 1}]", SEED.input_units[j])
         for i in range(DF_M):
             p(f"df.y[{i + 1}]", "Real", "input", 0.0, f"Sensor {SEED.output_names[i]}")
+            _meta(f"df.y[{i + 1}]", SEED.output_units[i])
             p(f"df.residual[{i + 1}]", "Real", "output", 0.0,
               f"Detection-filter residual of sensor {SEED.output_names[i]}")
+            _meta(f"df.residual[{i + 1}]", SEED.output_units[i])
             p(f"df.alarm[{i + 1}]", "Boolean", "output", False,
               f"Residual alarm of sensor {SEED.output_names[i]}")
         p("df.calibrating", "Boolean", "output", False, "Thresholds still being learned")
@@ -314,6 +366,7 @@ class Diagnoser(FacadeBase):
     def exit_initialization_mode(self) -> None:
         try:
             self._build_channels()
+            self._dtg_first_alarm_time = math.nan
             self._ready = True
         except (ValueError, TypeError, OSError, KeyError) as exc:
             self._ready = False
@@ -440,6 +493,10 @@ class Diagnoser(FacadeBase):
         codes: list[int] = []
         if self._dtg is not None:
             out = self._dtg.update(v["dtg.Utx"], v["dtg.Uty"], v["dtg.Ux"], v["dtg.Uy"])
+            if math.isnan(self._dtg_first_alarm_time) and not math.isnan(
+                out.first_alarm_time_s
+            ):
+                self._dtg_first_alarm_time = t
             self._copy_dtg(out)
             valid &= out.valid
             if out.alarm:
@@ -485,8 +542,8 @@ class Diagnoser(FacadeBase):
         v["dtg.fault_code"] = int(out.fault_code) if out.alarm else 0
         if out.alarm and out.fault_code == UNKNOWN_CODE:
             v["dtg.fault_code"] = UNKNOWN_CODE
-        first = out.first_alarm_time_s
-        v["dtg.first_alarm_time"] = -1.0 if np.isnan(first) else self._start_time + first
+        first = self._dtg_first_alarm_time
+        v["dtg.first_alarm_time"] = -1.0 if math.isnan(first) else first
         v["dtg.valid"] = bool(out.valid)
 
     # ------------------------------------------------------------------ state
@@ -494,6 +551,7 @@ class Diagnoser(FacadeBase):
         return {
             "ready": self._ready,
             "start_time": self._start_time,
+            "dtg_first_alarm_time": self._dtg_first_alarm_time,
             "dtg": None if self._dtg is None else self._dtg.get_state(),
             "grey": None if self._grey is None else self._grey.get_state(),
             "df": None if self._df is None else self._df.get_state(),
@@ -505,6 +563,7 @@ class Diagnoser(FacadeBase):
             self._build_channels()
         self._ready = bool(state["ready"])
         self._start_time = float(state["start_time"])
+        self._dtg_first_alarm_time = float(state["dtg_first_alarm_time"])
         for name, channel in (("dtg", self._dtg), ("grey", self._grey), ("df", self._df)):
             sub = state[name]
             if (sub is None) != (channel is None):
@@ -513,15 +572,61 @@ class Diagnoser(FacadeBase):
                 channel.set_state(sub)
 
 
+#: Library argument names → FMU parameter names, per channel, so that a validation
+#: message names the parameter the user has to change.
+_PARAMETER_NAMES: dict[str, dict[str, str]] = {
+    "dtg": {
+        "order": "dtg.prefilter_order", "cutoff_hz": "dtg.prefilter_cutoff_hz",
+        "sample_rate_hz": "1/sample_period_s", "estimator": "dtg.estimator",
+        "window": "dtg.window", "forgetting": "dtg.forgetting", "p0": "dtg.p0",
+        "theta0": "dtg.theta0[1..5]", "learn_start_s": "dtg.learn_start_s",
+        "learn_end_s": "dtg.learn_end_s", "low": "dtg.low", "high": "dtg.high",
+        "persistence_k": "dtg.persistence_k", "persistence_n": "dtg.persistence_n",
+        "monitored": "dtg.monitored[1..5]",
+        "signatures": "signatures (dtg.signature[j,i] or dtg.signature_file)",
+        "max_distance": "dtg.max_distance",
+    },
+    "grey": {
+        "window": "grey.window", "threshold": "grey.threshold", "a_min": "grey.a_min",
+        "clear_after_s": "grey.clear_after_s",
+    },
+    "df": {
+        "eigenvalues": "df.eigenvalue[1..5]", "calibrate_s": "df.calibrate_s",
+        "burn_in_s": "df.burn_in_s", "k_sigma": "df.k_sigma",
+        "main_thresholds": "df.threshold[1..6]", "bank_thresholds": "df.bank_threshold[i,j]",
+        "noise_std": "df.noise_std[1..6]", "persistence_k": "df.persistence_k",
+        "persistence_n": "df.persistence_n", "confirm_samples": "df.confirm_samples",
+        "x0": "df.x0[1..5]",
+    },
+}
+
+
+def _fill_variable_meta() -> None:
+    """Fill VARIABLE_META at import time.
+
+    build_fmu.py reads VARIABLE_META from its own import of this module, in which no
+    Diagnoser has been instantiated (the pythonfmu builder instantiates the class in a
+    separate module object), so declaring the variables once here is what puts the
+    units and ranges into the modelDescription.
+    """
+    Diagnoser(instance_name="variable-table")
+
+
 @contextlib.contextmanager
 def _channel_context(prefix: str) -> Iterator[None]:
-    """Prefix a channel's validation message with its FMU variable prefix."""
+    """Rewrite a channel's validation message in terms of its FMU parameter names."""
     try:
         yield
     except (ValueError, TypeError) as exc:
         text = str(exc)
         if text.startswith(f"{prefix}."):
             raise
+        names = _PARAMETER_NAMES[prefix]
+        # whole identifiers only, and not ones already qualified ("dtg.window")
+        pattern = r"(?<![\w.])(" + "|".join(map(re.escape, names)) + r")(?![\w\[])"
+        renamed, count = re.subn(pattern, lambda m: names[m.group(1)], text)
+        if count:
+            raise ValueError(renamed) from None
         raise ValueError(
             f"channel {prefix!r} (parameters {prefix}.*): {text}"
         ) from None
@@ -532,3 +637,6 @@ def _named_int(values: dict[str, Any], name: str) -> int:
     if isinstance(value, bool) or int(value) != value:
         raise ValueError(f"{name} must be an integer, got {value!r}")
     return int(value)
+
+
+_fill_variable_meta()
