@@ -473,9 +473,137 @@ def test_detector_uses_host_time_when_given() -> None:
     assert onsets == {127.0}
 
 
+def manoeuvre_output(noise_v: float) -> np.ndarray:
+    """HRG-like output at 100 Hz through a fast pitch manoeuvre (the co-simulation case).
+
+    2.5 V + 0.3 V slow sine, plus 10 V/(rad/s) times a ±0.1 rad/s square pitch-rate
+    doublet at 2–4 s, through the 10 Hz first-order read-out (exact ZOH recursion),
+    plus seeded white noise. The doublet's corners are far outside what a 0.1 s
+    window predicts, so the detector false-alarms at 2.01 s.
+    """
+    t = np.arange(0.0, 25.0, MANOEUVRE_H)
+    rate = 0.1 * (((t >= 2.0) & (t < 3.0)).astype(float) - ((t >= 3.0) & (t < 4.0)))
+    u = 2.5 + 0.3 * np.sin(2.0 * np.pi * t / 50.0) + 10.0 * rate
+    decay = math.exp(-2.0 * math.pi * 10.0 * MANOEUVRE_H)
+    v = np.empty_like(u)
+    v[0] = u[0]
+    for k in range(1, u.size):
+        v[k] = u[k - 1] + decay * (v[k - 1] - u[k - 1])
+    return v + noise_v * np.random.default_rng(5).standard_normal(t.size)
+
+
+MANOEUVRE_H = 0.01  # s
+
+
+def longest_run(flags: np.ndarray) -> int:
+    edges = np.flatnonzero(np.diff(np.r_[0, flags.astype(int), 0]))
+    return int(np.max(edges[1::2] - edges[::2])) if edges.size else 0
+
+
+@pytest.mark.parametrize("noise_v", [0.0, 0.002])
+@pytest.mark.parametrize("predictor_cls", [ImprovedGreyPredictor, ClassicGreyPredictor])
+def test_substituted_prediction_stays_bounded_through_a_long_false_alarm(
+    predictor_cls, noise_v: float
+) -> None:
+    # Without the bound the self-fed extrapolation reached 2.6e7–6.2e8 V on these four
+    # cases (co-simulation: 3.3e9 V); with it the largest |prediction| is 2.80–2.86 V.
+    m = 10
+    y = manoeuvre_output(noise_v)
+    det = GreyFaultDetector(predictor_cls(m), 0.05, MANOEUVRE_H, clear_after_s=20.0)
+    out = run_detector(det, y)
+    alarm = np.array([o.alarm for o in out])
+    p = np.array([o.prediction for o in out])
+    k_onset = round(2.01 / MANOEUVRE_H)
+    assert alarm[k_onset] and not alarm[:k_onset].any()
+    assert longest_run(alarm) > 10 * m  # the window has been all-substituted for long
+    span = float(y.max() - y.min())
+    finite = p[np.isfinite(p)]
+    assert finite.size == y.size - m
+    assert np.all((finite >= y.min() - span) & (finite <= y.max() + span))
+    # the reported error is against the bounded prediction
+    errors = np.array([o.error for o in out])
+    np.testing.assert_array_equal(errors[m:], y[m:] - p[m:])
+
+
+def test_constant_history_gives_a_held_substitute_equal_to_the_level() -> None:
+    # Fault-free history exactly constant: the envelope has zero span, so any
+    # substitute that is not the level itself is clipped to it and held there.
+    level, m = 1.25, 6
+    y = np.r_[np.full(20, level), np.linspace(1.5, 4.0, 30)]  # a ramp far off the level
+    det = GreyFaultDetector(ImprovedGreyPredictor(m), 0.05, 1.0)
+    out = run_detector(det, y)
+    assert all(o.alarm for o in out[20:])
+    assert [o.prediction for o in out[21:]] == [level] * 29
+    assert det.envelope == (level, level)
+
+
+def test_detector_state_round_trip_while_holding_a_clipped_substitute() -> None:
+    y = manoeuvre_output(0.002)
+    make = lambda: GreyFaultDetector(  # noqa: E731
+        ImprovedGreyPredictor(10), 0.05, MANOEUVRE_H, clear_after_s=20.0
+    )
+    det = make()
+    k_save = round(10.0 / MANOEUVRE_H)
+    run_detector(det, y[:k_save])
+    state = det.get_state()
+    assert det.alarm and math.isfinite(state["hold"])
+    tail = run_detector(det, y[k_save:])
+    other = make()
+    other.set_state(state)
+    assert_same_outputs(run_detector(other, y[k_save:]), tail)
+
+
+SEED_H = 0.1  # s
+
+
+def seed_like_hrg_timeline() -> tuple[np.ndarray, np.ndarray]:
+    """Seed-001 scenario at 10 Hz (DESIGN.md §3), noise-free, 0–1000 s.
+
+    10 V/(rad/s) times the HRG model's seed-001 rate profile (two slow sines about
+    0.25 rad/s, tapered to exactly constant from 825 s), then bias −0.2 V in 27–47 s,
+    stuck at 3 V in 252–272 s, scale factor 1.05 from 420 s.
+    """
+    t = np.arange(0.0, 1000.0, SEED_H)
+    wave = 0.10 * np.sin(2.0 * np.pi * t / 500.0) + 0.04 * np.sin(2.0 * np.pi * t / 130.0 + 0.5)
+    taper = np.clip((t - 725.0) / 100.0, 0.0, 1.0)
+    weight = 0.5 * (1.0 + np.cos(np.pi * taper))
+    y = 10.0 * (0.25 + np.where(t >= 825.0, 0.0, weight * wave))
+    y = np.where((t >= 27.0) & (t < 47.0), y - 0.2, y)
+    y = np.where((t >= 252.0) & (t < 272.0), 3.0, y)
+    y = np.where(t >= 420.0, 1.05 * y, y)
+    return t, y
+
+
+def test_seed_timeline_alarms_last_the_fault_with_bounded_substitutes() -> None:
+    t, y = seed_like_hrg_timeline()
+    det = GreyFaultDetector(ImprovedGreyPredictor(10), 0.05, SEED_H, clear_after_s=20.0)
+    out = run_detector(det, y)
+    alarm = np.array([o.alarm for o in out])
+    p = np.array([o.prediction for o in out])
+    # Same intervals as the unbounded detector: the bias and the stuck output alarm for
+    # their whole duration, the permanent scale fault until cleared 20 s after onset.
+    # The stuck fault ends exactly when its alarm is cleared (272 s), so the re-seeded
+    # window holds the stuck value and the return to the true signal is a new step
+    # (alarm 272.2–292.1 s). Nothing after 440 s, in particular not on the flat tail.
+    intervals = [(round(a, 6), round(b, 6)) for a, b in alarm_intervals(t, alarm)]
+    assert intervals == [(27.0, 46.9), (252.0, 271.9), (272.2, 292.1), (420.0, 439.9)]
+    assert [round(o.time_s, 6) for o in out if o.cleared] == [272.0, 292.2, 440.0]
+    # The unbounded detector's substitute reached −1184 V after the stuck fault. Bounded,
+    # it is clipped at 272.6 s to the fault-free envelope so far (2.42–3.85 V) minus its
+    # span, 0.995 V, and held there: below the signal's range (1.15–3.94 V) but within
+    # that range widened by its span on each side.
+    span = float(y.max() - y.min())
+    assert y.min() - span <= np.nanmin(p) and np.nanmax(p) <= y.max() + span
+    fault_free = y[(t < 272.15) & ~alarm]
+    lo, hi = float(fault_free.min()), float(fault_free.max())
+    assert (lo, hi) == (pytest.approx(2.4227, abs=1e-4), pytest.approx(3.8505, abs=1e-4))
+    assert np.all(p[(t >= 272.7) & (t < 292.2)] == lo - (hi - lo))
+
+
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
+        ({"envelope_margin": -0.5}, "envelope_margin"),
         ({"threshold": 0.0}, "threshold"),
         ({"threshold": math.nan}, "threshold"),
         ({"sample_period_s": -1.0}, "sample_period_s"),

@@ -585,7 +585,8 @@ class GreyDetectorOutput:
         The sample as received (signal units; may be NaN/inf when ``valid`` is False).
     prediction : float
         ŷ(k), predicted for this sample from the samples before it (signal units);
-        NaN during warm-up.
+        NaN during warm-up. While in alarm this is the bounded substitute (see
+        :class:`GreyFaultDetector`), i.e. the value that was also fed to the predictor.
     error : float
         y(k) − ŷ(k), signal units; NaN during warm-up or for an invalid sample.
     alarm : bool
@@ -625,6 +626,11 @@ class GreyFaultDetector:
         20 s). None: alarms end only when the error falls below the threshold.
     reseed_length : int or None, optional
         Measured samples kept for re-seeding; default ``predictor.min_samples``.
+    envelope_margin : float, optional
+        Bound on the substituted prediction, in units of the fault-free span (>= 0,
+        dimensionless): while in alarm ŷ is kept within
+        [lo − margin·(hi − lo), hi + margin·(hi − lo)], lo/hi the smallest and largest
+        fault-free sample seen since reset. Default 1.
 
     Notes
     -----
@@ -632,6 +638,18 @@ class GreyFaultDetector:
     alarm the predictor is fed ŷ(k) instead of y(k), so the model keeps extrapolating
     the fault-free signal and the alarm lasts as long as the fault instead of a single
     pulse (after one faulty sample a plain predictor would already have absorbed it).
+
+    Bounded substitution: once the window holds only substituted samples the
+    predictor extrapolates its own extrapolation, and the GM exponential and the
+    quadratic residual compound without limit over a long alarm (measured with the
+    unbounded detector: 2e7 V after a pitch manoeuvre at 100 Hz, −1184 V on the
+    seed-001 timeline at 10 Hz after the stuck fault). While in alarm, ŷ is therefore
+    clipped to the envelope of the fault-free samples seen since reset widened by
+    ``envelope_margin`` times its span, and once it has been clipped it is held at
+    that value for the rest of the alarm (see :meth:`_bounded` for why). Inside the
+    envelope the substitute is the predictor's own, as in the paper. The reported
+    prediction (and so the error) is the bounded value.
+
     No alarm is possible before the predictor's window is full: the first
     ``min_samples`` samples are assumed fault-free. A non-finite prediction with a full
     window (only the textbook classic model on an exactly degenerate window produces
@@ -644,6 +662,7 @@ class GreyFaultDetector:
     def __init__(
         self, predictor: GreyPredictor, threshold: float, sample_period_s: float,
         clear_after_s: float | None = None, *, reseed_length: int | None = None,
+        envelope_margin: float = 1.0,
     ) -> None:
         for attr in ("update", "reset", "get_state", "set_state", "min_samples", "ready"):
             if not hasattr(predictor, attr):
@@ -658,6 +677,7 @@ class GreyFaultDetector:
             predictor.min_samples if reseed_length is None
             else check_int("reseed_length", reseed_length, minimum=1)
         )
+        self.envelope_margin = check_nonnegative("envelope_margin", envelope_margin)
         self.reset()
 
     def reset(self) -> None:
@@ -668,6 +688,9 @@ class GreyFaultDetector:
         self._onset = math.nan
         self._recent: NDArray[np.float64] = np.empty(0)
         self._n_accepted = 0
+        self._envelope_min = math.inf
+        self._envelope_max = -math.inf
+        self._hold = math.nan
 
     @property
     def alarm(self) -> bool:
@@ -676,8 +699,17 @@ class GreyFaultDetector:
 
     @property
     def pending_prediction(self) -> float:
-        """Prediction for the next sample (signal units), NaN during warm-up."""
+        """Prediction for the next sample (signal units), NaN during warm-up.
+
+        Bounded while in alarm (the value the next output will report)."""
         return self._pending
+
+    @property
+    def envelope(self) -> tuple[float, float]:
+        """(min, max) of the fault-free samples seen since reset, signal units.
+
+        (inf, −inf) before the first sample."""
+        return self._envelope_min, self._envelope_max
 
     def update(self, y: float, time_s: float | None = None) -> GreyDetectorOutput:
         """Process one sample.
@@ -735,18 +767,69 @@ class GreyFaultDetector:
             return GreyDetectorOutput(t, value, predicted, error, False, math.nan, True, True)
 
         substitute = alarm and math.isfinite(predicted)
+        if not alarm:
+            self._widen_envelope(value)
         self._pending = self.predictor.update(predicted if substitute else value)
         self._in_alarm = alarm
-        if not alarm:
+        if alarm:
+            self._pending = self._bounded(self._pending)
+        else:
             self._onset = math.nan
+            self._hold = math.nan
         return GreyDetectorOutput(
             t, value, predicted, error, alarm, self._onset, True, False
         )
 
+    def _widen_envelope(self, value: float) -> None:
+        self._envelope_min = min(self._envelope_min, value)
+        self._envelope_max = max(self._envelope_max, value)
+
+    def _bounded(self, prediction: float) -> float:
+        """The substitute for the next sample while in alarm (signal units).
+
+        Choice, measured on the seed-001 timeline (improved predictor, m = 10,
+        threshold 0.05 V, 20 s clearing, noise-free, at 2 Hz and 10 Hz) and on an
+        HRG output following a ±0.1 rad/s (±1 V) pitch-rate manoeuvre at 100 Hz,
+        with and without 2 mV noise:
+
+        * Envelope of the fault-free window at onset (± 1–3 ranges): bounded, but the
+          5 % scale-fault alarm ends at 431–433 s instead of 439.5 s. That window's
+          range (0.0075 V at 2 Hz, about 50 times less at 100 Hz) is far below the
+          signal's legitimate 0.11 V motion during the 20 s alarm, which the
+          self-fed quadratic extrapolation does follow; a window-based bound cuts it.
+        * Linear trend of the onset window (or a band moving with it): at 420 s the
+          signal is at a peak (slope ≈ 0, curvature down), so the line departs
+          upwards; after a re-seed on a window holding a fault's end the slope is
+          that of the step and the band runs away (13.7 V on the manoeuvre).
+        * Envelope of all fault-free samples since reset: wide enough for the
+          legitimate motion (alarm intervals identical to the unbounded detector at
+          2 Hz, 10 Hz and 100 Hz), and the runaway is caught at most one span outside the
+          observed signal. Clipping alone is not enough: a polynomial extrapolator
+          fed a clipped, kinked window turns around and re-enters, so the alarm
+          chatters (noisy manoeuvre). Hence the hold: once the model's own
+          extrapolation has left the plausible range it is not trusted again
+          until the alarm ends or is cleared.
+        """
+        if not math.isfinite(prediction):
+            return prediction
+        if not math.isnan(self._hold):
+            return self._hold
+        span = self._envelope_max - self._envelope_min
+        lo = self._envelope_min - self.envelope_margin * span
+        hi = self._envelope_max + self.envelope_margin * span
+        if lo <= prediction <= hi:
+            return prediction
+        self._hold = min(max(prediction, lo), hi)
+        return self._hold
+
     def _reseed(self) -> None:
         self.predictor.reset()
         self._pending = math.nan
+        self._hold = math.nan
+        # the re-seeded samples are the new reference signal (the paper's clearing
+        # accepts them), so they count as fault-free for the envelope too
         for v in self._recent:
+            self._widen_envelope(float(v))
             self._pending = self.predictor.update(float(v))
 
     def get_state(self) -> dict[str, Any]:
@@ -761,6 +844,9 @@ class GreyFaultDetector:
             onset_time_s=float(self._onset),
             recent=self._recent.copy(),
             n_accepted=int(self._n_accepted),
+            envelope_min=float(self._envelope_min),
+            envelope_max=float(self._envelope_max),
+            hold=float(self._hold),
         )
         return state
 
@@ -772,7 +858,10 @@ class GreyFaultDetector:
         ValueError
             If a key is missing or the stored window does not fit.
         """
-        own = {"pending_prediction", "in_alarm", "onset_time_s", "recent", "n_accepted"}
+        own = {
+            "pending_prediction", "in_alarm", "onset_time_s", "recent", "n_accepted",
+            "envelope_min", "envelope_max", "hold",
+        }
         missing = own - set(state)
         if missing:
             raise ValueError(f"state is missing keys {sorted(missing)}")
@@ -791,6 +880,9 @@ class GreyFaultDetector:
         self._onset = float(state["onset_time_s"])
         self._recent = recent
         self._n_accepted = int(state["n_accepted"])
+        self._envelope_min = float(state["envelope_min"])
+        self._envelope_max = float(state["envelope_max"])
+        self._hold = float(state["hold"])
 
 
 # ------------------------------------------------------------------ metrics
