@@ -1,0 +1,695 @@
+"""Scenario files: plain TOML validated by pydantic models (unknown keys are errors).
+
+A scenario names the FMU instances, their parameters, the connections between them, a
+fault schedule, what to record and what to expect (see the harness contract for the full
+format).  Errors always name the file and the key path, e.g.::
+
+    scenarios/x.toml: fmus.aircraft.step_ratio: Input should be greater than or equal to 1
+
+List entries are addressed with 0-based indices: ``connections[2].from``.  Checks run in
+three stages: TOML syntax, structure and values (pydantic), cross references inside the
+file (:func:`load_scenario`), and — when a run starts and the FMUs are known — variable
+names, causalities and types against each FMU's modelDescription
+(:func:`check_against_models`), with the closest existing names as suggestions.
+
+Scenario files cannot run code: TOML is data only, nothing is evaluated or imported.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import os
+import re
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Discriminator,
+    Field,
+    PrivateAttr,
+    Tag,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+
+#: FaultInjector fault codes (parameter ``fault_type_<channel>``), copied from the
+#: FaultInjector FMU's documentation (``FaultType`` in models/fault_injector); a test
+#: checks that this table matches the built FMU.  The harness never imports models/.
+FAULT_TYPE_CODES: dict[str, int] = {
+    "none": 0,
+    "bias": 1,
+    "gain": 2,
+    "stuck_value": 3,
+    "stuck_last": 4,
+    "failure": 5,
+    "step": 6,
+    "ramp": 7,
+    "noise": 8,
+    "signal_loss": 9,
+    "intermittent": 10,
+    "saturation": 11,
+    "nan_dropout": 12,
+}
+#: Extra spellings accepted for ``type`` (mapped to the canonical name).
+FAULT_TYPE_ALIASES: dict[str, str] = {"stuck": "stuck_value"}
+
+#: Channel parameters each fault type needs (all required, others must be left out).
+FAULT_TYPE_PARAMETERS: dict[str, tuple[str, ...]] = {
+    "none": (),
+    "bias": ("magnitude",),
+    "gain": ("gain",),
+    "stuck_value": ("stuck_value",),
+    "stuck_last": (),
+    "failure": (),
+    "step": ("magnitude",),
+    "ramp": ("magnitude",),
+    "noise": ("noise_std",),
+    "signal_loss": ("noise_std",),
+    "intermittent": ("magnitude", "period", "duty"),
+    "saturation": ("sat_min", "sat_max"),
+    "nan_dropout": (),
+}
+_CHANNEL_PARAMETERS = ("magnitude", "gain", "stuck_value", "noise_std", "period", "duty",
+                       "sat_min", "sat_max")
+
+DEFAULT_FMU_DIR = "build/fmus"
+#: Environment variable that overrides the scenario's ``fmu_dir`` (CI, test sessions).
+FMU_DIR_ENV = "GYRODIAG_FMU_DIR"
+
+_INSTANCE_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+ParameterValue = bool | int | float | str
+
+
+class ScenarioError(ValueError):
+    """A scenario file is invalid; ``problems`` holds ``(key path, message)`` pairs.
+
+    ``str(error)`` is one line per problem: ``<source>: <key path>: <message>``.
+    """
+
+    def __init__(self, source: str, problems: list[tuple[str, str]]) -> None:
+        self.source = source
+        self.problems = list(problems)
+        lines = [f"{source}: {key}: {msg}" if key else f"{source}: {msg}"
+                 for key, msg in self.problems]
+        super().__init__("\n".join(lines))
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+
+
+class FmuInstance(_Strict):
+    """One FMU instance: which FMU, its rate and its start values."""
+
+    fmu: str = Field(min_length=1)
+    step_ratio: int = Field(default=1, ge=1)
+    parameters: dict[str, ParameterValue] = Field(default_factory=dict)
+
+
+class Connection(_Strict):
+    """``from`` output → ``to`` input, both ``"instance.variable"``."""
+
+    from_: str = Field(alias="from")
+    to: str
+
+    @field_validator("from_", "to")
+    @classmethod
+    def _qualified(cls, value: str) -> str:
+        return _check_qualified(value)
+
+
+class InjectorFault(_Strict):
+    """A fault on one FaultInjector channel, set as the injector's parameters."""
+
+    name: str = Field(min_length=1)
+    injector: str
+    channel: int = Field(ge=1)
+    type: str
+    start_s: float = Field(ge=0.0, allow_inf_nan=False)
+    end_s: float = math.inf
+    magnitude: float | None = Field(default=None, allow_inf_nan=False)
+    gain: float | None = Field(default=None, allow_inf_nan=False)
+    stuck_value: float | None = None
+    noise_std: float | None = Field(default=None, ge=0.0, allow_inf_nan=False)
+    period: float | None = Field(default=None, gt=0.0, allow_inf_nan=False)
+    duty: float | None = Field(default=None, ge=0.0, le=1.0)
+    sat_min: float | None = None
+    sat_max: float | None = None
+
+    @field_validator("type")
+    @classmethod
+    def _known_type(cls, value: str) -> str:
+        name = FAULT_TYPE_ALIASES.get(value.lower(), value.lower())
+        if name not in FAULT_TYPE_CODES or name == "none":
+            names = [n for n in FAULT_TYPE_CODES if n != "none"]
+            raise ValueError(f"unknown fault type {value!r}{_suggest(value.lower(), names)}"
+                             f" (known: {', '.join(names)})")
+        return name
+
+    @model_validator(mode="after")
+    def _parameters_match_type(self) -> InjectorFault:
+        needed = FAULT_TYPE_PARAMETERS[self.type]
+        missing = [p for p in needed if getattr(self, p) is None]
+        unused = [p for p in _CHANNEL_PARAMETERS
+                  if p not in needed and getattr(self, p) is not None]
+        if missing:
+            raise ValueError(f"fault type {self.type!r} needs {', '.join(missing)}")
+        if unused:
+            raise ValueError(f"fault type {self.type!r} does not use {', '.join(unused)} "
+                             f"(it uses: {', '.join(needed) or 'no parameters'})")
+        if not self.end_s > self.start_s:
+            raise ValueError(f"end_s ({self.end_s}) must be > start_s ({self.start_s})")
+        if self.type == "step" and not math.isinf(self.end_s):
+            raise ValueError("a 'step' fault latches and never ends: leave out end_s")
+        if self.type == "saturation" and not self.sat_min <= self.sat_max:
+            raise ValueError(f"sat_min ({self.sat_min}) must be <= sat_max ({self.sat_max})")
+        return self
+
+    @property
+    def code(self) -> int:
+        """FaultInjector ``fault_type`` code."""
+        return FAULT_TYPE_CODES[self.type]
+
+    @property
+    def target(self) -> str:
+        """The faulty signal, ``"injector.out_<channel>"``."""
+        return f"{self.injector}.out_{self.channel}"
+
+    def injector_parameters(self) -> dict[str, float | int]:
+        """Channel parameters of the FaultInjector FMU that realise this fault."""
+        c = self.channel
+        params: dict[str, float | int] = {f"fault_type_{c}": self.code,
+                                          f"t_start_{c}": float(self.start_s),
+                                          f"t_end_{c}": float(self.end_s)}
+        for key in FAULT_TYPE_PARAMETERS[self.type]:
+            params[f"{key}_{c}"] = float(getattr(self, key))
+        return params
+
+
+class PhysicalFault(_Strict):
+    """A tunable parameter set to ``value`` at ``start_s`` (restored at ``end_s``)."""
+
+    name: str = Field(min_length=1)
+    set: str
+    value: ParameterValue
+    start_s: float = Field(ge=0.0, allow_inf_nan=False)
+    end_s: float = math.inf
+
+    @field_validator("set")
+    @classmethod
+    def _qualified(cls, value: str) -> str:
+        return _check_qualified(value)
+
+    @model_validator(mode="after")
+    def _window(self) -> PhysicalFault:
+        if not self.end_s > self.start_s:
+            raise ValueError(f"end_s ({self.end_s}) must be > start_s ({self.start_s})")
+        return self
+
+    @property
+    def target(self) -> str:
+        return self.set
+
+
+def _fault_tag(value: Any) -> str:
+    if isinstance(value, dict):
+        return "physical_fault" if "set" in value else "injector_fault"
+    return "physical_fault" if isinstance(value, PhysicalFault) else "injector_fault"
+
+
+Fault = Annotated[
+    Annotated[InjectorFault, Tag("injector_fault")]
+    | Annotated[PhysicalFault, Tag("physical_fault")],
+    Discriminator(_fault_tag),
+]
+_TAGS = ("injector_fault", "physical_fault")
+
+
+class Record(_Strict):
+    """What to record: ``variables`` (default: every output of every FMU), every
+    ``decimation`` base steps (the first and the last sample are always recorded)."""
+
+    variables: list[str] | None = None
+    decimation: int = Field(default=1, ge=1)
+
+    @field_validator("variables")
+    @classmethod
+    def _qualified(cls, value: list[str] | None) -> list[str] | None:
+        if value is not None:
+            for v in value:
+                _check_qualified(v)
+        return value
+
+
+class Expectation(BaseModel):
+    """One ``[[expect]]`` entry.  Its arguments belong to ``harness.expectations``, which
+    validates them; here only the references (``signal``, ``fault``) are checked."""
+
+    model_config = ConfigDict(extra="allow")
+
+    kind: str = Field(min_length=1)
+    name: str | None = None
+    signal: str | None = None
+    fault: str | None = None
+
+    def arguments(self) -> dict[str, Any]:
+        """All keys of the entry except ``kind`` (extra keys included)."""
+        return self.model_dump(exclude={"kind"}, exclude_none=True)
+
+
+class Scenario(_Strict):
+    """A validated scenario; see the module docstring and the harness contract."""
+
+    name: str = Field(min_length=1)
+    description: str = ""
+    duration_s: float = Field(gt=0.0, allow_inf_nan=False)
+    step_s: float = Field(gt=0.0, allow_inf_nan=False)
+    coupling: Literal["gauss-seidel", "jacobi"] = "gauss-seidel"
+    fmu_dir: str | None = None
+    fmus: dict[str, FmuInstance] = Field(min_length=1)
+    connections: list[Connection] = Field(default_factory=list)
+    faults: list[Fault] = Field(default_factory=list)
+    record: Record = Field(default_factory=Record)
+    expect: list[Expectation] = Field(default_factory=list)
+
+    _source: str = PrivateAttr(default="<scenario>")
+    _path: Path | None = PrivateAttr(default=None)
+
+    @property
+    def source(self) -> str:
+        """File name (or a label) used in error messages."""
+        return self._source
+
+    @property
+    def path(self) -> Path | None:
+        """The TOML file, if the scenario was loaded from one."""
+        return self._path
+
+    @property
+    def n_steps(self) -> int:
+        """Number of base steps (``duration_s / step_s``, an integer by validation)."""
+        return round(self.duration_s / self.step_s)
+
+    @property
+    def injector_faults(self) -> list[InjectorFault]:
+        return [f for f in self.faults if isinstance(f, InjectorFault)]
+
+    @property
+    def physical_faults(self) -> list[PhysicalFault]:
+        return [f for f in self.faults if isinstance(f, PhysicalFault)]
+
+
+# --------------------------------------------------------------------------- loading
+def load_scenario(path: Path | str) -> Scenario:
+    """Read and validate a scenario TOML file.
+
+    Parameters
+    ----------
+    path : path
+        The ``.toml`` file; ``name`` defaults to its stem.
+
+    Raises
+    ------
+    ScenarioError
+        Syntax, structure, value or cross-reference problems, each naming the file and
+        the key path.
+    FileNotFoundError
+        If the file does not exist.
+    """
+    path = Path(path)
+    source = _display_path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{source}: scenario file not found")
+    try:
+        with open(path, "rb") as fh:
+            data = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(source, [("", f"invalid TOML: {exc}")]) from None
+    return parse_scenario(data, source=source, default_name=path.stem, path=path)
+
+
+def parse_scenario(data: Mapping[str, Any], source: str = "<scenario>",
+                   default_name: str | None = None, path: Path | None = None) -> Scenario:
+    """Validate a scenario given as a dict (the parsed TOML); see :func:`load_scenario`."""
+    data = dict(data)
+    if "name" not in data and default_name is not None:
+        data["name"] = default_name
+    try:
+        scenario = Scenario.model_validate(data)
+    except ValidationError as exc:
+        raise ScenarioError(source, _pydantic_problems(exc)) from None
+    scenario._source = source
+    scenario._path = Path(path).resolve() if path is not None else None
+    problems = _cross_reference_problems(scenario)
+    if problems:
+        raise ScenarioError(source, problems)
+    return scenario
+
+
+def _display_path(path: Path) -> str:
+    try:
+        rel = os.path.relpath(path)
+    except ValueError:  # other drive on Windows
+        return str(path)
+    return str(path.resolve()) if rel.startswith("..") else rel
+
+
+def key_path(loc: tuple[int | str, ...]) -> str:
+    """Pydantic ``loc`` → ``fmus.aircraft.step_ratio`` / ``connections[2].from``."""
+    out = ""
+    previous: int | str | None = None
+    for i, part in enumerate(loc):
+        if isinstance(part, int):
+            out += f"[{part}]"
+        elif part in _TAGS and isinstance(previous, int) and i >= 2 and loc[i - 2] == "faults":
+            pass  # discriminator tag, not a key of the file
+        else:
+            out += ("." if out else "") + str(part)
+        previous = part
+    return out
+
+
+def _pydantic_problems(exc: ValidationError) -> list[tuple[str, str]]:
+    problems = []
+    for err in exc.errors():
+        msg = err["msg"]
+        if err["type"] == "extra_forbidden":
+            msg = "unknown key (not allowed here)"
+        elif msg.startswith("Value error, "):
+            msg = msg[len("Value error, "):]
+        problems.append((key_path(tuple(err["loc"])), msg))
+    return problems
+
+
+def _check_qualified(value: str) -> str:
+    instance, dot, variable = value.partition(".")
+    if not dot or not instance or not variable:
+        raise ValueError(f"{value!r} must be 'instance.variable'")
+    return value
+
+
+def split_name(qualified: str) -> tuple[str, str]:
+    """``"diag.df.detected"`` → ``("diag", "df.detected")`` (instances hold no dots)."""
+    instance, _, variable = qualified.partition(".")
+    return instance, variable
+
+
+def _suggest(name: str, candidates: list[str], n: int = 3) -> str:
+    close = difflib.get_close_matches(name, candidates, n=n, cutoff=0.5)
+    if close:
+        return f"; did you mean {', '.join(repr(c) for c in close)}?"
+    if 0 < len(candidates) <= 10:
+        return f" (known: {', '.join(repr(c) for c in candidates)})"
+    return ""
+
+
+def _cross_reference_problems(s: Scenario) -> list[tuple[str, str]]:
+    problems: list[tuple[str, str]] = []
+    instances = list(s.fmus)
+
+    def check_instance(key: str, qualified: str) -> None:
+        inst, _ = split_name(qualified)
+        if inst not in s.fmus:
+            problems.append((key, f"unknown instance {inst!r} in {qualified!r}"
+                                  f"{_suggest(inst, instances)} (instances: "
+                                  f"{', '.join(instances)})"))
+
+    for name in instances:
+        if not _INSTANCE_RE.match(name):
+            problems.append((f"fmus.{name}", "instance names must be identifiers "
+                                             "(letters, digits, '_'; no dots)"))
+    n = s.n_steps
+    if abs(n * s.step_s - s.duration_s) > 1e-9 * max(1.0, s.duration_s) or n < 1:
+        problems.append(("duration_s", f"must be a whole number of steps step_s = {s.step_s} "
+                                       f"(got {s.duration_s})"))
+    else:
+        for name, inst in s.fmus.items():
+            if n % inst.step_ratio:
+                problems.append((f"fmus.{name}.step_ratio",
+                                 f"the run has {n} base steps, not a multiple of step_ratio "
+                                 f"{inst.step_ratio}: the instance's last step would overshoot"))
+    for i, c in enumerate(s.connections):
+        check_instance(f"connections[{i}].from", c.from_)
+        check_instance(f"connections[{i}].to", c.to)
+    seen: dict[str, int] = {}
+    for i, c in enumerate(s.connections):
+        if c.to in seen:
+            problems.append((f"connections[{i}].to", f"input {c.to!r} is already connected "
+                                                     f"by connections[{seen[c.to]}]"))
+        seen.setdefault(c.to, i)
+    fault_names: dict[str, int] = {}
+    channels: dict[tuple[str, int], int] = {}
+    for i, f in enumerate(s.faults):
+        if f.name in fault_names:
+            problems.append((f"faults[{i}].name", f"duplicate fault name {f.name!r} "
+                                                  f"(also faults[{fault_names[f.name]}])"))
+        fault_names.setdefault(f.name, i)
+        if isinstance(f, InjectorFault):
+            if f.injector not in s.fmus:
+                problems.append((f"faults[{i}].injector", f"unknown instance {f.injector!r}"
+                                                          f"{_suggest(f.injector, instances)}"))
+            key = (f.injector, f.channel)
+            if key in channels:
+                problems.append((f"faults[{i}].channel",
+                                 f"channel {f.channel} of {f.injector!r} already carries "
+                                 f"faults[{channels[key]}]: one fault per channel"))
+            channels.setdefault(key, i)
+        else:
+            check_instance(f"faults[{i}].set", f.set)
+        if f.start_s > s.duration_s:
+            problems.append((f"faults[{i}].start_s", f"{f.start_s} s is after the end of the "
+                                                     f"run ({s.duration_s} s)"))
+    for i, v in enumerate(s.record.variables or []):
+        check_instance(f"record.variables[{i}]", v)
+    expectations = _expectations_module()
+    for i, e in enumerate(s.expect):
+        if expectations is not None:
+            try:
+                expectations.parse_expectation(e)
+            except ValidationError as exc:
+                problems += _expectation_problems(i, e.kind, exc)
+                continue
+        for signal in expected_signals(e):
+            key = f"expect[{i}].signal" if signal == e.signal else f"expect[{i}].args"
+            if "." in signal:
+                check_instance(key, signal)
+            else:
+                problems.append((key, f"{signal!r} must be 'instance.variable'"))
+        if e.fault is not None and e.fault not in fault_names:
+            problems.append((f"expect[{i}].fault", f"unknown fault {e.fault!r}"
+                                                   f"{_suggest(e.fault, list(fault_names))}"))
+    return problems
+
+
+def _expectations_module() -> Any:
+    # harness.expectations owns the [[expect]] schema; the loader uses it when present
+    try:
+        from harness import expectations
+    except ImportError:
+        return None
+    return expectations
+
+
+def expected_signals(e: Expectation) -> list[str]:
+    """Signals an ``[[expect]]`` entry reads (``signal`` and signal arguments of metrics,
+    as reported by ``harness.expectations.referenced_signals`` when available)."""
+    expectations = _expectations_module()
+    if expectations is not None:
+        try:
+            return list(expectations.referenced_signals(e))
+        except (ValidationError, KeyError, ValueError):
+            pass
+    return [e.signal] if e.signal is not None else []
+
+
+def _expectation_problems(i: int, kind: str, exc: ValidationError) -> list[tuple[str, str]]:
+    problems = []
+    for err in exc.errors():
+        loc = tuple(err["loc"])
+        if loc and loc[0] == kind:
+            loc = loc[1:]  # discriminator tag, not a key of the file
+        key = f"expect[{i}]" + ("." + key_path(loc) if loc else "")
+        if err["type"] == "union_tag_invalid":
+            key = f"expect[{i}].kind"
+        msg = err["msg"]
+        if err["type"] == "extra_forbidden":
+            msg = f"unknown key for kind {kind!r}"
+        elif msg.startswith("Value error, "):
+            msg = msg[len("Value error, "):]
+        problems.append((key, msg))
+    return problems
+
+
+# --------------------------------------------------------------------------- FMU files
+def resolve_fmu_dir(scenario: Scenario, fmu_dir: Path | str | None = None) -> Path:
+    """Directory of the FMUs: ``fmu_dir`` argument, else ``$GYRODIAG_FMU_DIR``, else the
+    scenario's ``fmu_dir``, else ``build/fmus``.  A relative scenario/default path is
+    looked up from the scenario file's folder upwards (so ``build/fmus`` in
+    ``scenarios/x.toml`` finds the repository's), then in the working directory."""
+    if fmu_dir is not None:
+        return Path(fmu_dir).resolve()
+    env = os.environ.get(FMU_DIR_ENV)
+    if env:
+        return Path(env).resolve()
+    return _find_upwards(scenario, scenario.fmu_dir or DEFAULT_FMU_DIR, want_dir=True)
+
+
+def resolve_fmu_file(scenario: Scenario, instance: str, fmu_dir: Path) -> Path:
+    """The ``.fmu`` file of ``instance`` (a name in ``fmu_dir`` or a path ending .fmu)."""
+    spec = scenario.fmus[instance].fmu
+    if spec.endswith(".fmu"):
+        return _find_upwards(scenario, spec, want_dir=False)
+    return fmu_dir / f"{spec}.fmu"
+
+
+def _find_upwards(scenario: Scenario, spec: str, want_dir: bool) -> Path:
+    p = Path(spec)
+    if p.is_absolute():
+        return p
+    bases: list[Path] = []
+    if scenario.path is not None:
+        bases += [scenario.path.parent, *scenario.path.parent.parents]
+    bases.append(Path.cwd())
+    for base in bases:
+        candidate = base / p
+        if (candidate.is_dir() if want_dir else candidate.is_file()):
+            return candidate.resolve()
+    return (bases[0] / p).resolve()
+
+
+# --------------------------------------------------------------------------- FMU names
+@dataclass(frozen=True)
+class VariableInfo:
+    """What the harness needs to know about one FMU variable."""
+
+    name: str
+    type: str          # "Real", "Integer", "Boolean", "String", "Enumeration"
+    causality: str     # "parameter", "calculatedParameter", "input", "output", "local", ...
+    variability: str   # "constant", "fixed", "tunable", "discrete", "continuous"
+    value_reference: int
+
+
+@dataclass(frozen=True)
+class ModelInfo:
+    """Variables of one FMU (from its modelDescription)."""
+
+    fmu_name: str
+    variables: Mapping[str, VariableInfo]
+
+
+_NUMERIC = ("Real", "Integer", "Boolean", "Enumeration")
+
+
+def check_against_models(scenario: Scenario, models: Mapping[str, ModelInfo]) -> None:
+    """Check every variable name of ``scenario`` against the instances' FMUs.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        A scenario whose instance references were already checked.
+    models : mapping of str to ModelInfo
+        Instance name → the variables of its FMU.
+
+    Raises
+    ------
+    ScenarioError
+        Listing every unknown name (with the closest existing names), wrong causality
+        (e.g. a connection into an output) and type mismatch.
+    """
+    problems: list[tuple[str, str]] = []
+
+    def lookup(key: str, qualified: str, causalities: tuple[str, ...] | None,
+               role: str) -> VariableInfo | None:
+        inst, var = split_name(qualified)
+        model = models[inst]
+        info = model.variables.get(var)
+        if info is None:
+            pool = [v.name for v in model.variables.values()
+                    if causalities is None or v.causality in causalities]
+            problems.append((key, f"instance {inst!r} (FMU {model.fmu_name}) has no variable "
+                                  f"{var!r}{_suggest(var, pool)}"))
+            return None
+        if causalities is not None and info.causality not in causalities:
+            problems.append((key, f"{qualified!r} is a{'n' if info.causality[0] in 'aeiou' else ''}"
+                                  f" {info.causality}, {role} must be "
+                                  f"{' or '.join(causalities)}"))
+            return None
+        return info
+
+    for name, inst in scenario.fmus.items():
+        model = models[name]
+        for pname, value in inst.parameters.items():
+            key = f"fmus.{name}.parameters.{pname}"
+            info = lookup(key, f"{name}.{pname}", ("parameter", "input"), "a parameter")
+            if info is not None:
+                msg = _value_type_problem(info, value)
+                if msg:
+                    problems.append((key, msg))
+    for i, c in enumerate(scenario.connections):
+        src = lookup(f"connections[{i}].from", c.from_, ("output", "local"), "a source")
+        dst = lookup(f"connections[{i}].to", c.to, ("input",), "a destination")
+        if src is not None and dst is not None:
+            ok = (src.type in _NUMERIC and dst.type == "Real") or src.type == dst.type or (
+                src.type == "Boolean" and dst.type == "Integer")
+            if not ok:
+                problems.append((f"connections[{i}]", f"cannot connect {src.type} {c.from_!r} "
+                                                      f"to {dst.type} {c.to!r}"))
+    for i, f in enumerate(scenario.faults):
+        if isinstance(f, InjectorFault):
+            model = models[f.injector]
+            missing = [p for p in f.injector_parameters() if p not in model.variables]
+            if missing:
+                problems.append((f"faults[{i}]", f"instance {f.injector!r} (FMU "
+                                                 f"{model.fmu_name}) has no parameter "
+                                                 f"{missing[0]!r}: not a FaultInjector, or it "
+                                                 f"has fewer than {f.channel} channels"))
+            own = scenario.fmus[f.injector].parameters
+            clash = [p for p in f.injector_parameters() if p in own]
+            if clash:
+                problems.append((f"fmus.{f.injector}.parameters.{clash[0]}",
+                                 f"also set by fault {f.name!r} (faults[{i}]): set it in one "
+                                 "place only"))
+        else:
+            info = lookup(f"faults[{i}].set", f.set, ("parameter",), "a physical fault target")
+            if info is not None:
+                if info.variability != "tunable":
+                    problems.append((f"faults[{i}].set", f"{f.set!r} is {info.variability}, "
+                                                         "not tunable: it cannot change "
+                                                         "during the run"))
+                msg = _value_type_problem(info, f.value)
+                if msg:
+                    problems.append((f"faults[{i}].value", msg))
+    for i, v in enumerate(scenario.record.variables or []):
+        info = lookup(f"record.variables[{i}]", v, None, "")
+        if info is not None and info.type not in _NUMERIC:
+            problems.append((f"record.variables[{i}]", f"{v!r} is a {info.type}: only numbers "
+                                                       "can be recorded"))
+    for i, e in enumerate(scenario.expect):
+        for signal in expected_signals(e):
+            if "." in signal:
+                key = f"expect[{i}].signal" if signal == e.signal else f"expect[{i}].args"
+                lookup(key, signal, None, "")
+    if problems:
+        raise ScenarioError(scenario.source, problems)
+
+
+def _value_type_problem(info: VariableInfo, value: ParameterValue) -> str | None:
+    t = info.type
+    if t == "Real" and (isinstance(value, bool) or not isinstance(value, (int, float))):
+        return f"{info.name} is Real, got {value!r}"
+    if t in ("Integer", "Enumeration") and (isinstance(value, bool)
+                                             or not isinstance(value, int)):
+        return f"{info.name} is {t}, got {value!r} (write an integer)"
+    if t == "Boolean" and not isinstance(value, bool):
+        return f"{info.name} is Boolean, got {value!r} (write true or false)"
+    if t == "String" and not isinstance(value, str):
+        return f"{info.name} is String, got {value!r} (write a quoted string)"
+    return None

@@ -1,0 +1,299 @@
+"""JUnit XML, HTML report and plots of harness runs (headless)."""
+
+from __future__ import annotations
+
+import base64
+import html
+import xml.etree.ElementTree as ET
+from html.parser import HTMLParser
+from pathlib import Path
+
+import numpy as np
+import pytest
+from matplotlib.figure import Figure
+
+from harness import plots, report
+from harness.expectations import verify_results
+from harness.results import FaultWindow, RunResult
+
+STEP_S = 0.01
+THETA_NOM = (1.9951, 0.9959, -0.0288, -0.0303, 0.0002)  # DESIGN §2, paper's θ_nom
+
+
+def _full_run() -> RunResult:
+    """Every signal family the plot selection knows, 20 s at 10 ms, fault from 10 s."""
+    rng = np.random.default_rng(1)
+    t = np.arange(2001) * STEP_S
+    sig: dict[str, np.ndarray] = {
+        "diag.df.detected": (t >= 10.37).astype(float),
+        "diag.df.isolated_sensor": np.where(t >= 10.5, 3.0, 0.0),
+        "diag.df.residual[1]": rng.normal(0.0, 0.01, t.size),
+        "diag.df.residual[2]": rng.normal(0.0, 0.01, t.size) + 0.2 * (t >= 10.0),
+        "diag.df.alarm[2]": (t >= 10.37).astype(float),
+        "hrg.voltage": 2.0 + np.sin(t),
+        "diag.grey.alarm": np.zeros(t.size),
+        "diag.dtg.first_alarm_time": np.full(t.size, -1.0),  # not a flag
+    }
+    sig["diag.grey.prediction"] = sig["hrg.voltage"] * (1.0 + 1e-3 * rng.normal(size=t.size))
+    for i, nominal in enumerate(THETA_NOM, start=1):
+        # RLS-like start-up transient, then noise about the nominal value
+        sig[f"diag.dtg.theta_x[{i}]"] = nominal + 5.0 * np.exp(-20 * t) + 0.01 * rng.normal(
+            size=t.size)
+        sig[f"diag.dtg.theta_y[{i}]"] = nominal + 0.01 * rng.normal(size=t.size)
+        sig[f"diag.dtg.theta0_used[{i}]"] = np.full(t.size, nominal)
+    return RunResult("full", t, sig, [FaultWindow("q_bias", "inj.out_3", "bias", 10.0)],
+                     STEP_S, None, 1.25, 20.0)
+
+
+FULL_SCENARIO = {
+    "name": "full",
+    "description": "all plot families",
+    "fmus": {"diag": {"fmu": "Diagnoser",
+                      "parameters": {"df.threshold[1]": 0.05, "df.threshold[2]": 0.06,
+                                     "grey.threshold": 0.05}}},
+    "connections": [{"from": "hrg.voltage", "to": "diag.grey.y"}],
+    "expect": [
+        {"kind": "detected_within", "signal": "diag.df.detected", "fault": "q_bias",
+         "max_delay_s": 0.5},
+        {"kind": "detected_within", "signal": "diag.df.detected", "fault": "q_bias",
+         "max_delay_s": 0.3, "name": "fast <detection> & more"},
+        {"kind": "value_at_end", "signal": "diag.df.isolated_sensor", "equals": 3},
+    ],
+}
+
+
+@pytest.fixture(scope="module")
+def full_run() -> RunResult:
+    return _full_run()
+
+
+def _broken_run() -> RunResult:
+    t = np.arange(3) * STEP_S
+    return RunResult("broken", t, {"diag.df.detected": np.zeros(3)}, [], STEP_S,
+                     "instance diag: doStep at t=0.02:\n\x1b[31mFATAL\x1b[0m <nan> & stop", 0.1)
+
+
+BROKEN_SCENARIO = {"name": "broken", "expect": [
+    {"kind": "no_alarm_before", "signal": "diag.df.detected"},
+    {"kind": "value_at_end", "signal": "diag.df.detected", "equals": 0},
+]}
+MISSING_SCENARIO = {"name": "missing", "expect": [
+    {"kind": "no_alarm_before", "signal": "diag.df.detected"}]}
+
+
+@pytest.fixture(scope="module")
+def written(full_run: RunResult, tmp_path_factory: pytest.TempPathFactory) -> dict:
+    runs = [full_run, _broken_run()]
+    scenarios = [FULL_SCENARIO, BROKEN_SCENARIO, MISSING_SCENARIO]
+    verdicts = verify_results(runs, scenarios)
+    out = tmp_path_factory.mktemp("report")
+    paths = report.write_report(verdicts, runs, out, scenarios=scenarios)
+    return {"verdicts": verdicts, "paths": paths, "out": out}
+
+
+# ------------------------------------------------------------------- JUnit
+def test_write_report_uses_default_file_names(written: dict) -> None:
+    assert written["paths"].junit == written["out"] / "junit.xml"
+    assert written["paths"].html == written["out"] / "report.html"
+    assert written["paths"].junit.is_file() and written["paths"].html.is_file()
+
+
+def test_junit_counts_failures_and_errors(written: dict) -> None:
+    root = ET.parse(written["paths"].junit).getroot()
+    assert root.tag == "testsuites"
+    # tests: expectations + one run case per scenario = (3+1) + (2+1) + (1+1)
+    assert (root.get("tests"), root.get("failures"), root.get("errors")) == ("9", "4", "2")
+    suites = {s.get("name"): s for s in root.findall("testsuite")}
+    assert list(suites) == ["full", "broken", "missing"]
+    full = suites["full"]
+    assert (full.get("tests"), full.get("failures"), full.get("errors")) == ("4", "1", "0")
+    assert full.get("time") == "1.250"
+    failed = [c for c in full.findall("testcase") if c.find("failure") is not None]
+    assert [c.get("name") for c in failed] == ["fast <detection> & more"]
+    assert "measured delay 0.37 s" in failed[0].find("failure").get("message")
+    passed_case = full.findall("testcase")[1]
+    assert "measured delay 0.37 s" in passed_case.find("system-out").text
+
+
+def test_junit_run_errors_survive_control_characters(written: dict) -> None:
+    root = ET.parse(written["paths"].junit).getroot()
+    broken = next(s for s in root.findall("testsuite") if s.get("name") == "broken")
+    run_case = broken.find("testcase[@name='run']")
+    error = run_case.find("error")
+    assert error.get("message") == "instance diag: doStep at t=0.02:"
+    assert "FATAL" in error.text and "<nan> & stop" in error.text and "\x1b" not in error.text
+    assert broken.get("failures") == "2" and broken.get("errors") == "1"
+    missing = next(s for s in root.findall("testsuite") if s.get("name") == "missing")
+    assert "no run result" in missing.find("testcase[@name='run']/error").get("message")
+
+
+# -------------------------------------------------------------------- HTML
+class _Collector(HTMLParser):
+    def __init__(self) -> None:
+        super().__init__()
+        self.images: list[str] = []
+        self.cells: list[str] = []
+        self._in_td = False
+
+    def handle_starttag(self, tag: str, attrs: list) -> None:
+        if tag == "img":
+            self.images.append(dict(attrs)["src"])
+        self._in_td = tag == "td" or (self._in_td and tag != "tr")
+        if tag == "td":
+            self.cells.append("")
+
+    def handle_endtag(self, tag: str) -> None:
+        if tag == "td":
+            self._in_td = False
+
+    def handle_data(self, data: str) -> None:
+        if self._in_td and self.cells:
+            self.cells[-1] += data
+
+
+def test_html_has_tables_and_embedded_plots(written: dict, full_run: RunResult) -> None:
+    text = written["paths"].html.read_text(encoding="utf-8")
+    page = _Collector()
+    page.feed(text)
+    # full run: θ, residuals, grey, alarm timeline; the broken run: its timeline only
+    assert len(page.images) == 5
+    for src in page.images:
+        assert src.startswith("data:image/png;base64,")
+        assert base64.b64decode(src.split(",", 1)[1])[:8] == b"\x89PNG\r\n\x1a\n"
+    cells = page.cells
+    assert "fast <detection> & more" in cells  # escaped in HTML, intact after parsing
+    assert "detected_within(diag.df.detected, q_bias, 0.5 s)" in cells
+    # no scenario passes; 2 expectations do; FAIL: 3 summary rows + 1 + 2 + 1 expectations
+    assert cells.count("PASS") == 2 and cells.count("FAIL") == 3 + 4
+    assert "2/3" in cells and "0/2" in cells and "0/1" in cells
+    assert "0.37" in cells  # metrics table: detection delay of diag.df.detected
+    assert "<nan> & stop" in html.unescape(text) and "\x1b" not in text
+
+
+def test_summary_metrics_rows(full_run: RunResult) -> None:
+    rows = report.summary_metrics(full_run, FULL_SCENARIO)
+    delay = next(r for r in rows if r.metric == "detection delay"
+                 and r.subject == "diag.df.detected")
+    assert delay.value == pytest.approx(0.37, abs=1e-9) and delay.unit == "s"
+    fa = next(r for r in rows if r.metric == "false alarms" and r.subject == "diag.df.detected")
+    assert fa.value == 0.0
+    grey = next(r for r in rows if r.metric == "prediction error mean")
+    assert grey.value == pytest.approx(0.1 * np.sqrt(2 / np.pi), rel=0.15)  # E|N(0,1e-3)|·100
+    theta = next(r for r in rows if r.subject == "diag.dtg.theta_y[1]")
+    assert theta.value == pytest.approx(THETA_NOM[0], abs=2e-3)
+    assert theta.condition == "5 ≤ t ≤ 10 s"
+    assert not any(r.subject == "diag.grey.alarm" and r.metric == "detection delay"
+                   and r.value is not None for r in rows)
+
+
+# ------------------------------------------------------------------- plots
+def _spans(ax) -> list:
+    return [p for p in ax.patches if p.get_alpha() == pytest.approx(0.15)]
+
+
+def test_theta_plot_has_five_panels_like_the_paper(full_run: RunResult) -> None:
+    fig = plots.plot_theta(full_run, "diag.dtg", sample_period_s=0.001)
+    assert isinstance(fig, Figure)
+    main = [ax for ax in fig.axes if ax.get_ylabel().startswith("θ")]
+    assert [ax.get_ylabel() for ax in main] == ["θ1", "θ2", "θ3", "θ4", "θ5"]
+    for ax in main:
+        assert len(ax.get_lines()) == 3  # x axis, y axis, nominal θ0
+        assert len(_spans(ax)) == 1
+    lo, hi = main[0].get_ylim()
+    assert lo < THETA_NOM[0] < hi and hi < 2.5  # the start-up transient (≈7) is clipped
+    plots.figure_to_png(fig)
+
+
+def test_residual_plot_thresholds_and_fault_shading(full_run: RunResult) -> None:
+    fig = plots.plot_signals_with_faults(
+        full_run, ["diag.df.residual[1]", "diag.df.residual[2]"],
+        {"diag.df.residual[2]": 0.06})
+    ax1, ax2 = fig.axes
+    assert len(ax1.get_lines()) == 1 and len(ax2.get_lines()) == 3
+    levels = sorted(float(np.unique(line.get_ydata())[0]) for line in ax2.get_lines()[1:])
+    assert levels == [-0.06, 0.06]
+    span = _spans(ax1)[0]
+    assert span.get_x() == pytest.approx(10.0) and span.get_width() == pytest.approx(10.0)
+
+
+def test_long_records_keep_spikes(full_run: RunResult) -> None:
+    n = 200_001
+    t = np.arange(n) * 1e-3
+    y = np.zeros(n)
+    y[123_457] = 7.0
+    run = RunResult("long", t, {"a.alarm": y}, [], 1e-3)
+    fig = plots.plot_signals_with_faults(run, ["a.alarm"])
+    line = fig.axes[0].get_lines()[0]
+    assert len(line.get_ydata()) <= 2 * plots.MAX_PLOT_POINTS
+    assert float(np.max(line.get_ydata())) == 7.0
+
+
+def test_grey_plot_error_and_threshold(full_run: RunResult) -> None:
+    fig = plots.plot_grey_prediction(full_run, "diag.grey.prediction", "hrg.voltage",
+                                     threshold=0.05)
+    top, bottom = fig.axes
+    assert len(top.get_lines()) == 2
+    err = bottom.get_lines()[0].get_ydata()
+    expected = np.abs(full_run.signals["hrg.voltage"] - full_run.signals["diag.grey.prediction"])
+    np.testing.assert_allclose(err, expected)
+    assert bottom.get_lines()[1].get_ydata()[0] == 0.05
+    with pytest.raises(ValueError, match="measured or error"):
+        plots.plot_grey_prediction(full_run, "diag.grey.prediction")
+
+
+def test_plot_selection_from_signal_names(full_run: RunResult) -> None:
+    titles = [title for title, _ in plots.figures_for_result(full_run, FULL_SCENARIO)]
+    assert titles == ["θ trajectories — diag.dtg", "detection-filter residuals — diag",
+                      "grey prediction — diag", "alarms and flags"]
+    # without the scenario the grey measurement and the thresholds are unknown
+    figs = dict(plots.figures_for_result(full_run))
+    assert "grey prediction — diag" not in figs
+    assert all(len(ax.get_lines()) == 1
+               for ax in figs["detection-filter residuals — diag"].axes)
+    timeline = figs["alarms and flags"]
+    assert [ax.get_ylabel() for ax in timeline.axes] == [
+        "diag.df.detected", "diag.df.isolated_sensor", "diag.df.alarm[2]", "diag.grey.alarm"]
+
+
+def test_residual_thresholds_from_scenario(full_run: RunResult) -> None:
+    figs = dict(plots.figures_for_result(full_run, FULL_SCENARIO))
+    ax1, ax2 = figs["detection-filter residuals — diag"].axes
+    assert float(ax1.get_lines()[1].get_ydata()[0]) == 0.05
+    assert float(ax2.get_lines()[1].get_ydata()[0]) == 0.06
+
+
+def test_write_html_standalone(tmp_path: Path) -> None:
+    run = _broken_run()
+    verdicts = verify_results([run], [BROKEN_SCENARIO])
+    path = report.write_html(verdicts, [run], tmp_path / "sub" / "r.html")
+    text = path.read_text(encoding="utf-8")
+    assert text.startswith("<!DOCTYPE html>") and "0/1 scenarios passed" in text
+    path_xml = report.write_junit(verdicts, tmp_path / "j.xml")
+    assert ET.parse(path_xml).getroot().get("errors") == "1"
+
+
+def test_disabled_theta_channel_and_flag_lane_order() -> None:
+    t = np.arange(100) * STEP_S
+    sig = {f"diag.dtg.theta_x[{i}]": np.zeros(t.size) for i in range(1, 6)}
+    sig.update({f"inj.fault_active_{i}": np.zeros(t.size) for i in range(1, 21)})
+    sig["diag.df.detected"] = (t >= 0.5).astype(float)
+    run = RunResult("lanes", t, sig, [], STEP_S)
+    ((_title, fig),) = plots.figures_for_result(run)  # no θ plot for an all-zero channel
+    lanes = [ax.get_ylabel() for ax in fig.axes]
+    assert len(lanes) == plots.MAX_TIMELINE_LANES
+    assert lanes[:2] == ["diag.df.detected", "inj.fault_active_1"]
+    assert "5 constant flags not shown" in fig.get_suptitle()
+
+
+def test_grey_plot_keeps_the_measurement_visible_when_prediction_diverges() -> None:
+    t = np.arange(1000) * STEP_S
+    y = 2.0 + np.sin(t)
+    p = y.copy()
+    p[500:] = np.exp(np.arange(500) * 0.05)  # a predictor fed its own output runs away
+    run = RunResult("grey", t, {"d.y": y, "d.grey.prediction": p}, [], STEP_S)
+    top, bottom = plots.plot_grey_prediction(run, "d.grey.prediction", "d.y",
+                                             threshold=0.05).axes
+    lo, hi = top.get_ylim()
+    # measurement spans [1, 3]: shown with half its span as margin, prediction clipped
+    assert lo == pytest.approx(0.0, abs=0.05) and hi == pytest.approx(4.0, abs=0.05)
+    assert bottom.get_yscale() == "log"
