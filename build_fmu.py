@@ -92,6 +92,7 @@ KNOWN_UNITS: dict[str, dict[str, float]] = {
     "ohm": {"kg": 1, "m": 2, "s": -3, "A": -2},
     "H": {"kg": 1, "m": 2, "s": -2, "A": -2},
     "1/s2": {"s": -2},
+    "N.m/rad": {"kg": 1, "m": 2, "s": -2, "rad": -1},
     "m/rad": {"m": 1, "rad": -1},
     "rad/m": {"rad": 1, "m": -1},
     "m.s/rad": {"m": 1, "s": 1, "rad": -1},
