@@ -1,0 +1,135 @@
+"""Real-time factor of every seed scenario, and the master's overhead vs fmpy.
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_harness.py [--scenarios scenarios/*.toml]
+        [--overhead-steps 20000]
+
+Prints, in one run:
+
+* for each seed scenario (default: ``scenarios/*.toml``): simulated time, wall time and
+  real-time factor RTF = simulated / wall (> 1: faster than real time), each scenario
+  in its own fresh process (DESIGN §6.11);
+* the master's overhead on a single FMU: the Aircraft FMU alone (noise on, 10 ms step)
+  through ``harness.run_scenario`` and through ``fmpy.simulate_fmu`` with the same
+  step and duration, recording the same outputs, each in a fresh process; the ratio
+  and the difference per step.
+
+Figures only, no assertions. FMUs are taken from ``build/fmus`` (run build_fmu.py).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import textwrap
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+FMU_DIR = ROOT / "build" / "fmus"
+
+_SCENARIO_RUNNER = textwrap.dedent(
+    """
+    import json, os, sys, time
+    from harness import load_scenario, run_scenario
+    s = load_scenario(sys.argv[1])
+    t0 = time.perf_counter()
+    r = run_scenario(s, fmu_dir=sys.argv[2], progress=False)
+    wall = time.perf_counter() - t0
+    print(json.dumps({"name": s.name, "sim_s": s.duration_s, "wall_s": wall,
+                      "steps": s.n_steps, "error": r.error}))
+    sys.stdout.flush()
+    os._exit(0)
+    """
+)
+
+_FMPY_RUNNER = textwrap.dedent(
+    """
+    import json, os, sys, time
+    from fmpy import simulate_fmu
+    fmu, step, stop = sys.argv[1], float(sys.argv[2]), float(sys.argv[3])
+    outputs = json.loads(sys.argv[4])
+    t0 = time.perf_counter()
+    simulate_fmu(fmu, stop_time=stop, output_interval=step, step_size=step,
+                 output=outputs, start_values={"noise_std_q": 1e-3})
+    print(json.dumps({"wall_s": time.perf_counter() - t0}))
+    sys.stdout.flush()
+    os._exit(0)
+    """
+)
+
+
+def _run_json(code: str, *args: str) -> dict:
+    proc = subprocess.run(
+        [sys.executable, "-c", code, *args], cwd=ROOT, capture_output=True, text=True
+    )
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
+    if proc.returncode != 0 or not lines:
+        raise RuntimeError(f"benchmark run failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
+    return json.loads(lines[-1])
+
+
+def seed_scenarios(paths: list[str]) -> None:
+    print("Seed scenarios (each in a fresh process)")
+    print(f"{'scenario':40s} {'sim s':>8s} {'wall s':>8s} {'RTF':>8s} {'us/step':>9s}")
+    for path in paths:
+        r = _run_json(_SCENARIO_RUNNER, path, str(FMU_DIR))
+        rtf = r["sim_s"] / r["wall_s"]
+        per_step = 1e6 * r["wall_s"] / max(r["steps"], 1)
+        flag = "" if r["error"] is None else "  (run error)"
+        print(f"{r['name']:40s} {r['sim_s']:8.1f} {r['wall_s']:8.2f} {rtf:8.2f} "
+              f"{per_step:9.1f}{flag}")
+
+
+def master_overhead(steps: int) -> None:
+    step, stop = 0.01, steps * 0.01
+    outputs = ["y_v", "y_alpha", "y_q", "y_theta", "y_gamma", "y_h"]
+    scenario = textwrap.dedent(
+        f"""
+        name = "bench_aircraft_alone"
+        duration_s = {stop}
+        step_s = {step}
+        [fmus.aircraft]
+        fmu = "Aircraft"
+        parameters = {{ noise_std_q = 1e-3 }}
+        [record]
+        variables = {json.dumps(["aircraft." + o for o in outputs])}
+        """
+    )
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "bench_aircraft_alone.toml"
+        path.write_text(scenario)
+        ours = _run_json(_SCENARIO_RUNNER, str(path), str(FMU_DIR))
+    theirs = _run_json(_FMPY_RUNNER, str(FMU_DIR / "Aircraft.fmu"), str(step), str(stop),
+                       json.dumps(outputs))
+    print(f"\nMaster overhead, Aircraft.fmu alone, {steps} steps of {step} s, 6 outputs")
+    print(f"  harness.run_scenario : {ours['wall_s']:.3f} s "
+          f"({1e6 * ours['wall_s'] / steps:.1f} us/step)")
+    print(f"  fmpy.simulate_fmu    : {theirs['wall_s']:.3f} s "
+          f"({1e6 * theirs['wall_s'] / steps:.1f} us/step)")
+    print(f"  ratio harness / fmpy : {ours['wall_s'] / theirs['wall_s']:.2f}; "
+          f"difference {1e6 * (ours['wall_s'] - theirs['wall_s']) / steps:+.1f} us/step")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenarios", nargs="*", default=None,
+                        help="scenario files (default: scenarios/*.toml)")
+    parser.add_argument("--overhead-steps", type=int, default=20000)
+    args = parser.parse_args(argv)
+    paths = args.scenarios
+    if paths is None:
+        paths = [str(p) for p in sorted((ROOT / "scenarios").glob("*.toml"))]
+    if paths:
+        seed_scenarios(paths)
+    else:
+        print("no seed scenarios found under scenarios/")
+    master_overhead(args.overhead_steps)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
