@@ -215,10 +215,16 @@ class Diagnoser(FacadeBase):
         # Grey channel
         p("grey.enabled", "Boolean", "parameter", True, "Run the grey-prediction channel")
         p("grey.model", "Integer", "parameter", 1,
-          "0 classic GM(1,1) (moving window), 1 improved (optimised C, residual fit)")
+          "0 classic GM(1,1) (C = first sample), 1 improved (optimised C, residual fit)")
         _meta("grey.model", None, 0, 1)
-        p("grey.window", "Integer", "parameter", 10, "Moving window length m, samples")
-        _meta("grey.window", None, 4)
+        p("grey.window", "Integer", "parameter", 10,
+          "Moving window length m >= 4, samples; 0 (classic model only): the whole "
+          "record since the start or the last alarm clearing (the paper's ordinary GM)")
+        _meta("grey.window", None, 0)
+        p("grey.classic_evaluation", "Integer", "parameter", 0,
+          "Classic model's time response: 0 careful (exact as a -> 0), 1 textbook "
+          "(1 - e^a)(C - b/a)e^(-am), which collapses on a constant window as in the paper")
+        _meta("grey.classic_evaluation", None, 0, 1)
         p("grey.threshold", "Real", "parameter", 0.05,
           "Alarm threshold on |y - prediction|, signal units")
         _meta("grey.threshold", None, 0.0)
@@ -450,8 +456,20 @@ class Diagnoser(FacadeBase):
         model = int(v["grey.model"])
         window = _named_int(v, "grey.window")
         if model == 0:
-            predictor = ClassicGreyPredictor(window)
+            evaluation = _named_int(v, "grey.classic_evaluation")
+            if evaluation not in (0, 1):
+                raise ValueError("grey.classic_evaluation must be 0 (careful) or 1 (textbook), "
+                                 f"got {evaluation}")
+            # window 0 stands for None: FMI has no "absent" Integer
+            predictor = ClassicGreyPredictor(
+                None if window == 0 else window,
+                evaluation="textbook" if evaluation == 1 else "careful",
+            )
         elif model == 1:
+            if window == 0:
+                raise ValueError("grey.window = 0 (whole record) is only available for the "
+                                 "classic model (grey.model = 0); the improved model needs "
+                                 "a moving window >= 4")
             predictor = ImprovedGreyPredictor(window, a_min=float(v["grey.a_min"]))
         else:
             raise ValueError(f"grey.model must be 0 (classic) or 1 (improved), got {model}")

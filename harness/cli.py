@@ -7,13 +7,15 @@
                                          [--junit PATH] [--html PATH]
     python -m harness report SCENARIO... [--out results] [--junit PATH] [--html PATH]
     python -m harness list [DIR]
+    python -m harness isolability [--out FILE] [--format text|json|html]
 
 A SCENARIO argument is a ``.toml`` file or a folder (all its ``*.toml``, sorted).
 ``run`` writes ``<out>/<name>/signals.csv`` and ``run.json`` per scenario and prints one
 line per scenario.  ``verify`` runs the scenarios, evaluates their ``[[expect]]`` tables
 and writes a JUnit XML and an HTML report (default ``<out>/junit.xml``,
 ``<out>/report.html``).  ``report`` does the same from runs saved earlier in ``<out>``
-without running anything.
+without running anything.  ``isolability`` prints which sensor faults of the seed aircraft
+are detectable and isolable (:mod:`harness.isolability`, analysis only).
 
 Exit status: 0 all good; 1 a run stopped on an FMU error or an expectation failed;
 2 invalid scenario files or command line.
@@ -98,6 +100,16 @@ def _parser() -> argparse.ArgumentParser:
                         metavar="DIR", help=f"folder of .toml files (default "
                                             f"{DEFAULT_SCENARIO_DIR}/)")
     p_list.set_defaults(func=cmd_list)
+
+    p_iso = sub.add_parser("isolability",
+                           help="print the sensor-fault isolability report of the seed "
+                                "aircraft (analysis with the gyrodiag library, no FMU)")
+    p_iso.add_argument("--out", type=Path, default=None, metavar="FILE",
+                       help="also write the report to FILE (format from the suffix: .json, "
+                            ".html, else text)")
+    p_iso.add_argument("--format", choices=("text", "json", "html"), default=None,
+                       help="format of FILE (default from its suffix); printing is text")
+    p_iso.set_defaults(func=cmd_isolability)
     return parser
 
 
@@ -226,6 +238,17 @@ def cmd_report(args: argparse.Namespace) -> int:
         except FileNotFoundError:
             print(f"{s.name}: no saved run in {directory} (run it first)", file=sys.stderr)
     return verify_and_report(results, scenarios, args.out, args.junit, args.html)
+
+
+def cmd_isolability(args: argparse.Namespace) -> int:
+    from harness.isolability import render, seed_isolability_report, write
+
+    report = seed_isolability_report()
+    print(render(report, "text"), end="")
+    if args.out is not None:
+        path = write(args.out, report, args.format)
+        print(f"written: {path}")
+    return EXIT_OK
 
 
 def cmd_list(args: argparse.Namespace) -> int:

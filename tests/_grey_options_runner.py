@@ -1,0 +1,89 @@
+"""Diagnoser.fmu grey-channel options, run in a fresh process (DESIGN §6.11) by
+test_diagnoser_grey_options.
+
+``python _grey_options_runner.py FMU_DIR OUT.npz IN.npz`` runs the grey channel alone
+with every parameter set of :data:`CASES` on the signal ``y`` of IN.npz and writes the
+outputs, a save/restore re-run and the statuses and logs of :data:`INVALID`.
+
+Must not import ``gyrodiag`` (the FMU's shipped copy has to be the first one loaded).
+"""
+
+from __future__ import annotations
+
+import shutil
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from _diagnoser_runner import IN_NAMES, Diag
+
+H = 0.5
+BASE: dict[str, Any] = {
+    "sample_period_s": H, "dtg.enabled": False, "df.enabled": False,
+    "grey.threshold": 0.05, "grey.clear_after_s": 10.0,
+}
+#: label -> (grey.model, grey.window, grey.classic_evaluation)
+CASES: dict[str, tuple[int, int, int]] = {
+    "ordinary_textbook": (0, 0, 1),
+    "ordinary_careful": (0, 0, 0),
+    "moving_textbook": (0, 8, 1),
+    "improved": (1, 10, 0),
+}
+#: Steps before the FMU state is saved in the whole-record run (restored, re-run).
+K_SAVE = 150
+#: Invalid parameter sets: label -> parameters.
+INVALID: dict[str, dict[str, Any]] = {
+    "window 0 with the improved model": {"grey.model": 1, "grey.window": 0},
+    "classic_evaluation 2": {"grey.model": 0, "grey.classic_evaluation": 2},
+    "classic window 3": {"grey.model": 0, "grey.window": 3},
+}
+
+
+def params(model: int, window: int, evaluation: int) -> dict[str, Any]:
+    return {**BASE, "grey.model": model, "grey.window": window,
+            "grey.classic_evaluation": evaluation}
+
+
+def main(fmu_dir: Path, out: Path, inp: Path) -> None:
+    from fmpy import extract, read_model_description
+
+    unzipdir = extract(str(fmu_dir / "Diagnoser.fmu"))
+    md = read_model_description(unzipdir)
+    y = np.load(inp)["y"]
+    record = np.zeros((y.size, len(IN_NAMES)))
+    record[:, IN_NAMES.index("grey.y")] = y
+    res: dict[str, Any] = {}
+    d = None
+    for label, case in CASES.items():
+        d = Diag(unzipdir, md, label, params(*case), h=H)
+        assert d.init_status == 0, d.log
+        res[label] = d.run(record)
+        d.close()
+    assert d is not None
+    res["columns"] = np.array(d.out_names)
+
+    # whole-record model: its state grows with the record, save and restore it
+    d = Diag(unzipdir, md, "state", params(*CASES["ordinary_textbook"]), h=H)
+    d.run(record[:K_SAVE])
+    state = d.fmu.serializeFMUstate(d.fmu.getFMUstate())
+    res["state_first"] = d.run(record[K_SAVE:])
+    d.fmu.setFMUstate(d.fmu.deSerializeFMUstate(state))
+    d.k = K_SAVE
+    res["state_again"] = d.run(record[K_SAVE:])
+    d.close()
+
+    statuses, logs = [], []
+    for i, extra in enumerate(INVALID.values()):
+        d = Diag(unzipdir, md, f"bad_{i}", {**BASE, **extra}, h=H)
+        statuses.append(d.init_status)
+        logs.append("\n".join(m for _, m in d.log))
+        d.close()
+    res["invalid_status"] = np.array(statuses)
+    res["invalid_log"] = np.array(logs)
+    np.savez(out, **res)
+    shutil.rmtree(unzipdir, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main(Path(sys.argv[1]), Path(sys.argv[2]), Path(sys.argv[3]))
