@@ -8,6 +8,8 @@
     python -m harness report SCENARIO... [--out results] [--junit PATH] [--html PATH]
     python -m harness list [DIR]
     python -m harness isolability [--out FILE] [--format text|json|html]
+    python -m harness learn-signatures SCENARIO... --out FILE.json [--runs-out DIR]
+                                       [--window-s S] [--saved] [--fmu-dir DIR]
 
 A SCENARIO argument is a ``.toml`` file or a folder (all its ``*.toml``, sorted).
 ``run`` writes ``<out>/<name>/signals.csv`` and ``run.json`` per scenario and prints one
@@ -16,6 +18,8 @@ and writes a JUnit XML and an HTML report (default ``<out>/junit.xml``,
 ``<out>/report.html``).  ``report`` does the same from runs saved earlier in ``<out>``
 without running anything.  ``isolability`` prints which sensor faults of the seed aircraft
 are detectable and isolable (:mod:`harness.isolability`, analysis only).
+``learn-signatures`` runs DTG training scenarios and writes the fault-signature library
+that verification scenarios load through a ``files`` parameter (:mod:`harness.signatures`).
 
 Exit status: 0 all good; 1 a run stopped on an FMU error or an expectation failed;
 2 invalid scenario files or command line.
@@ -32,6 +36,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from harness import signatures
 from harness.results import RunResult
 from harness.scenario import Scenario, ScenarioError, load_scenario
 
@@ -110,6 +115,8 @@ def _parser() -> argparse.ArgumentParser:
     p_iso.add_argument("--format", choices=("text", "json", "html"), default=None,
                        help="format of FILE (default from its suffix); printing is text")
     p_iso.set_defaults(func=cmd_isolability)
+
+    signatures.add_parser(sub)
     return parser
 
 
@@ -176,7 +183,8 @@ def run_all(scenarios: Sequence[Scenario], out: Path, fmu_dir: Path | None,
     results = []
     for s in scenarios:
         target = out / s.name
-        result = run_scenario(s, fmu_dir=fmu_dir, progress=progress, out_dir=target)
+        result = run_scenario(s, fmu_dir=fmu_dir, progress=progress, out_dir=target,
+                              results_dir=out)
         print(summary_line(result, target), flush=True)
         if result.error is not None and "\n" in result.error.strip():
             print(_indent(result.error), file=sys.stderr, flush=True)

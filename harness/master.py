@@ -71,6 +71,7 @@ from harness.scenario import (
     check_against_models,
     expected_signals,
     load_scenario,
+    resolve_file_parameters,
     resolve_fmu_dir,
     resolve_fmu_file,
     split_name,
@@ -396,7 +397,8 @@ class _Instance:
 
 # --------------------------------------------------------------------------- the run
 def run_scenario(scenario: Scenario | Path | str, fmu_dir: Path | str | None = None,
-                 progress: bool = True, out_dir: Path | str | None = None) -> RunResult:
+                 progress: bool = True, out_dir: Path | str | None = None,
+                 results_dir: Path | str | None = None) -> RunResult:
     """Run one scenario and return what was recorded.
 
     Parameters
@@ -411,6 +413,9 @@ def run_scenario(scenario: Scenario | Path | str, fmu_dir: Path | str | None = N
     out_dir : path, optional
         If given, ``signals.csv`` and ``run.json`` are written into this folder (also
         when the run stops on an FMU error).
+    results_dir : path, optional
+        Results folder of the command: what ``${out}/`` stands for in the instances'
+        ``files`` (:func:`harness.scenario.resolve_file_parameters`).
 
     Returns
     -------
@@ -421,13 +426,14 @@ def run_scenario(scenario: Scenario | Path | str, fmu_dir: Path | str | None = N
     ------
     ScenarioError
         Invalid scenario, unknown variable names (checked against the FMUs'
-        modelDescriptions before anything is instantiated).
+        modelDescriptions before anything is instantiated), a missing ``files`` file.
     FileNotFoundError
         A missing FMU file.
     """
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
-    run = _Run(scenario, resolve_fmu_dir(scenario, fmu_dir))
+    files = resolve_file_parameters(scenario, results_dir)
+    run = _Run(scenario, resolve_fmu_dir(scenario, fmu_dir), files)
     result = run.execute(progress)
     if out_dir is not None:
         result.save(Path(out_dir))
@@ -447,8 +453,10 @@ def fault_windows(scenario: Scenario) -> list[FaultWindow]:
 
 
 class _Run:
-    def __init__(self, scenario: Scenario, fmu_dir: Path) -> None:
+    def __init__(self, scenario: Scenario, fmu_dir: Path,
+                 files: dict[str, dict[str, str]] | None = None) -> None:
         self.s = scenario
+        self.files = files or {}
         self.plan = plan_coupling(scenario)
         paths = {}
         for name in scenario.fmus:
@@ -533,6 +541,8 @@ class _Run:
         params: dict[str, dict[str, Any]] = {n: dict(i.parameters) for n, i in s.fmus.items()}
         for f in s.injector_faults:
             params[f.injector].update(f.injector_parameters())
+        for name, paths in self.files.items():
+            params[name].update(paths)
         for name in self.plan.order:
             inst = self.inst[name]
             inst.instantiate(t0)

@@ -107,11 +107,28 @@ class _Strict(BaseModel):
 
 
 class FmuInstance(_Strict):
-    """One FMU instance: which FMU, its rate and its start values."""
+    """One FMU instance: which FMU, its rate and its start values.
+
+    ``files`` holds String parameters that name a file (parameter name → path), e.g.
+    ``files = { "dtg.signature_file" = "${out}/dtg_signatures.json" }``.  The harness
+    resolves each path before the run and hands the FMU an absolute path: a path that
+    starts with ``${out}/`` is taken in the results folder of the command (``--out``), so
+    a file produced at run time (``python -m harness learn-signatures``) can be named;
+    any other relative path is taken relative to the scenario file's folder.  The file
+    must exist when the run starts (see :func:`resolve_file_parameters`).
+    """
 
     fmu: str = Field(min_length=1)
     step_ratio: int = Field(default=1, ge=1)
     parameters: dict[str, ParameterValue] = Field(default_factory=dict)
+    files: dict[str, str] = Field(default_factory=dict)
+
+    @field_validator("files")
+    @classmethod
+    def _file_specs(cls, value: dict[str, str]) -> dict[str, str]:
+        for name, spec in value.items():
+            _check_file_spec(name, spec)
+        return value
 
 
 class Connection(_Strict):
@@ -265,6 +282,21 @@ class Expectation(BaseModel):
         return self.model_dump(exclude={"kind"}, exclude_none=True)
 
 
+class Training(_Strict):
+    """``[training]``: the run is a training example of one DTG fault class.
+
+    Read by ``python -m harness learn-signatures`` (:mod:`harness.signatures`), ignored by
+    the other commands.  ``signature`` names the fault class, ``code`` is its fault code
+    (1-based position in the learned library, i.e. the ``dtg.fault_code`` the Diagnoser
+    reports for it), ``diagnoser`` the Diagnoser instance whose ``dtg.eta_x``/``dtg.eta_y``
+    outputs give the feature vector.
+    """
+
+    signature: str = Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")
+    code: int = Field(ge=1)
+    diagnoser: str = "diag"
+
+
 class Scenario(_Strict):
     """A validated scenario; see the module docstring and the harness contract."""
 
@@ -279,6 +311,7 @@ class Scenario(_Strict):
     faults: list[Fault] = Field(default_factory=list)
     record: Record = Field(default_factory=Record)
     expect: list[Expectation] = Field(default_factory=list)
+    training: Training | None = None
 
     _source: str = PrivateAttr(default="<scenario>")
     _path: Path | None = PrivateAttr(default=None)
@@ -422,6 +455,14 @@ def _cross_reference_problems(s: Scenario) -> list[tuple[str, str]]:
                                   f"{_suggest(inst, instances)} (instances: "
                                   f"{', '.join(instances)})"))
 
+    for name, inst in s.fmus.items():
+        for pname in inst.files:
+            if pname in inst.parameters:
+                problems.append((f"fmus.{name}.files.{pname}",
+                                 "also set in parameters: set it in one place only"))
+    if s.training is not None and s.training.diagnoser not in s.fmus:
+        problems.append(("training.diagnoser", f"unknown instance {s.training.diagnoser!r}"
+                                               f"{_suggest(s.training.diagnoser, instances)}"))
     for name in instances:
         if not _INSTANCE_RE.match(name):
             problems.append((f"fmus.{name}", "instance names must be identifiers "
@@ -565,6 +606,74 @@ def _find_upwards(scenario: Scenario, spec: str, want_dir: bool) -> Path:
     return (bases[0] / p).resolve()
 
 
+# --------------------------------------------------------------------------- file parameters
+#: Prefix of a ``files`` path taken in the results folder of the command (``--out``).
+RESULTS_PREFIX = "${out}/"
+
+
+def _check_file_spec(name: str, spec: str) -> None:
+    if not spec.strip():
+        raise ValueError(f"{name}: the path must not be empty")
+    rest = spec[len(RESULTS_PREFIX):] if spec.startswith(RESULTS_PREFIX) else spec
+    if "${" in rest:
+        raise ValueError(f"{name}: {spec!r}: the only placeholder is a leading "
+                         f"{RESULTS_PREFIX!r} (the results folder)")
+    if spec.startswith(RESULTS_PREFIX) and (not rest or Path(rest).is_absolute()):
+        raise ValueError(f"{name}: {spec!r}: {RESULTS_PREFIX!r} must be followed by a "
+                         "relative path")
+
+
+def resolve_file_parameters(scenario: Scenario, results_dir: Path | str | None = None,
+                            must_exist: bool = True) -> dict[str, dict[str, str]]:
+    """Absolute paths of every instance's ``files`` parameters.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The scenario.
+    results_dir : path, optional
+        Results folder of the command (what ``${out}/`` stands for).  Required if a
+        path uses it.
+    must_exist : bool
+        Check that every file exists.
+
+    Returns
+    -------
+    dict
+        Instance → {parameter name → absolute path}.
+
+    Raises
+    ------
+    ScenarioError
+        Naming ``fmus.<instance>.files.<parameter>``: ``${out}/`` without a results
+        folder, or a missing file.
+    """
+    resolved: dict[str, dict[str, str]] = {}
+    problems: list[tuple[str, str]] = []
+    base = scenario.path.parent if scenario.path is not None else Path.cwd()
+    for name, inst in scenario.fmus.items():
+        for pname, spec in inst.files.items():
+            key = f"fmus.{name}.files.{pname}"
+            if spec.startswith(RESULTS_PREFIX):
+                if results_dir is None:
+                    problems.append((key, f"{spec!r} names the results folder, but none was "
+                                          "given (pass results_dir / --out)"))
+                    continue
+                path = Path(results_dir) / spec[len(RESULTS_PREFIX):]
+            else:
+                path = Path(spec) if Path(spec).is_absolute() else base / spec
+            path = path.resolve()
+            if must_exist and not path.is_file():
+                problems.append((key, f"file {path} not found (produce it first, e.g. with "
+                                      "'python -m harness learn-signatures ... --out "
+                                      f"{path}')"))
+                continue
+            resolved.setdefault(name, {})[pname] = str(path)
+    if problems:
+        raise ScenarioError(scenario.source, problems)
+    return resolved
+
+
 # --------------------------------------------------------------------------- FMU names
 @dataclass(frozen=True)
 class VariableInfo:
@@ -633,6 +742,12 @@ def check_against_models(scenario: Scenario, models: Mapping[str, ModelInfo]) ->
                 msg = _value_type_problem(info, value)
                 if msg:
                     problems.append((key, msg))
+        for pname in inst.files:
+            key = f"fmus.{name}.files.{pname}"
+            info = lookup(key, f"{name}.{pname}", ("parameter",), "a file parameter")
+            if info is not None and info.type != "String":
+                problems.append((key, f"{pname} is {info.type}: only String parameters can "
+                                      "name a file"))
     for i, c in enumerate(scenario.connections):
         src = lookup(f"connections[{i}].from", c.from_, ("output", "local"), "a source")
         dst = lookup(f"connections[{i}].to", c.to, ("input",), "a destination")

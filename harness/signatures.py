@@ -1,0 +1,349 @@
+"""DTG fault-signature library learned from training runs (``learn-signatures``).
+
+::
+
+    python -m harness learn-signatures scenarios/training --out results/dtg_signatures.json
+    python -m harness verify scenarios/dtg_fault_*.toml --out results
+
+A training scenario is an ordinary scenario with a ``[training]`` table
+(:class:`harness.scenario.Training`)::
+
+    [training]
+    signature = "utx_step"   # fault class (identifier)
+    code = 1                 # its fault code = position in the library (dtg.fault_code)
+    diagnoser = "diag"       # Diagnoser instance whose dtg.eta_x / dtg.eta_y are read
+
+Learning
+--------
+1. Every training scenario is run (or, with ``--saved``, its saved run is loaded).  A
+   run must complete and end in DTG alarm (``dtg.alarm`` = 1 at the last sample):
+   otherwise its feature would be the nominal one and the command fails.
+2. Feature of a run: at each sample, C = round(log10 η) per axis
+   (:func:`gyrodiag.decision.feature_vector`) and the axis with the larger Σ|C_i|
+   (x on ties) — the rule by which ``gyrodiag.dtg_channel`` picks the vector it
+   classifies.  The run's feature is the element-wise median of these vectors over the
+   alarm samples of the final ``window_s`` seconds (``window_s`` = 0: the last sample
+   only), rounded half away from zero.  A window rather than one sample, because the
+   forgetting estimator's η jitters by a decade from sample to sample in a fault.
+3. Signature of a class: element-wise median of its runs' features (rounded the same
+   way), so one unusual training seed cannot move it.
+4. Classes are written in code order; codes must be 1..n without gaps, one code per
+   class.  The JSON file holds ``{"signatures": {name: [C1..C5]}}`` (what the
+   Diagnoser's ``dtg.signature_file`` reads) plus ``codes``, the per-run features and
+   the pairwise eq. 7 distances, for the record.
+
+A verification scenario names the file through a file parameter of its Diagnoser
+instance: ``files = { "dtg.signature_file" = "${out}/dtg_signatures.json" }`` (see
+:class:`harness.scenario.FmuInstance`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from harness.results import RunResult
+from harness.scenario import Scenario, ScenarioError
+
+__all__ = [
+    "N_THETA",
+    "RunFeature",
+    "SignatureLibrary",
+    "add_parser",
+    "check_training_scenarios",
+    "learn_signatures",
+    "run_feature",
+    "signal_names",
+]
+
+#: Number of identified DTG parameters θ1..θ5 (per axis).
+N_THETA = 5
+#: Default length of the final window whose median feature describes a run, s.
+DEFAULT_WINDOW_S = 0.5
+_AXES = ("x", "y")
+
+
+def signal_names(diagnoser: str) -> list[str]:
+    """Recorded signals a training run needs: ``dtg.eta_x[1..5]``, ``dtg.eta_y[1..5]``
+    and ``dtg.alarm`` of the Diagnoser instance ``diagnoser``."""
+    names = [f"{diagnoser}.dtg.eta_{a}[{i}]" for a in _AXES for i in range(1, N_THETA + 1)]
+    return [*names, f"{diagnoser}.dtg.alarm"]
+
+
+def _round_half_away(x: NDArray[np.float64]) -> NDArray[np.int64]:
+    return (np.sign(x) * np.floor(np.abs(x) + 0.5)).astype(np.int64)
+
+
+@dataclass(frozen=True)
+class RunFeature:
+    """Feature vector of one training run.
+
+    Attributes
+    ----------
+    scenario : str
+        Scenario name.
+    signature : str
+        Its fault class.
+    feature : ndarray of int, shape (5,)
+        Median feature vector C over the final window.
+    axes : str
+        Axes picked at the window's samples, e.g. ``"y"`` or ``"x,y"``.
+    eta_end : ndarray, shape (2, 5)
+        η of both axes at the last sample (1).
+    n_samples : int
+        Alarm samples in the final window.
+    """
+
+    scenario: str
+    signature: str
+    feature: NDArray[np.int64]
+    axes: str
+    eta_end: NDArray[np.float64]
+    n_samples: int
+
+
+def run_feature(result: RunResult, diagnoser: str, signature: str,
+                window_s: float = DEFAULT_WINDOW_S) -> RunFeature:
+    """Feature vector C of a training run (module docstring, step 2).
+
+    Parameters
+    ----------
+    result : RunResult
+        A completed run that recorded :func:`signal_names`.
+    diagnoser : str
+        Diagnoser instance name.
+    signature : str
+        Fault class of the run (kept in the result).
+    window_s : float
+        Final window, s (>= 0; 0: the last sample).
+
+    Raises
+    ------
+    ValueError
+        If the run failed, has no samples, or does not end in DTG alarm.
+    KeyError
+        If a needed signal was not recorded (names it).
+    """
+    from gyrodiag.decision import feature_vector
+
+    if not (isinstance(window_s, (int, float)) and math.isfinite(window_s) and window_s >= 0):
+        raise ValueError(f"window_s must be a finite number >= 0 s, got {window_s!r}")
+    if result.error is not None:
+        raise ValueError(f"training run {result.scenario!r} did not complete: "
+                         f"{result.error.strip().splitlines()[0]}")
+    if len(result.time) == 0:
+        raise ValueError(f"training run {result.scenario!r} recorded no samples")
+    eta = np.stack([np.stack([result.signal(f"{diagnoser}.dtg.eta_{a}[{i}]")
+                              for i in range(1, N_THETA + 1)], axis=1) for a in _AXES],
+                   axis=1)  # (n, axis, θ)
+    alarm = result.signal(f"{diagnoser}.dtg.alarm") > 0.5
+    if not alarm[-1]:
+        raise ValueError(
+            f"training run {result.scenario!r} does not end in DTG alarm "
+            f"({diagnoser}.dtg.alarm = 0 at t = {result.time[-1]:g} s): its feature would "
+            "be the nominal one; make the fault larger or the run longer")
+    t_end = result.time[-1]
+    rows = np.flatnonzero((result.time >= t_end - window_s - 1e-9) & alarm)
+    features, axes = [], set()
+    for k in rows:
+        per_axis = [feature_vector(eta[k, a]) for a in range(len(_AXES))]
+        worst = int(np.argmax([np.abs(f).sum() for f in per_axis]))
+        features.append(per_axis[worst])
+        axes.add(_AXES[worst])
+    feature = _round_half_away(np.median(np.array(features, dtype=float), axis=0))
+    return RunFeature(result.scenario, signature, feature, ",".join(sorted(axes)),
+                      eta[-1].copy(), len(rows))
+
+
+@dataclass
+class SignatureLibrary:
+    """Learned signatures, in code order, with the runs they came from."""
+
+    signatures: dict[str, NDArray[np.int64]]
+    codes: dict[str, int]
+    runs: list[RunFeature] = field(default_factory=list)
+    window_s: float = DEFAULT_WINDOW_S
+
+    def distances(self) -> NDArray[np.float64]:
+        """Eq. 7 distances between the signatures, (n, n), library order."""
+        lib = np.array(list(self.signatures.values()), dtype=float)
+        return np.mean(np.abs(lib[:, None, :] - lib[None, :, :]), axis=2)
+
+    def classify(self, feature: NDArray[np.int64]) -> tuple[str, dict[str, float]]:
+        """Nearest signature of ``feature`` (ties: the lower code) and all distances."""
+        d = {n: float(np.mean(np.abs(np.asarray(c, float) - feature)))
+             for n, c in self.signatures.items()}
+        return min(d, key=lambda n: (d[n], self.codes[n])), d
+
+    def to_json(self) -> dict[str, Any]:
+        """The file content: ``signatures`` first (read by the Diagnoser), then the record."""
+        names = list(self.signatures)
+        dist = self.distances()
+        return {
+            "signatures": {n: [int(v) for v in c] for n, c in self.signatures.items()},
+            "codes": dict(self.codes),
+            "method": {
+                "feature": "C = round(log10 eta) of the axis with the larger sum |C_i|, "
+                           "median over the alarm samples of the final window of each run",
+                "window_s": self.window_s,
+                "combine": "element-wise median over the runs of a class, rounded half away "
+                           "from zero",
+            },
+            "distances": {a: {b: round(float(dist[i, j]), 6) for j, b in enumerate(names)}
+                          for i, a in enumerate(names)},
+            "runs": [
+                {"scenario": r.scenario, "signature": r.signature,
+                 "feature": [int(v) for v in r.feature], "axes": r.axes,
+                 "samples": r.n_samples,
+                 "eta_end": {a: [float(v) for v in r.eta_end[i]] for i, a in enumerate(_AXES)}}
+                for r in self.runs
+            ],
+        }
+
+    def write(self, path: Path) -> None:
+        """Write :meth:`to_json` to ``path`` (folders created)."""
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(self.to_json(), indent=2) + "\n", encoding="utf-8")
+
+
+def check_training_scenarios(scenarios: Sequence[Scenario]) -> dict[str, int]:
+    """Check the ``[training]`` tables of a training set; returns class → code.
+
+    Raises
+    ------
+    ScenarioError
+        A scenario without ``[training]``, one that does not record the signals the
+        learning reads, a class with two codes, a code used by two classes, or codes
+        that are not 1..n.
+    """
+    if not scenarios:
+        raise ValueError("no training scenarios given")
+    codes: dict[str, int] = {}
+    owner: dict[int, str] = {}
+    for s in scenarios:
+        tr = s.training
+        if tr is None:
+            raise ScenarioError(s.source, [("training", "missing [training] table: "
+                                                        "learn-signatures needs the fault class "
+                                                        "(signature) and its code")])
+        if s.record.variables is not None:
+            missing = [n for n in signal_names(tr.diagnoser) if n not in s.record.variables]
+            if missing:
+                raise ScenarioError(s.source, [("record.variables",
+                                                f"must include {', '.join(missing)} (the "
+                                                "learning reads them)")])
+        if codes.get(tr.signature, tr.code) != tr.code:
+            raise ScenarioError(s.source, [("training.code",
+                                            f"class {tr.signature!r} has code {tr.code} here "
+                                            f"but {codes[tr.signature]} in another scenario")])
+        if owner.get(tr.code, tr.signature) != tr.signature:
+            raise ScenarioError(s.source, [("training.code",
+                                            f"code {tr.code} is also used by class "
+                                            f"{owner[tr.code]!r}")])
+        codes[tr.signature] = tr.code
+        owner[tr.code] = tr.signature
+    expected = list(range(1, len(codes) + 1))
+    if sorted(codes.values()) != expected:
+        raise ScenarioError(scenarios[0].source, [
+            ("training.code", f"codes of the classes must be 1..{len(codes)} without gaps "
+                              f"(the Diagnoser numbers signatures by position), got "
+                              f"{dict(sorted(codes.items(), key=lambda kv: kv[1]))}")])
+    return dict(sorted(codes.items(), key=lambda kv: kv[1]))
+
+
+def learn_signatures(scenarios: Sequence[Scenario], results: Sequence[RunResult],
+                     window_s: float = DEFAULT_WINDOW_S) -> SignatureLibrary:
+    """Learn the library from training scenarios and their runs (same order).
+
+    Raises
+    ------
+    ScenarioError, ValueError, KeyError
+        See :func:`check_training_scenarios` and :func:`run_feature`.
+    """
+    if len(scenarios) != len(results):
+        raise ValueError(f"{len(scenarios)} scenarios but {len(results)} runs")
+    codes = check_training_scenarios(scenarios)
+    runs = []
+    for s, r in zip(scenarios, results, strict=True):
+        assert s.training is not None
+        runs.append(run_feature(r, s.training.diagnoser, s.training.signature, window_s))
+    signatures = {}
+    for name in codes:
+        feats = np.array([r.feature for r in runs if r.signature == name], dtype=float)
+        signatures[name] = _round_half_away(np.median(feats, axis=0))
+    return SignatureLibrary(signatures, codes, runs, window_s)
+
+
+# --------------------------------------------------------------------------- command
+def add_parser(sub: Any) -> None:
+    """Register ``learn-signatures`` on the CLI's sub-parsers."""
+    p = sub.add_parser(
+        "learn-signatures",
+        help="run DTG training scenarios and write the fault-signature library (JSON)")
+    p.add_argument("scenarios", nargs="+", metavar="SCENARIO", type=Path,
+                   help="training scenario .toml files (with a [training] table) or folders")
+    p.add_argument("--out", type=Path, required=True, metavar="FILE.json",
+                   help="signature library to write")
+    p.add_argument("--runs-out", type=Path, default=None, metavar="DIR",
+                   help="folder of the training runs (default: <folder of FILE>/training)")
+    p.add_argument("--window-s", type=float, default=DEFAULT_WINDOW_S,
+                   help=f"final window whose median feature describes a run, s "
+                        f"(default {DEFAULT_WINDOW_S}; 0: last sample)")
+    p.add_argument("--saved", action="store_true",
+                   help="learn from the runs saved in --runs-out, run nothing")
+    p.add_argument("--fmu-dir", type=Path, default=None, help="folder of the .fmu files")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_learn_signatures)
+
+
+def cmd_learn_signatures(args: argparse.Namespace) -> int:
+    """``learn-signatures``: exit 0 written, 1 a run failed or did not alarm, 2 usage."""
+    from harness.cli import EXIT_FAILED, EXIT_OK, EXIT_USAGE, load_all, run_all
+
+    if not (math.isfinite(args.window_s) and args.window_s >= 0):
+        print(f"error: --window-s must be >= 0, got {args.window_s}", file=sys.stderr)
+        return EXIT_USAGE
+    scenarios = load_all(args.scenarios)
+    check_training_scenarios(scenarios)
+    runs_dir: Path = args.runs_out or args.out.parent / "training"
+    if args.saved:
+        results = [RunResult.load(runs_dir / s.name) for s in scenarios]
+    else:
+        results = run_all(scenarios, runs_dir, args.fmu_dir, not args.no_progress)
+    try:
+        lib = learn_signatures(scenarios, results, args.window_s)
+    except (ValueError, KeyError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    lib.write(args.out)
+    _print_library(lib)
+    print(f"signature library: {args.out}")
+    return EXIT_OK
+
+
+def _print_library(lib: SignatureLibrary) -> None:
+    for r in lib.runs:
+        label, d = lib.classify(r.feature)
+        mark = "" if label == r.signature else f"  <- nearest is {label!r}"
+        dist = ", ".join(f"{n} {v:.1f}" for n, v in d.items())
+        print(f"  run {r.scenario}: class {r.signature}, C = {r.feature.tolist()} "
+              f"(axis {r.axes}, {r.n_samples} samples; d: {dist}){mark}")
+    names = list(lib.signatures)
+    for n in names:
+        print(f"signature {lib.codes[n]} {n}: C = {lib.signatures[n].tolist()}")
+    dist = lib.distances()
+    width = max(len(n) for n in names)
+    print("eq. 7 distances between the signatures:")
+    print(f"  {'':>{width}}  " + "  ".join(f"{n:>{width}}" for n in names))
+    for i, n in enumerate(names):
+        print(f"  {n:>{width}}  " + "  ".join(f"{dist[i, j]:>{width}.2f}"
+                                             for j in range(len(names))))
