@@ -142,6 +142,10 @@ class Diagnoser(FacadeBase):
         _meta("dtg.prefilter_order", None, 1, 20)
         p("dtg.prefilter_cutoff_hz", "Real", "parameter", 50.0, "Butterworth cut-off")
         _meta("dtg.prefilter_cutoff_hz", "Hz", 0.0)
+        p("dtg.prefilter_highpass_hz", "Real", "parameter", 0.0,
+          "High-pass corner cascaded with the low-pass (band-pass); 0: off (paper). "
+          "Removes the slow torquer response to case rates, not in the regression")
+        _meta("dtg.prefilter_highpass_hz", "Hz", 0.0)
         p("dtg.estimator", "Integer", "parameter", 2,
           "Estimator: 0 sliding-window batch LS, 1 RLS, 2 RLS with forgetting factor")
         _meta("dtg.estimator", None, 0, 2)
@@ -405,6 +409,10 @@ class Diagnoser(FacadeBase):
             prefilter_enabled=bool(v["dtg.prefilter_enabled"]),
             prefilter_order=_named_int(v, "dtg.prefilter_order"),
             prefilter_cutoff_hz=float(v["dtg.prefilter_cutoff_hz"]),
+            prefilter_highpass_hz=(
+                None if float(v["dtg.prefilter_highpass_hz"]) == 0.0
+                else float(v["dtg.prefilter_highpass_hz"])
+            ),
             estimator=ESTIMATOR_KINDS[kind],
             window=_named_int(v, "dtg.window"),
             forgetting=float(v["dtg.forgetting"]),
@@ -595,6 +603,7 @@ class Diagnoser(FacadeBase):
 _PARAMETER_NAMES: dict[str, dict[str, str]] = {
     "dtg": {
         "order": "dtg.prefilter_order", "cutoff_hz": "dtg.prefilter_cutoff_hz",
+        "highpass_hz": "dtg.prefilter_highpass_hz",
         "sample_rate_hz": "1/sample_period_s", "estimator": "dtg.estimator",
         "window": "dtg.window", "forgetting": "dtg.forgetting", "p0": "dtg.p0",
         "theta0": "dtg.theta0[1..5]", "learn_start_s": "dtg.learn_start_s",

@@ -75,3 +75,21 @@ def test_wrong_sample_shape_is_rejected():
     f = ButterworthPrefilter(6, 50.0, 1000.0, n_channels=4)
     with pytest.raises(ValueError, match=r"shape \(4,\)"):
         f.update([1.0, 2.0])
+
+
+def test_highpass_cascade_is_a_bandpass_and_streams_exactly():
+    filt = ButterworthPrefilter(6, 50.0, 1000.0, n_channels=2, highpass_hz=2.0)
+    assert filt.sos.shape == (4, 6)  # 3 low-pass sections + 1 high-pass section
+    _, h = signal.sosfreqz(filt.sos, worN=[0.0, 2.0, 20.0, 50.0], fs=1000.0)
+    assert abs(h[0]) < 1e-12  # no DC
+    assert abs(abs(h[1]) - 1 / np.sqrt(2)) < 0.01  # -3 dB at the high-pass corner
+    assert abs(abs(h[2]) - 1.0) < 0.02  # pass band
+    rng = np.random.default_rng(5)
+    x = rng.standard_normal((2000, 2))
+    streamed = np.array([filt.update(r) for r in x])
+    np.testing.assert_allclose(streamed, signal.sosfilt(filt.sos, x, axis=0), atol=1e-12)
+
+
+def test_highpass_must_lie_below_the_lowpass():
+    with pytest.raises(ValueError, match="highpass_hz must be below cutoff_hz"):
+        ButterworthPrefilter(6, 50.0, 1000.0, highpass_hz=60.0)

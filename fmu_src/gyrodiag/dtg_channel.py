@@ -54,6 +54,10 @@ class DTGChannelConfig:
         Butterworth order (paper: 6).
     prefilter_cutoff_hz : float
         Cut-off frequency, Hz (paper: 50).
+    prefilter_highpass_hz : float or None
+        Optional high-pass corner, Hz (2nd order, cascaded: a band-pass). Removes the
+        slow torquer response to case rates, which the regression does not model; None
+        (paper) keeps the low-pass only.
     estimator : {"batch", "rls", "forgetting"}
         Sliding-window batch LS, RLS, or RLS with forgetting factor.
     window : int
@@ -85,6 +89,7 @@ class DTGChannelConfig:
     prefilter_enabled: bool = True
     prefilter_order: int = 6
     prefilter_cutoff_hz: float = 50.0
+    prefilter_highpass_hz: float | None = None
     estimator: EstimatorKind = "forgetting"
     window: int = 500
     forgetting: float = 0.99
@@ -106,7 +111,8 @@ class DTGChannelConfig:
         check_positive("sample_period_s", self.sample_period_s)
         if self.prefilter_enabled:
             ButterworthPrefilter(
-                self.prefilter_order, self.prefilter_cutoff_hz, 1.0 / self.sample_period_s
+                self.prefilter_order, self.prefilter_cutoff_hz, 1.0 / self.sample_period_s,
+                highpass_hz=self.prefilter_highpass_hz,
             )
         if self.estimator not in ESTIMATOR_KINDS:
             raise ValueError(
@@ -214,7 +220,10 @@ class DTGChannel:
         """Return to the state right after construction."""
         c = self.config
         self._prefilter = (
-            ButterworthPrefilter(c.prefilter_order, c.prefilter_cutoff_hz, 1.0 / self.T, 4)
+            ButterworthPrefilter(
+                c.prefilter_order, c.prefilter_cutoff_hz, 1.0 / self.T, 4,
+                highpass_hz=c.prefilter_highpass_hz,
+            )
             if c.prefilter_enabled
             else None
         )

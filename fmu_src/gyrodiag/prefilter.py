@@ -32,6 +32,13 @@ class ButterworthPrefilter:
         Sampling rate in Hz.
     n_channels : int, optional
         Number of channels filtered in parallel by identical filters (default 1).
+    highpass_hz : float, optional
+        If given, a Butterworth high-pass of ``highpass_order`` at this corner (Hz) is
+        cascaded with the low-pass, making a band-pass. It removes slow content that
+        the DTG regression does not model (e.g. the torquer response to a case rate),
+        while applying one LTI filter to every channel keeps the regression exact.
+    highpass_order : int, optional
+        Order of the high-pass (default 2).
 
     Notes
     -----
@@ -42,7 +49,8 @@ class ButterworthPrefilter:
     """
 
     def __init__(
-        self, order: int, cutoff_hz: float, sample_rate_hz: float, n_channels: int = 1
+        self, order: int, cutoff_hz: float, sample_rate_hz: float, n_channels: int = 1,
+        highpass_hz: float | None = None, highpass_order: int = 2,
     ) -> None:
         self.order = check_int("order", order, minimum=1)
         self.sample_rate_hz = check_positive("sample_rate_hz", sample_rate_hz)
@@ -57,6 +65,19 @@ class ButterworthPrefilter:
         self.sos: NDArray[np.float64] = signal.butter(
             self.order, self.cutoff_hz, btype="low", fs=self.sample_rate_hz, output="sos"
         )
+        self.highpass_hz = None if highpass_hz is None else check_positive(
+            "highpass_hz", highpass_hz)
+        if self.highpass_hz is not None:
+            if self.highpass_hz >= self.cutoff_hz:
+                raise ValueError(
+                    f"highpass_hz must be below cutoff_hz ({self.cutoff_hz} Hz), "
+                    f"got {highpass_hz!r}"
+                )
+            hp_order = check_int("highpass_order", highpass_order, minimum=1)
+            hp = signal.butter(
+                hp_order, self.highpass_hz, btype="high", fs=self.sample_rate_hz, output="sos"
+            )
+            self.sos = np.vstack([self.sos, hp])
         self._zi = np.zeros((self.sos.shape[0], 2, self.n_channels))
 
     def reset(self) -> None:
