@@ -7,6 +7,7 @@
                                          [--junit PATH] [--html PATH]
     python -m harness report SCENARIO... [--out results] [--junit PATH] [--html PATH]
     python -m harness list [DIR]
+    python -m harness all [--out results] [--scenarios DIR] [--fmu-dir DIR] [--no-build]
     python -m harness isolability [--out FILE] [--format text|json|html]
     python -m harness learn-signatures SCENARIO... --out FILE.json [--runs-out DIR]
                                        [--window-s S] [--saved] [--fmu-dir DIR]
@@ -36,7 +37,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from harness import signatures
+from harness import pipeline, signatures
 from harness.results import RunResult
 from harness.scenario import Scenario, ScenarioError, load_scenario
 
@@ -117,6 +118,7 @@ def _parser() -> argparse.ArgumentParser:
     p_iso.set_defaults(func=cmd_isolability)
 
     signatures.add_parser(sub)
+    pipeline.add_parser(sub)
     return parser
 
 
