@@ -92,10 +92,10 @@ _DESCRIPTIONS: dict[str, Any] = {}
 def extraction_root() -> Path:
     """Where FMUs are unzipped: one folder per FMU content hash, shared by processes.
 
-    The folders are never deleted by the harness: removing an extracted FMU at
-    interpreter exit, while its pythonfmu library is still mapped, corrupted the heap in
-    about one exit in four (glibc "corrupted double-linked list"); keyed by content they
-    do not pile up either.
+    The folders are never deleted by the harness, since a pythonfmu library stays mapped
+    until the process exits; keyed by content they do not pile up. (Deleting them at
+    exit only shifted the heap layout of pythonfmu's own use-after-free at exit, which
+    the status shim now prevents.)
     """
     user = os.getuid() if hasattr(os, "getuid") else 0
     return Path(tempfile.gettempdir()) / f"gyrodiag-fmus-{user}"

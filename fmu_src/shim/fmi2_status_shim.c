@@ -41,6 +41,35 @@ typedef struct {
 
 static void *real_lib = NULL;
 
+/*
+ * pythonfmu 0.7 keeps its interpreter guard in a namespace-scope
+ * std::shared_ptr<PyState> and also resets that pointer from an
+ * __attribute__((destructor)) (finalizePythonInterpreter). When the process exits with
+ * the library still loaded, exit() first runs the shared_ptr's static destructor (an
+ * atexit entry registered when the library was loaded), which frees the control block
+ * but leaves the pointer in place, and then _dl_fini runs the ELF destructor, which
+ * decrements the use count inside the freed block: a write into a free heap chunk
+ * (its "bk" link when the chunk is in an unsorted/small bin), reported by glibc as
+ * "corrupted double-linked list" at some later free() during exit. Calling
+ * finalizePythonInterpreter from an atexit entry registered after the library was loaded
+ * runs it first (exit handlers run last-registered first), so the pointer is already
+ * null when the static and ELF destructors run and both become no-ops.
+ */
+static void (*real_finalize)(void) = NULL;
+
+static void finalize_real_at_exit(void)
+{
+    if (real_finalize) real_finalize();
+}
+
+/* Keep this library mapped until exit: the atexit entry above belongs to it, and the
+ * real library is never unloaded either (a dlclose by the host must not run the entry
+ * early, while other instances of the FMU may still be alive). */
+static void pin_self(const char *self_path)
+{
+    (void)dlopen(self_path, RTLD_NOW | RTLD_NOLOAD | RTLD_NODELETE);
+}
+
 #define REAL(name) static name##TYPE *real_##name = NULL;
 REAL(fmi2GetTypesPlatform) REAL(fmi2GetVersion) REAL(fmi2SetDebugLogging)
 REAL(fmi2Instantiate) REAL(fmi2FreeInstance) REAL(fmi2SetupExperiment)
@@ -81,6 +110,11 @@ static int load_real(void)
     LOAD(fmi2GetIntegerStatus) LOAD(fmi2GetBooleanStatus) LOAD(fmi2GetStringStatus)
 #undef LOAD
     real_lib = lib;
+    real_finalize = (void (*)(void))dlsym(lib, "finalizePythonInterpreter");
+    if (real_finalize) {
+        pin_self(info.dli_fname);
+        atexit(finalize_real_at_exit);
+    }
     return 1;
 }
 
