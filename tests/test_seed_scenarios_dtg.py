@@ -5,7 +5,9 @@ One campaign per session, two processes in parallel (2 cores):
 * A: ``learn-signatures scenarios/training`` (12 training runs, seeds 101-103), then
   ``verify scenarios/dtg_fault_*.toml`` (8 runs, seeds 11-12), which load the learned
   library through ``files = { "dtg.signature_file" = "${out}/dtg_signatures.json" }``;
-* B: ``verify`` of the nominal, physical-fault and system scenarios.
+* B: ``verify`` of the nominal and physical-fault scenarios;
+* system (own fixture, after the campaign): the spin scenario and its fault-free
+  control, two ``verify`` processes in parallel.
 
 The CLI ends with ``os._exit`` (harness/__main__.py), so exit statuses are reliable.
 The tests assert exit 0, zero JUnit failures and key figures read back from the saved
@@ -37,7 +39,8 @@ SCEN = ROOT / "scenarios"
 FAULTS = {"utx_step": 1, "utx_noise": 2, "utx_loss": 3, "ux_drift": 4}
 FAULT_T = 6.0
 GROUP_B = ["dtg_nominal.toml", "dtg_physical_spin_slowdown.toml",
-           "dtg_physical_torquer_scale.toml", "system_pitch_gyro_spin.toml"]
+           "dtg_physical_torquer_scale.toml"]
+SYSTEM = ["system_pitch_gyro_spin", "system_pitch_gyro_nominal"]
 
 
 def _cmd(*args: str) -> list[str]:
@@ -185,22 +188,103 @@ def test_physical_faults_detected_in_the_fine_band_only(campaign):
     assert eta5 == pytest.approx(0.8, abs=0.05)  # θ5 ∝ Ku
 
 
-def test_system_scenario_what_is_reached(campaign):
-    r = _load(campaign["out_b"], "system_pitch_gyro_spin")
-    t = r.time
-    q, read = r.signal("aircraft.x_q"), r.signal("dtg.omega_y_read")
-    level = (t >= 2.0) & (t < 20.0)
-    assert np.sqrt(np.mean((read - q)[level] ** 2)) < 0.01
-    det = r.signal("diag_df.df.detected")
-    assert not np.any(det[t < 30.0] > 0.5)
-    assert detection_delay_s(t, det, 30.0) < 0.5
-    assert r.signal("diag_df.df.isolated_sensor")[-1] == 3
-    assert r.signal("diag_df.df.fault_type")[-1] == 2
-    # the fault-free control gives 0.88 (read-out lag); the spin fault scales it by ~0.9
-    assert 0.75 < r.signal("diag_df.df.fault_magnitude")[-1] < 0.85
-    # documented limitation: the DTG channel is biased by the case rate and alarms
-    # before the spin fault (see the scenario's header)
-    assert detection_delay_s(t, r.signal("diag_fine.dtg.alarm"), 0.0) < 20.0
+# ----------------------------------------------------------------- system (DESIGN §5)
+@pytest.fixture(scope="module")
+def system_runs(fmu_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """Spin scenario and its fault-free control, two ``verify`` processes in parallel."""
+    fmu = ["--fmu-dir", str(fmu_dir), "--no-progress"]
+    t0 = time.perf_counter()
+    outs = {name: tmp_path_factory.mktemp(name) for name in SYSTEM}
+    procs = {name: subprocess.Popen(_cmd("verify", str(SCEN / f"{name}.toml"), "--out",
+                                         str(outs[name]), *fmu),
+                                    cwd=ROOT, env=_env(), stdout=subprocess.PIPE,
+                                    stderr=subprocess.STDOUT, text=True)
+             for name in SYSTEM}
+    texts = {name: p.communicate(timeout=600)[0] for name, p in procs.items()}
+    return {"out": outs, "rc": {n: p.returncode for n, p in procs.items()}, "text": texts,
+            "wall_s": time.perf_counter() - t0}
+
+
+def _system(runs: dict, name: str) -> RunResult:
+    return _load(runs["out"][name], name)
+
+
+def _theta34(r: RunResult, t0: float, t1: float) -> np.ndarray:
+    m = (r.time >= t0) & (r.time < t1)
+    return np.array([r.signal(f"diag_fine.dtg.theta_{a}[{i}]")[m].mean()
+                     for a in "xy" for i in (3, 4)])
+
+
+def _eta_range(r: RunResult, t0: float, t1: float) -> tuple[float, float]:
+    m = (r.time >= t0) & (r.time < t1)
+    eta = np.array([r.signal(f"diag_fine.dtg.eta_{a}[{i}]")[m]
+                    for a in "xy" for i in range(1, 6)])
+    return float(eta.min()), float(eta.max())
+
+
+def test_system_scenarios_verify(system_runs, capsys):
+    for name in SYSTEM:
+        assert system_runs["rc"][name] == 0, system_runs["text"][name][-5000:]
+        assert _junit_failures(system_runs["out"][name] / "junit.xml") == (0, 0)
+    with capsys.disabled():
+        print(f"\nsystem scenarios wall time: {system_runs['wall_s']:.0f} s")
+
+
+def test_system_gyro_in_the_loop_reads_the_pitch_rate(system_runs):
+    for name in SYSTEM:
+        r = _system(system_runs, name)
+        level = (r.time >= 2.0) & (r.time < 20.0)
+        err = (r.signal("dtg.omega_y_read") - r.signal("aircraft.x_q"))[level]
+        # the read-out noise is the 1 V torquer dither seen through Ku/L (151 V per
+        # rad/s): 1/151 = 6.6e-3 rad/s per sample, the pick-off noise adds little
+        assert 5e-3 < np.sqrt(np.mean(err**2)) < 8e-3
+        # with the controller at 1 kHz and 1e-4 rad attitude sensors, level flight is
+        # calm: the case rate the DTG regression does not model stays ~1e-4 rad/s
+        assert r.signal("aircraft.x_q")[level].std() < 1e-3
+
+
+def test_system_dtg_channel_witness(system_runs):
+    spin = _system(system_runs, "system_pitch_gyro_spin")
+    ctrl = _system(system_runs, "system_pitch_gyro_nominal")
+    t = spin.time
+    alarm_s, alarm_c = spin.signal("diag_fine.dtg.alarm"), ctrl.signal("diag_fine.dtg.alarm")
+    # the same seeds: both runs are identical up to the fault
+    np.testing.assert_array_equal(spin.signal("diag_fine.dtg.eta_x[3]")[t < 20.0],
+                                  ctrl.signal("diag_fine.dtg.eta_x[3]")[t < 20.0])
+    assert not np.any(alarm_s[t < 20.0] > 0.5)
+    assert not np.any(alarm_c[t < 28.0] > 0.5)  # control: quiet all through level flight
+    lo, hi = _eta_range(ctrl, 10.0, 28.0)
+    assert 0.93 < lo and hi < 1.07, (lo, hi)
+    delay = detection_delay_s(t, alarm_s, 20.0)
+    assert 0.5 < delay < 8.0  # forgetting 0.9998: ~5 s memory
+    # L and λ scale with the spin: θ3, θ4 of both axes fall against the control run
+    # (not yet the full 0.9 with a 5 s memory, 6-8 s after the step)
+    ratio = _theta34(spin, 26.0, 28.0) / _theta34(ctrl, 26.0, 28.0)
+    assert np.all((ratio > 0.88) & (ratio < 0.96)), ratio
+    # once the pilot manoeuvres the unmodelled case rate dominates: the DTG channel is no
+    # witness there (documented in the scenario header)
+    assert np.any(alarm_c[t >= 28.0] > 0.5)
+
+
+def test_system_detection_filter_witness(system_runs):
+    spin = _system(system_runs, "system_pitch_gyro_spin")
+    ctrl = _system(system_runs, "system_pitch_gyro_nominal")
+    t = spin.time
+    gains = {}
+    for name, r in (("spin", spin), ("ctrl", ctrl)):
+        det = r.signal("diag_df.df.detected")
+        # a q gain error is invisible at q ~ 0: quiet in level flight, also after the
+        # spin fault
+        assert not np.any(det[t < 28.0] > 0.5), name
+        assert detection_delay_s(t, det, 28.0) < 0.5, name
+        assert r.signal("diag_df.df.isolated_sensor")[-1] == 3, name
+        assert r.signal("diag_df.df.fault_type")[-1] == 2, name
+        gains[name] = r.signal("diag_df.df.fault_magnitude")[-1]
+    # fault-free the read-out lag of the paper rotor's rebalance loop looks like a q gain
+    # ~0.85; the spin fault scales the read-out by 0.9 on top of it
+    assert 0.81 < gains["ctrl"] < 0.90
+    assert 0.72 < gains["spin"] < 0.81
+    assert gains["spin"] / gains["ctrl"] == pytest.approx(0.9, abs=0.02)
 
 
 def test_campaign_wall_time_is_recorded(campaign, capsys):
