@@ -8,6 +8,8 @@
     python -m harness report SCENARIO... [--out results] [--junit PATH] [--html PATH]
     python -m harness list [DIR]
     python -m harness all [--out results] [--scenarios DIR] [--fmu-dir DIR] [--no-build]
+    python -m harness campaign SPEC.toml [--out DIR] [--workers N] [--dask local|ADDRESS]
+                               [--timeout S] [--fraction F] [--report-only]
     python -m harness isolability [--out FILE] [--format text|json|html]
     python -m harness learn-signatures SCENARIO... --out FILE.json [--runs-out DIR]
                                        [--window-s S] [--saved] [--fmu-dir DIR]
@@ -37,7 +39,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from harness import pipeline, signatures
+from harness import campaign, pipeline, signatures
 from harness.results import RunResult
 from harness.scenario import Scenario, ScenarioError, load_scenario
 
@@ -119,6 +121,7 @@ def _parser() -> argparse.ArgumentParser:
 
     signatures.add_parser(sub)
     pipeline.add_parser(sub)
+    campaign.add_parser(sub)
     return parser
 
 

@@ -1,0 +1,872 @@
+"""Monte Carlo fault-injection campaigns: ``python -m harness campaign SPEC.toml``.
+
+A campaign spec (TOML, validated by :class:`CampaignSpec`) names, per *class*, a base
+scenario (the chain of FMUs, e.g. ``scenarios/aircraft_q_bias.toml``) and sweeps over
+fault type, magnitude, onset time, affected injector channel (sensor) and random seed,
+plus nominal runs (no fault) for the false-alarm rate.  :func:`expand_runs` turns the
+spec into :class:`RunSpec` entries, each with a deterministic id (hash of its content),
+so that a campaign can be interrupted and resumed.
+
+Execution
+---------
+Each run is simulated in **its own fresh process** (``python -m harness.campaign
+--child``): pythonfmu FMUs must not be loaded twice in one process, a crash (abort,
+segfault) only kills that process, and a hung run can be killed at its timeout.  The
+guard that starts the process, waits for it and writes the run's record
+(:func:`execute_run`) is the task that a pool runs:
+
+* default: a ``concurrent.futures.ProcessPoolExecutor`` (``spawn`` context);
+* ``--dask local``: a ``dask.distributed`` ``LocalCluster``; ``--dask ADDRESS``: the
+  scheduler of a real cluster (the workers need this package and the FMUs at the same
+  paths).  No home-made job system: the pools do the scheduling.
+
+Every finished run is written at once as ``<out>/runs/<run_id>.json`` (atomically: a
+temporary file renamed), also when it failed: ``status`` is ``"ok"``, ``"error"`` (the
+runner raised, the process died, the FMU failed) or ``"timeout"``.  A resumed campaign
+skips every id that has a record (``--retry-failed`` re-runs the failed ones).
+
+What a run records
+------------------
+Not the signals: a small record (:func:`simulate_run`) with, for the channel's alarm
+``A(t)`` (detection filter: any main-residual alarm ``diag.df.alarm[i]``, k-of-n,
+unlatched; DTG: ``diag.dtg.alarm``):
+
+* ``detected`` / ``delay_s``: ``A`` on at some sample at or after the onset, delay from
+  the onset to the first such sample;
+* ``false_alarms`` / ``fault_free_s``: rising edges of ``A`` in the fault-free time from
+  the end of calibration (DF) or learning (DTG) to the onset (the whole run if nominal);
+* ``diagnosed``: isolated sensor (``diag.df.isolated_sensor``) or DTG fault code at the
+  end of the run, and ``injected``, what it should be;
+* the threshold sweep: the alarm statistic ``s(t)`` in threshold units is rebuilt from the
+  recorded outputs, so that ``A_T(t) = s(t) > T`` reproduces the alarm at any threshold
+  ``T``, and detection, delay and false alarms are evaluated on the class's threshold
+  grid.  DF: ``s(t) = max_i kth_largest(|r_i - mu_i| / sigma_i over the last n
+  samples)`` with ``mu_i``, ``sigma_i`` (ddof 1) re-estimated from the recorded main
+  residuals over the calibration window after the burn-in, exactly as the channel does;
+  ``T`` is in standard deviations (the FMU uses ``df.k_sigma``).  DTG: ``s(t) =
+  max |eta - 1|`` over the monitored ratios of both axes after learning; ``T`` is the
+  half-width of a band symmetric about 1 (the paper's 0.5/1.5 is ``T = 0.5``).
+  ``sweep_mismatch`` is the fraction of samples where ``s > T_config`` disagrees with the
+  FMU's own alarm (0 when the reconstruction is exact).
+
+Approximated in the sweep: the detection filter's isolation bank can also raise
+``df.detected``; only the main residual alarms are swept.  Isolation and DTG
+classification are not re-evaluated at other thresholds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import importlib
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+import tomllib
+import traceback
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from harness.scenario import FAULT_TYPE_PARAMETERS, ScenarioError
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+#: The per-run function used unless the spec or the caller names another.
+DEFAULT_RUNNER = "harness.campaign:simulate_run"
+#: Sensor names of the seed aircraft (injector channel i feeds sensor i).
+AIRCRAFT_SENSORS = ("v", "alpha", "q", "theta", "gamma", "h")
+DEFAULT_THRESHOLDS = {
+    "df": [3.0, 4.0, 4.5, 5.0, 5.5, 6.0, 6.5, 7.0, 8.0, 10.0, 12.0, 15.0],
+    "dtg": [0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.8],
+}
+#: The fault parameter that ``magnitudes`` sets, per fault type (gain: the factor).
+MAGNITUDE_PARAMETER = {
+    "bias": "magnitude", "gain": "gain", "stuck_value": "stuck_value", "step": "magnitude",
+    "ramp": "magnitude", "noise": "noise_std", "signal_loss": "noise_std",
+    "intermittent": "magnitude",
+}
+
+
+# --------------------------------------------------------------------------- spec
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class FaultClass(_Strict):
+    """A base scenario and how to read its diagnosis.
+
+    ``channel`` is the Diagnoser channel judged: ``"df"`` (aircraft detection filter) or
+    ``"dtg"``.  ``seed_parameters`` are ``instance.parameter`` names set to each run's
+    seed (offset by their position, so two generators never share a seed).
+    """
+
+    scenario: str
+    channel: Literal["df", "dtg"]
+    diagnoser: str = "diag"
+    injector: str = "injector"
+    seed_parameters: list[str] = Field(default_factory=list)
+    #: Parameter overrides per instance, e.g. ``{ diag = { "df.calibrate_s" = 2.0 } }``.
+    parameters: dict[str, dict[str, bool | int | float | str]] = Field(default_factory=dict)
+    thresholds: list[float] | None = None
+
+
+class Sweep(_Strict):
+    """Fault runs: the product of magnitudes × onsets × channels × seeds.
+
+    ``post_onset_s`` sets each run's duration to onset + this; else ``duration_s``, else
+    the base scenario's.  ``expected`` is the diagnosis that counts as right: default the
+    injected channel (``df``); for ``dtg`` the fault's signature name (``label``).
+    """
+
+    cls: str = Field(alias="class")
+    type: str
+    label: str | None = None
+    magnitudes: list[float] = Field(default_factory=lambda: [math.nan])
+    onsets_s: list[float] = Field(min_length=1)
+    channels: list[int] = Field(min_length=1)
+    seeds: int = Field(default=1, ge=1)
+    duration_s: float | None = Field(default=None, gt=0)
+    post_onset_s: float | None = Field(default=None, gt=0)
+    extra: dict[str, float] = Field(default_factory=dict)
+
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+
+    @model_validator(mode="after")
+    def _known_type(self) -> Sweep:
+        if self.type not in FAULT_TYPE_PARAMETERS or self.type == "none":
+            raise ValueError(f"type: unknown fault type {self.type!r}")
+        needs = MAGNITUDE_PARAMETER.get(self.type)
+        has_mag = not all(math.isnan(m) for m in self.magnitudes)
+        if needs is None and has_mag:
+            raise ValueError(f"magnitudes: fault type {self.type!r} takes no magnitude")
+        if needs is not None and not has_mag:
+            raise ValueError(f"magnitudes: fault type {self.type!r} needs magnitudes "
+                             f"(they set its {needs!r})")
+        return self
+
+
+class Nominal(_Strict):
+    """Fault-free runs of a class: ``runs`` seeds of ``duration_s`` each."""
+
+    cls: str = Field(alias="class")
+    duration_s: float = Field(gt=0)
+    runs: int = Field(ge=1)
+
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+
+
+class CampaignSpec(_Strict):
+    """A campaign file; relative paths are taken from the file's folder."""
+
+    name: str = Field(min_length=1)
+    description: str = ""
+    base_seed: int = 1
+    timeout_s: float = Field(default=600.0, gt=0)
+    runner: str = DEFAULT_RUNNER
+    fmu_dir: str | None = None
+    #: What ``${out}/`` stands for in the base scenarios' ``files`` (default: the
+    #: campaign's output folder).
+    results_dir: str | None = None
+    #: DTG training scenarios: learned into ``<results_dir>/dtg_signatures.json`` first
+    #: when that file is missing.
+    signatures_training: str | None = None
+    classes: dict[str, FaultClass] = Field(min_length=1)
+    sweeps: list[Sweep] = Field(default_factory=list)
+    nominal: list[Nominal] = Field(default_factory=list)
+
+    @model_validator(mode="after")
+    def _classes_exist(self) -> CampaignSpec:
+        for i, s in enumerate([*self.sweeps, *self.nominal]):
+            if s.cls not in self.classes:
+                raise ValueError(f"entry {i}: unknown class {s.cls!r} "
+                                 f"(classes: {', '.join(self.classes)})")
+        return self
+
+
+def load_campaign(path: Path | str) -> tuple[CampaignSpec, Path]:
+    """Read a campaign TOML; returns the spec and the folder relative paths start from.
+
+    Raises
+    ------
+    ScenarioError
+        Naming the file and the key of every problem.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: campaign file not found")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(str(path), [("", f"invalid TOML: {exc}")]) from None
+    data.setdefault("name", path.stem)
+    try:
+        spec = CampaignSpec.model_validate(data)
+    except ValidationError as exc:
+        raise ScenarioError(str(path), [(".".join(str(x) for x in e["loc"]), e["msg"])
+                                        for e in exc.errors()]) from None
+    return spec, path.resolve().parent
+
+
+# --------------------------------------------------------------------------- run specs
+class RunSpec(_Strict):
+    """Everything one run needs, JSON-serialisable (it travels to the worker)."""
+
+    run_id: str
+    campaign: str
+    cls: str
+    channel: Literal["df", "dtg"]
+    kind: Literal["fault", "nominal"]
+    scenario: str                      # absolute path of the base scenario
+    duration_s: float
+    seed: int
+    seed_parameters: list[str]
+    parameters: dict[str, dict[str, bool | int | float | str]] = Field(default_factory=dict)
+    diagnoser: str
+    fault: dict[str, Any] | None       # a [[faults]] entry, None when nominal
+    fault_type: str | None = None
+    magnitude: float | None = None
+    onset_s: float | None = None
+    target: int | None = None          # injector channel
+    injected: str | None = None        # diagnosis that counts as right
+    thresholds: list[float]
+    fmu_dir: str | None = None
+    results_dir: str | None = None
+
+
+def _seed(base_seed: int, key: str) -> int:
+    digest = hashlib.sha256(f"{base_seed}:{key}".encode()).digest()
+    return int.from_bytes(digest[:4], "little") % 2_000_000_000 + 1
+
+
+def _run_id(payload: dict[str, Any]) -> str:
+    digest = hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode())
+    return digest.hexdigest()[:16]
+
+
+def expand_runs(spec: CampaignSpec, base_dir: Path, out_dir: Path | None = None) -> list[RunSpec]:
+    """Every run of the campaign, in a deterministic order with deterministic ids.
+
+    The id hashes what the run computes (base scenario path relative to ``base_dir``,
+    fault, seed, duration, thresholds), not where it is written, so a spec edited by
+    adding sweeps keeps the ids (and records) of the runs it had.
+    """
+    runs: list[RunSpec] = []
+    fmu_dir = str((base_dir / spec.fmu_dir).resolve()) if spec.fmu_dir else None
+    if spec.results_dir is not None:
+        results_dir: str | None = str((base_dir / spec.results_dir).resolve())
+    else:
+        results_dir = str(out_dir.resolve()) if out_dir is not None else None
+
+    def make(cls_name: str, kind: str, duration: float, replicate: str, fault: dict | None,
+             **meta: Any) -> RunSpec:
+        c = spec.classes[cls_name]
+        scenario = (base_dir / c.scenario).resolve()
+        ident = {"class": cls_name, "scenario": os.path.relpath(scenario, base_dir),
+                 "kind": kind, "duration_s": duration, "fault": fault,
+                 "replicate": replicate, "base_seed": spec.base_seed}
+        seed = _seed(spec.base_seed, json.dumps(ident, sort_keys=True))
+        thresholds = list(c.thresholds or DEFAULT_THRESHOLDS[c.channel])
+        ident.update(seed_parameters=c.seed_parameters, thresholds=thresholds,
+                     diagnoser=c.diagnoser, parameters=c.parameters)
+        return RunSpec(run_id=f"{cls_name}-{meta.get('fault_type') or 'nominal'}-"
+                              f"{_run_id(ident)}",
+                       campaign=spec.name, cls=cls_name, channel=c.channel, kind=kind,
+                       scenario=str(scenario), duration_s=duration, seed=seed,
+                       seed_parameters=c.seed_parameters, parameters=c.parameters,
+                       diagnoser=c.diagnoser,
+                       fault=fault, thresholds=thresholds, fmu_dir=fmu_dir,
+                       results_dir=results_dir, **meta)
+
+    for sw in spec.sweeps:
+        c = spec.classes[sw.cls]
+        for mag in sw.magnitudes:
+            for onset in sw.onsets_s:
+                for ch in sw.channels:
+                    fault: dict[str, Any] = {"name": "campaign_fault", "injector": c.injector,
+                                             "channel": ch, "type": sw.type,
+                                             "start_s": onset, **sw.extra}
+                    if not math.isnan(mag):
+                        fault[MAGNITUDE_PARAMETER[sw.type]] = mag
+                    duration = (onset + sw.post_onset_s if sw.post_onset_s is not None
+                                else sw.duration_s or _base_duration(base_dir / c.scenario))
+                    if c.channel == "df":
+                        injected = (AIRCRAFT_SENSORS[ch - 1] if ch <= len(AIRCRAFT_SENSORS)
+                                    else str(ch))
+                    else:
+                        injected = sw.label or sw.type
+                    for r in range(sw.seeds):
+                        runs.append(make(sw.cls, "fault", duration, str(r), fault,
+                                         fault_type=sw.label or sw.type,
+                                         magnitude=None if math.isnan(mag) else mag,
+                                         onset_s=onset, target=ch, injected=injected))
+    for nom in spec.nominal:
+        for r in range(nom.runs):
+            runs.append(make(nom.cls, "nominal", nom.duration_s, str(r), None))
+    ids = [r.run_id for r in runs]
+    if len(set(ids)) != len(ids):
+        dup = next(i for i in ids if ids.count(i) > 1)
+        raise ValueError(f"campaign {spec.name!r}: two runs are identical ({dup}); "
+                         "remove the duplicate sweep entry")
+    return runs
+
+
+def _base_duration(path: Path) -> float:
+    return float(tomllib.loads(path.read_text(encoding="utf-8"))["duration_s"])
+
+
+# --------------------------------------------------------------------------- one run
+def _signals(run: RunSpec) -> list[str]:
+    d = run.diagnoser
+    if run.channel == "df":
+        return ([f"{d}.df.residual[{i}]" for i in range(1, 7)]
+                + [f"{d}.df.alarm[{i}]" for i in range(1, 7)]
+                + [f"{d}.df.detected", f"{d}.df.isolated_sensor", f"{d}.df.calibrating"])
+    return ([f"{d}.dtg.eta_{ax}[{i}]" for ax in "xy" for i in range(1, 6)]
+            + [f"{d}.dtg.alarm", f"{d}.dtg.learning", f"{d}.dtg.fault_code"])
+
+
+def build_scenario(run: RunSpec) -> Any:
+    """The base scenario with the run's fault, seed, duration and recorded signals (in
+    memory, through :func:`harness.scenario.parse_scenario`); expectations dropped."""
+    from harness.scenario import parse_scenario
+
+    path = Path(run.scenario)
+    data = tomllib.loads(path.read_text(encoding="utf-8"))
+    data["name"] = run.run_id
+    data["duration_s"] = run.duration_s
+    data["faults"] = [run.fault] if run.fault is not None else []
+    data["expect"] = []
+    data["record"] = {"variables": _signals(run)}
+    data.pop("training", None)
+    for inst, values in run.parameters.items():
+        if inst not in data.get("fmus", {}):
+            raise ValueError(f"parameters: no instance {inst!r} in {path}")
+        data["fmus"][inst].setdefault("parameters", {}).update(values)
+    for j, qualified in enumerate(run.seed_parameters):
+        inst, _, par = qualified.partition(".")
+        if inst not in data.get("fmus", {}):
+            raise ValueError(f"seed_parameters: {qualified!r}: no instance {inst!r} in "
+                             f"{path}")
+        data["fmus"][inst].setdefault("parameters", {})[par] = run.seed + j
+    return parse_scenario(data, source=f"{path} (run {run.run_id})", path=path)
+
+
+def _param(scenario: Any, instance: str, name: str, default: Any) -> Any:
+    return scenario.fmus[instance].parameters.get(name, default)
+
+
+def _kth_largest_window(z: np.ndarray, k: int, n: int) -> np.ndarray:
+    """``out[t]`` = k-th largest of ``z[t-n+1 .. t]`` (zeros before the start)."""
+    padded = np.concatenate([np.zeros(n - 1), z])
+    windows = np.lib.stride_tricks.sliding_window_view(padded, n)
+    return np.sort(windows, axis=1)[:, n - k]
+
+
+def alarm_statistic(run: RunSpec, scenario: Any, t: np.ndarray,
+                    sig: dict[str, np.ndarray]) -> tuple[np.ndarray, float, float]:
+    """The alarm statistic ``s(t)`` in threshold units (module docstring), the time from
+    which the channel judges (end of calibration / learning) and its configured
+    threshold."""
+    d = run.diagnoser
+    if run.channel == "df":
+        period = float(_param(scenario, d, "sample_period_s", scenario.step_s))
+        cal_s = float(_param(scenario, d, "df.calibrate_s", 10.0))
+        burn_s = float(_param(scenario, d, "df.burn_in_s", 2.0))
+        k_sigma = float(_param(scenario, d, "df.k_sigma", 6.0))
+        pk = int(_param(scenario, d, "df.persistence_k", 3))
+        pn = int(_param(scenario, d, "df.persistence_n", 5))
+        n_cal, n_burn = round(cal_s / period), round(burn_s / period)
+        n_burn = min(n_burn, n_cal - 2)
+        # row j (j >= 1) is the channel's j-th sample; rows 1..n_cal calibrate
+        res = np.column_stack([sig[f"{d}.df.residual[{i}]"] for i in range(1, 7)])
+        used = res[1 + n_burn:n_cal + 1]
+        mu, sd = used.mean(axis=0), used.std(axis=0, ddof=1)
+        sd = np.maximum(sd, 1e-12 / k_sigma)
+        after = res[n_cal + 1:]
+        z = np.abs(after - mu) / sd
+        s_after = np.max(np.column_stack([_kth_largest_window(z[:, i], pk, pn)
+                                          for i in range(z.shape[1])]), axis=1)
+        s = np.concatenate([np.zeros(n_cal + 1), s_after])
+        t_ready = float(t[min(n_cal + 1, len(t) - 1)])
+        return s, t_ready, k_sigma
+    low = float(_param(scenario, d, "dtg.low", 0.5))
+    high = float(_param(scenario, d, "dtg.high", 1.5))
+    monitored = [bool(_param(scenario, d, f"dtg.monitored[{i}]", True)) for i in range(1, 6)]
+    eta = np.column_stack([sig[f"{d}.dtg.eta_{ax}[{i}]"] for ax in "xy"
+                           for i in range(1, 6) if monitored[i - 1]])
+    learning = sig[f"{d}.dtg.learning"] > 0.5
+    dev = np.abs(eta - 1.0)
+    dev = np.where(np.isfinite(dev), dev, np.inf)
+    s = np.where(learning, 0.0, dev.max(axis=1))
+    ready = np.flatnonzero(~learning & (t > 0))
+    t_ready = float(t[ready[0]]) if ready.size else float(t[-1])
+    if not math.isclose(1.0 - low, high - 1.0, rel_tol=1e-9):
+        raise ValueError(f"{d}: dtg.low/dtg.high ({low}, {high}) are not symmetric about 1: "
+                         "the threshold sweep needs a symmetric band")
+    return s, t_ready, high - 1.0
+
+
+def _rising_edges(on: np.ndarray) -> np.ndarray:
+    prev = np.concatenate([[False], on[:-1]])
+    return np.flatnonzero(on & ~prev)
+
+
+def judge(t: np.ndarray, alarm: np.ndarray, t_ready: float,
+          onset_s: float | None) -> tuple[bool, float | None, int, float]:
+    """Detection and false alarms of one alarm signal (see the module docstring).
+
+    Returns ``(detected, delay_s, false_alarms, fault_free_s)``; detection and delay are
+    False/None for a nominal run (``onset_s`` None).
+    """
+    end = float(t[-1])
+    free_end = end if onset_s is None else min(onset_s, end)
+    edges = t[_rising_edges(alarm)]
+    n_false = int(np.count_nonzero((edges >= t_ready) & (edges < free_end)))
+    # an alarm standing at t_ready was raised in the judged time
+    ready_idx = np.searchsorted(t, t_ready)
+    if ready_idx < len(t) and alarm[ready_idx] and ready_idx > 0 and alarm[ready_idx - 1] \
+            and t_ready < free_end:
+        n_false += 1
+    fault_free = max(free_end - t_ready, 0.0)
+    if onset_s is None:
+        return False, None, n_false, fault_free
+    hit = np.flatnonzero((t >= onset_s - 1e-9) & alarm)
+    if hit.size == 0:
+        return False, None, n_false, fault_free
+    return True, float(t[hit[0]] - onset_s), n_false, fault_free
+
+
+def simulate_run(run_dict: dict[str, Any]) -> dict[str, Any]:
+    """The default runner: simulate one run and return its record fields.
+
+    Parameters
+    ----------
+    run_dict : dict
+        A :class:`RunSpec` as a dict.
+
+    Returns
+    -------
+    dict
+        ``detected``, ``delay_s`` (s), ``false_alarms``, ``fault_free_s`` (s),
+        ``diagnosed``, ``sweep`` and ``sweep_mismatch`` (module docstring).
+
+    Raises
+    ------
+    RuntimeError
+        If the co-simulation stopped on an FMU error (the message quotes it).
+    """
+    from harness.master import run_scenario
+
+    run = RunSpec.model_validate(run_dict)
+    scenario = build_scenario(run)
+    result = run_scenario(scenario, fmu_dir=run.fmu_dir, progress=False,
+                          results_dir=run.results_dir)
+    if result.error is not None:
+        raise RuntimeError(f"co-simulation failed: {result.error}")
+    t, sig, d = result.time, result.signals, run.diagnoser
+    if run.channel == "df":
+        alarm = np.any(np.column_stack([sig[f"{d}.df.alarm[{i}]"] > 0.5
+                                        for i in range(1, 7)]), axis=1)
+        diagnosed_value = int(np.rint(sig[f"{d}.df.isolated_sensor"][-1]))
+        diagnosed = (AIRCRAFT_SENSORS[diagnosed_value - 1]
+                     if 1 <= diagnosed_value <= len(AIRCRAFT_SENSORS)
+                     else {0: "none", -1: "not isolated"}.get(diagnosed_value,
+                                                              str(diagnosed_value)))
+    else:
+        alarm = sig[f"{d}.dtg.alarm"] > 0.5
+        code = int(np.rint(sig[f"{d}.dtg.fault_code"][-1]))
+        names = _signature_names(scenario, run)
+        diagnosed = (names[code - 1] if 1 <= code <= len(names)
+                     else {0: "none", -1: "unknown"}.get(code, f"code {code}"))
+    stat, t_ready, t_config = alarm_statistic(run, scenario, t, sig)
+    detected, delay, n_false, free = judge(t, alarm, t_ready, run.onset_s)
+    judged = t >= t_ready
+    mismatch = float(np.mean((stat[judged] > t_config) != alarm[judged])) if judged.any() \
+        else 0.0
+    sweep: dict[str, list[Any]] = {"detected": [], "delay_s": [], "false_alarms": []}
+    for thr in run.thresholds:
+        det_t, del_t, fa_t, _ = judge(t, stat > thr, t_ready, run.onset_s)
+        sweep["detected"].append(det_t)
+        sweep["delay_s"].append(del_t)
+        sweep["false_alarms"].append(fa_t)
+    before = stat[judged & (t < (run.onset_s if run.onset_s is not None else math.inf))]
+    after = stat[t >= run.onset_s] if run.onset_s is not None else np.zeros(0)
+    return {
+        "detected": detected, "delay_s": delay, "false_alarms": n_false,
+        "fault_free_s": free, "t_ready_s": t_ready, "diagnosed": diagnosed,
+        "threshold_config": t_config, "sweep": sweep, "sweep_mismatch": mismatch,
+        "peak_before": float(before.max()) if before.size else None,
+        "peak_after": float(after.max()) if after.size else None,
+        "sim_wall_s": result.wall_time_s,
+    }
+
+
+def _signature_names(scenario: Any, run: RunSpec) -> list[str]:
+    from harness.scenario import resolve_file_parameters
+
+    files = resolve_file_parameters(scenario, run.results_dir, must_exist=False)
+    path = files.get(run.diagnoser, {}).get("dtg.signature_file")
+    if path is None or not Path(path).is_file():
+        return []
+    return list(json.loads(Path(path).read_text(encoding="utf-8"))["signatures"])
+
+
+# --------------------------------------------------------------------------- guard
+def _write_json_atomic(path: Path, data: dict[str, Any]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            json.dump(data, fh, indent=1, sort_keys=True, allow_nan=True)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _child_env() -> dict[str, str]:
+    env = dict(os.environ)
+    paths = [str(REPO_ROOT), *[p for p in sys.path if p]]
+    env["PYTHONPATH"] = os.pathsep.join(dict.fromkeys(paths))
+    # the campaign is parallel across runs: BLAS threads inside a run only oversubscribe
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        env.setdefault(var, "1")
+    return env
+
+
+def execute_run(run_dict: dict[str, Any], runner: str, timeout_s: float,
+                records_dir: str) -> dict[str, Any]:
+    """Run one campaign run in a fresh process and write its record; never raises.
+
+    This is the task the pools execute.  ``runner`` is ``"module:function"``, called in
+    the child with the run dict; what it returns is merged into the record.  A runner
+    that raises, a process that dies, and a run longer than ``timeout_s`` (killed) are
+    recorded with ``status`` ``"error"``/``"timeout"`` and the message.
+    """
+    t0 = time.perf_counter()
+    record: dict[str, Any] = {"run": run_dict, "runner": runner}
+    with tempfile.TemporaryDirectory(prefix="gd-campaign-") as tmp:
+        inp, out = Path(tmp) / "run.json", Path(tmp) / "out.json"
+        inp.write_text(json.dumps(run_dict), encoding="utf-8")
+        cmd = [sys.executable, "-m", "harness.campaign", "--child", runner, str(inp), str(out)]
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                env=_child_env(), cwd=str(REPO_ROOT), text=True,
+                                start_new_session=True)
+        try:
+            _, stderr = proc.communicate(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, 9)
+            proc.communicate()
+            record.update(status="timeout",
+                          error=f"timeout: run killed after {timeout_s:g} s")
+        else:
+            payload = json.loads(out.read_text(encoding="utf-8")) if out.is_file() else None
+            if payload is not None and payload.get("error") is None:
+                record.update(status="ok", error=None, **payload["result"])
+            elif payload is not None:
+                record.update(status="error", error=payload["error"])
+            else:
+                tail = "\n".join(stderr.strip().splitlines()[-20:])
+                record.update(status="error", error=f"run process died with exit status "
+                                                    f"{proc.returncode}: {tail}")
+    record["wall_s"] = time.perf_counter() - t0
+    _write_json_atomic(Path(records_dir) / f"{run_dict['run_id']}.json", record)
+    return record
+
+
+def _load_runner(runner: str) -> Callable[[dict[str, Any]], dict[str, Any]]:
+    module, _, func = runner.partition(":")
+    if not module or not func:
+        raise ValueError(f"runner: {runner!r} must be 'module:function'")
+    return getattr(importlib.import_module(module), func)
+
+
+def _child_main(runner: str, inp: str, out: str) -> int:
+    run_dict = json.loads(Path(inp).read_text(encoding="utf-8"))
+    try:
+        result = _load_runner(runner)(run_dict)
+        payload: dict[str, Any] = {"error": None, "result": result}
+    except BaseException as exc:  # everything is recorded, even SystemExit
+        payload = {"error": f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"}
+    _write_json_atomic(Path(out), payload)
+    return 0
+
+
+# --------------------------------------------------------------------------- campaign
+@dataclass
+class CampaignOutcome:
+    """What :func:`run_campaign` did: records of every finished run (old and new)."""
+
+    records: list[dict[str, Any]]
+    n_total: int
+    n_skipped: int
+    n_executed: int
+    wall_s: float
+    out_dir: Path
+    failed: list[str] = field(default_factory=list)
+
+
+def load_records(records_dir: Path) -> dict[str, dict[str, Any]]:
+    """Run id → record of every record file in ``records_dir``."""
+    out = {}
+    if records_dir.is_dir():
+        for p in sorted(records_dir.glob("*.json")):
+            try:
+                out[p.stem] = json.loads(p.read_text(encoding="utf-8"))
+            except json.JSONDecodeError:
+                continue  # cannot happen with atomic writes; re-run it if it does
+    return out
+
+
+def _iter_pool(runs: Sequence[RunSpec], runner: str, timeout_s: float, records_dir: Path,
+               workers: int) -> Iterator[dict[str, Any]]:
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        futures = [pool.submit(execute_run, r.model_dump(), runner, timeout_s,
+                               str(records_dir)) for r in runs]
+        try:
+            for f in as_completed(futures):
+                yield f.result()
+        finally:
+            for f in futures:
+                f.cancel()
+
+
+def _iter_dask(runs: Sequence[RunSpec], runner: str, timeout_s: float, records_dir: Path,
+               workers: int, address: str) -> Iterator[dict[str, Any]]:
+    from distributed import Client, LocalCluster
+    from distributed import as_completed as dask_as_completed
+
+    cluster = None
+    if address == "local":
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None)
+        client = Client(cluster)
+    else:
+        client = Client(address)
+    try:
+        futures = [client.submit(execute_run, r.model_dump(), runner, timeout_s,
+                                 str(records_dir), key=f"run-{r.run_id}", pure=False,
+                                 retries=0) for r in runs]
+        try:
+            for f in dask_as_completed(futures):
+                yield f.result()
+        finally:
+            client.cancel(futures)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def prepare(spec: CampaignSpec, base_dir: Path, out_dir: Path) -> None:
+    """Learn the DTG signatures first when the spec asks for them and they are missing."""
+    if spec.signatures_training is None:
+        return
+    results = (base_dir / spec.results_dir).resolve() if spec.results_dir else out_dir
+    target = results / "dtg_signatures.json"
+    if target.is_file():
+        return
+    training = (base_dir / spec.signatures_training).resolve()
+    print(f"learning the DTG signatures from {training} -> {target}", flush=True)
+    cmd = [sys.executable, "-m", "harness", "learn-signatures", str(training), "--out",
+           str(target)]
+    if spec.fmu_dir:
+        cmd += ["--fmu-dir", str((base_dir / spec.fmu_dir).resolve())]
+    proc = subprocess.run(cmd, env=_child_env(), cwd=str(REPO_ROOT))
+    if proc.returncode != 0 or not target.is_file():
+        raise RuntimeError(f"learning the DTG signatures failed (exit {proc.returncode})")
+
+
+def run_campaign(spec: CampaignSpec, base_dir: Path, out_dir: Path, *, workers: int = 2,
+                 dask: str | None = None, runner: str | None = None,
+                 timeout_s: float | None = None, max_runs: int | None = None,
+                 retry_failed: bool = False, fraction: float = 1.0,
+                 progress: bool = True) -> CampaignOutcome:
+    """Run (or resume) a campaign; every finished run is written as it finishes.
+
+    Parameters
+    ----------
+    spec, base_dir : CampaignSpec, Path
+        The spec and the folder its relative paths start from (:func:`load_campaign`).
+    out_dir : Path
+        Output folder: ``runs/<run_id>.json`` per run, ``campaign.json`` (the run list).
+    workers : int
+        Parallel runs (pool processes or LocalCluster workers).
+    dask : str, optional
+        None: local process pool; ``"local"``: a dask LocalCluster; else a scheduler
+        address (``tcp://host:8786``).
+    runner : str, optional
+        ``"module:function"`` computing a run's record fields (default: the spec's,
+        :func:`simulate_run`); it must be importable in the run process.
+    timeout_s : float, optional
+        Per-run wall time limit, s (default: the spec's).
+    max_runs : int, optional
+        Stop after starting this many pending runs (an interruption on purpose).
+    retry_failed : bool
+        Re-run runs whose record says error/timeout.
+    fraction : float
+        Run only a deterministic subset (run ids hashed below ``fraction``), in (0, 1].
+    progress : bool
+        tqdm progress bar with ETA on stderr.
+    """
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    if not 0.0 < fraction <= 1.0:
+        raise ValueError(f"fraction must be in (0, 1], got {fraction}")
+    t0 = time.perf_counter()
+    out_dir = Path(out_dir).resolve()
+    records_dir = out_dir / "runs"
+    records_dir.mkdir(parents=True, exist_ok=True)
+    runs = select(expand_runs(spec, base_dir, out_dir), fraction)
+    prepare(spec, base_dir, out_dir)
+    _write_json_atomic(out_dir / "campaign.json", {
+        "spec": spec.model_dump(by_alias=True), "base_dir": str(base_dir),
+        "fraction": fraction, "run_ids": [r.run_id for r in runs]})
+    done = load_records(records_dir)
+    keep = {rid for rid, rec in done.items()
+            if not (retry_failed and rec.get("status") != "ok")}
+    pending = [r for r in runs if r.run_id not in keep]
+    n_skipped = len(runs) - len(pending)
+    if max_runs is not None:
+        pending = pending[:max(0, max_runs)]
+    runner = runner or spec.runner
+    timeout = float(timeout_s if timeout_s is not None else spec.timeout_s)
+    new: list[dict[str, Any]] = []
+    if pending:
+        it = (_iter_pool(pending, runner, timeout, records_dir, workers) if dask is None
+              else _iter_dask(pending, runner, timeout, records_dir, workers, dask))
+        bar = _bar(len(pending), n_skipped, progress)
+        for rec in it:
+            new.append(rec)
+            if bar is not None:
+                bar.update(1)
+                if rec.get("status") != "ok":
+                    bar.write(f"{rec['run']['run_id']}: {rec['status']}: "
+                              f"{str(rec.get('error')).strip().splitlines()[0][:150]}")
+        if bar is not None:
+            bar.close()
+    ids = {r.run_id for r in runs}
+    records = [rec for rid, rec in load_records(records_dir).items() if rid in ids]
+    return CampaignOutcome(records=records, n_total=len(runs), n_skipped=n_skipped,
+                           n_executed=len(new), wall_s=time.perf_counter() - t0,
+                           out_dir=out_dir,
+                           failed=[r["run"]["run_id"] for r in records
+                                   if r.get("status") != "ok"])
+
+
+def select(runs: list[RunSpec], fraction: float) -> list[RunSpec]:
+    """Deterministic subset, stratified: of every (class, kind, fault type) group the
+    ``ceil(fraction * n)`` runs whose ids hash lowest (all runs when ``fraction`` is 1),
+    so that a reduced campaign still has nominal runs of every class."""
+    if fraction >= 1.0:
+        return runs
+    groups: dict[tuple[str, str, str | None], list[RunSpec]] = {}
+    for r in runs:
+        groups.setdefault((r.cls, r.kind, r.fault_type), []).append(r)
+    keep: set[str] = set()
+    for members in groups.values():
+        ranked = sorted(members, key=lambda r: hashlib.sha256(r.run_id.encode()).hexdigest())
+        keep.update(r.run_id for r in ranked[:math.ceil(fraction * len(members))])
+    return [r for r in runs if r.run_id in keep]
+
+
+def _bar(total: int, initial: int, enabled: bool) -> Any:
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total + initial, initial=initial, unit="run", desc="campaign",
+                file=sys.stderr, dynamic_ncols=True, smoothing=0.1)
+
+
+# --------------------------------------------------------------------------- CLI
+def add_parser(sub: Any) -> None:
+    """Register ``campaign`` on the CLI's sub-parsers."""
+    p = sub.add_parser("campaign", help="run (or resume) a Monte Carlo fault-injection "
+                                        "campaign and write its summary")
+    p.add_argument("spec", type=Path, help="campaign .toml (see campaigns/)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="output folder (default build/campaigns/<name>)")
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                   help="parallel runs (default: the number of CPUs)")
+    p.add_argument("--dask", default=None, metavar="local|ADDRESS",
+                   help="run on dask.distributed: 'local' (a LocalCluster) or a scheduler "
+                        "address; default: a local process pool")
+    p.add_argument("--timeout", type=float, default=None, help="per-run time limit, s")
+    p.add_argument("--max-runs", type=int, default=None,
+                   help="start at most this many pending runs, then stop")
+    p.add_argument("--fraction", type=float, default=1.0,
+                   help="run a deterministic fraction of the runs (e.g. 0.1)")
+    p.add_argument("--retry-failed", action="store_true", help="re-run failed runs")
+    p.add_argument("--report-only", action="store_true",
+                   help="summarise the records already written, run nothing")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_campaign)
+
+
+def cmd_campaign(args: argparse.Namespace) -> int:
+    from harness.campaign_report import summarize, write_report
+
+    spec, base_dir = load_campaign(args.spec)
+    out = args.out or REPO_ROOT / "build" / "campaigns" / spec.name
+    if args.report_only:
+        runs = select(expand_runs(spec, base_dir, Path(out)), args.fraction)
+        ids = {r.run_id for r in runs}
+        records = [r for rid, r in load_records(Path(out) / "runs").items() if rid in ids]
+        n_total = len(runs)
+    else:
+        outcome = run_campaign(spec, base_dir, Path(out), workers=args.workers,
+                               dask=args.dask, timeout_s=args.timeout,
+                               max_runs=args.max_runs, retry_failed=args.retry_failed,
+                               fraction=args.fraction, progress=not args.no_progress)
+        records, n_total = outcome.records, outcome.n_total
+        print(f"{spec.name}: {outcome.n_executed} runs executed, {outcome.n_skipped} "
+              f"already done, {len(outcome.failed)} failed, in {outcome.wall_s:.0f} s")
+    summary = summarize(records, n_planned=n_total)
+    paths = write_report(summary, records, Path(out), title=spec.name)
+    print(summary_text(summary))
+    print(f"summary: {paths['json']}; report: {paths['html']}")
+    return 0 if summary["n_finished"] == n_total and not summary["n_failed"] else 1
+
+
+def summary_text(summary: dict[str, Any]) -> str:
+    """A few lines: runs, false alarms per hour, detection per class."""
+    lines = [f"runs: {summary['n_finished']} of {summary['n_planned']} finished, "
+             f"{summary['n_failed']} failed"]
+    for ch, fa in summary["false_alarms"].items():
+        lines.append(f"[{ch}] false alarms: {fa['count']} in {fa['hours']:.3g} h = "
+                     f"{fa['rate_per_h']:.3g}/h (95 % upper bound {fa['upper_95']:.3g}/h)")
+    for row in summary["detection"]:
+        mag = "" if row["magnitude"] is None else f" {row['magnitude']:g}"
+        lines.append(f"  {row['class']} {row['fault_type']}{mag}: "
+                     f"{row['detected']}/{row['n']} detected")
+    for key, d in summary["delay"].items():
+        if d["n"]:
+            lines.append(f"  delay {key}: median {d['median_s']:.3g} s, p95 {d['p95_s']:.3g} s, "
+                         f"max {d['max_s']:.3g} s (n={d['n']})")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    if len(sys.argv) == 5 and sys.argv[1] == "--child":
+        code = _child_main(*sys.argv[2:])
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)  # see harness/__main__.py: pythonfmu's exit-time destructors
+    print("usage: python -m harness campaign SPEC.toml (this module's entry is internal)",
+          file=sys.stderr)
+    sys.exit(2)

@@ -1,0 +1,337 @@
+"""Summary figures, plots and HTML/JSON report of a fault-injection campaign.
+
+:func:`summarize` turns the run records of :mod:`harness.campaign` into figures:
+
+* detection rate per class, fault type and magnitude, with a 95 % Clopper-Pearson
+  interval;
+* false alarms per hour per channel over all fault-free time (nominal runs and the
+  pre-onset part of fault runs), with the exact Poisson (Garwood) 95 % interval
+  ``[chi2(0.025; 2n) / 2, chi2(0.975; 2n + 2) / 2] / hours``;
+* detection delay (median, p95, max) per class and fault type and per channel;
+* isolation confusion matrix per channel (injected vs diagnosed at the end of the run);
+* threshold sweep per channel: detection rate vs false alarms per hour at every
+  threshold of the grid (recomputed offline from the alarm statistic, see
+  :mod:`harness.campaign`).
+
+Only runs with status ``ok`` count; the others are listed with their error.  Nothing in
+the summary depends on wall times or on the order in which runs finished, so the same
+campaign gives the same summary on any executor.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import math
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+SECONDS_PER_HOUR = 3600.0
+
+
+def garwood_interval(count: int, hours: float, confidence: float = 0.95) -> tuple[float, float]:
+    """Exact Poisson (Garwood) interval of a rate, events per hour.
+
+    Parameters
+    ----------
+    count : int
+        Events observed (>= 0).
+    hours : float
+        Exposure, h (> 0).
+    confidence : float
+        Two-sided confidence level in (0, 1).
+
+    Returns
+    -------
+    (float, float)
+        Lower and upper bound, 1/h (lower 0 when ``count`` is 0).
+    """
+    if count < 0:
+        raise ValueError(f"count must be >= 0, got {count}")
+    if not hours > 0:
+        raise ValueError(f"hours must be > 0, got {hours}")
+    if not 0 < confidence < 1:
+        raise ValueError(f"confidence must be in (0, 1), got {confidence}")
+    a = 1.0 - confidence
+    lo = 0.0 if count == 0 else stats.chi2.ppf(a / 2, 2 * count) / 2
+    hi = stats.chi2.ppf(1 - a / 2, 2 * count + 2) / 2
+    return float(lo / hours), float(hi / hours)
+
+
+def clopper_pearson(k: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
+    """Exact binomial interval of a proportion ``k / n`` (NaN, NaN for ``n = 0``)."""
+    if n == 0:
+        return math.nan, math.nan
+    a = 1.0 - confidence
+    lo = 0.0 if k == 0 else stats.beta.ppf(a / 2, k, n - k + 1)
+    hi = 1.0 if k == n else stats.beta.ppf(1 - a / 2, k + 1, n - k)
+    return float(lo), float(hi)
+
+
+def _delay_stats(delays: list[float]) -> dict[str, Any]:
+    if not delays:
+        return {"n": 0, "median_s": None, "p95_s": None, "max_s": None}
+    d = np.asarray(delays, dtype=float)
+    return {"n": int(d.size), "median_s": float(np.median(d)),
+            "p95_s": float(np.percentile(d, 95)), "max_s": float(d.max())}
+
+
+def summarize(records: list[dict[str, Any]], n_planned: int | None = None) -> dict[str, Any]:
+    """Campaign figures from run records (module docstring); a JSON-able dict."""
+    ok = sorted((r for r in records if r.get("status") == "ok"),
+                key=lambda r: r["run"]["run_id"])
+    failed = sorted((r for r in records if r.get("status") != "ok"),
+                    key=lambda r: r["run"]["run_id"])
+    fault = [r for r in ok if r["run"]["kind"] == "fault"]
+
+    groups: dict[tuple, list[dict]] = defaultdict(list)
+    for r in fault:
+        run = r["run"]
+        groups[(run["cls"], run["fault_type"], run["magnitude"])].append(r)
+    detection = []
+    for (cls, ftype, mag), rs in sorted(groups.items(),
+                                        key=lambda kv: (kv[0][0], kv[0][1], kv[0][2] or 0.0)):
+        k = sum(bool(r["detected"]) for r in rs)
+        lo, hi = clopper_pearson(k, len(rs))
+        detection.append({"class": cls, "fault_type": ftype, "magnitude": mag, "n": len(rs),
+                          "detected": k, "rate": k / len(rs), "ci_low": lo, "ci_high": hi})
+
+    false_alarms: dict[str, dict[str, Any]] = {}
+    for ch in sorted({r["run"]["channel"] for r in ok}):
+        rs = [r for r in ok if r["run"]["channel"] == ch]
+        count = sum(int(r["false_alarms"]) for r in rs)
+        hours = sum(float(r["fault_free_s"]) for r in rs) / SECONDS_PER_HOUR
+        nominal_h = sum(float(r["fault_free_s"]) for r in rs
+                        if r["run"]["kind"] == "nominal") / SECONDS_PER_HOUR
+        lo, hi = garwood_interval(count, hours) if hours > 0 else (math.nan, math.nan)
+        false_alarms[ch] = {"count": count, "hours": hours, "nominal_hours": nominal_h,
+                            "rate_per_h": count / hours if hours > 0 else math.nan,
+                            "lower_95": lo, "upper_95": hi,
+                            "runs_with_false_alarm": sum(int(r["false_alarms"]) > 0
+                                                         for r in rs)}
+
+    delay: dict[str, dict[str, Any]] = {}
+    by_type: dict[str, list[float]] = defaultdict(list)
+    by_channel: dict[str, list[float]] = defaultdict(list)
+    for r in fault:
+        if r["detected"] and r["delay_s"] is not None:
+            by_type[f"{r['run']['cls']}/{r['run']['fault_type']}"].append(r["delay_s"])
+            by_channel[f"all {r['run']['channel']}"].append(r["delay_s"])
+    for key in sorted(by_type):
+        delay[key] = _delay_stats(by_type[key])
+    for key in sorted(by_channel):
+        delay[key] = _delay_stats(by_channel[key])
+
+    confusion: dict[str, dict[str, Any]] = {}
+    for ch in sorted({r["run"]["channel"] for r in fault}):
+        rs = [r for r in fault if r["run"]["channel"] == ch]
+        inj = sorted({r["run"]["injected"] for r in rs})
+        diag = sorted({r["diagnosed"] for r in rs} | set(inj))
+        m = np.zeros((len(inj), len(diag)), dtype=int)
+        for r in rs:
+            m[inj.index(r["run"]["injected"]), diag.index(r["diagnosed"])] += 1
+        right = sum(m[i, diag.index(lab)] for i, lab in enumerate(inj))
+        confusion[ch] = {"injected": inj, "diagnosed": diag, "matrix": m.tolist(),
+                         "correct": int(right), "n": len(rs)}
+
+    sweep: dict[str, dict[str, Any]] = {}
+    for ch in sorted({r["run"]["channel"] for r in ok}):
+        rs = [r for r in ok if r["run"]["channel"] == ch]
+        grids = {tuple(r["run"]["thresholds"]) for r in rs}
+        keyed = [(ch, rs)] if len(grids) == 1 else [
+            (f"{ch}:{c}", [r for r in rs if r["run"]["cls"] == c])
+            for c in sorted({r["run"]["cls"] for r in rs})]
+        for key, sub in keyed:
+            thr = list(sub[0]["run"]["thresholds"])
+            fr = [r for r in sub if r["run"]["kind"] == "fault"]
+            hours = sum(float(r["fault_free_s"]) for r in sub) / SECONDS_PER_HOUR
+            det, fa, up = [], [], []
+            for j in range(len(thr)):
+                k = sum(bool(r["sweep"]["detected"][j]) for r in fr)
+                n_fa = sum(int(r["sweep"]["false_alarms"][j]) for r in sub)
+                det.append(k / len(fr) if fr else math.nan)
+                fa.append(n_fa / hours if hours > 0 else math.nan)
+                up.append(garwood_interval(n_fa, hours)[1] if hours > 0 else math.nan)
+            config = sorted({r["threshold_config"] for r in sub})
+            sweep[key] = {"thresholds": thr, "detection_rate": det, "false_alarms_per_h": fa,
+                          "upper_95_per_h": up, "n_fault_runs": len(fr), "hours": hours,
+                          "configured_threshold": config,
+                          "max_mismatch": max(float(r["sweep_mismatch"]) for r in sub)}
+
+    return {
+        "n_planned": n_planned if n_planned is not None else len(records),
+        "n_finished": len(records), "n_ok": len(ok), "n_failed": len(failed),
+        "n_fault_runs": len(fault), "n_nominal_runs": len(ok) - len(fault),
+        "failures": [{"run_id": r["run"]["run_id"], "status": r["status"],
+                      "error": str(r.get("error")).strip().splitlines()[0][:300]}
+                     for r in failed],
+        "detection": detection, "false_alarms": false_alarms, "delay": delay,
+        "confusion": confusion, "threshold_sweep": sweep,
+    }
+
+
+# --------------------------------------------------------------------------- plots
+def _plots(summary: dict[str, Any], records: list[dict[str, Any]], out: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths: list[Path] = []
+    rows = summary["detection"]
+    classes = sorted({r["class"] for r in rows})
+    if rows:
+        # one panel per class: magnitudes of different classes have different units
+        fig, axes = plt.subplots(1, len(classes), figsize=(5.5 * len(classes), 4),
+                                 squeeze=False)
+        for ax, cls in zip(axes[0], classes, strict=True):
+            fixed = []
+            for ft in sorted({r["fault_type"] for r in rows if r["class"] == cls}):
+                pts = [r for r in rows if r["class"] == cls and r["fault_type"] == ft]
+                if all(p["magnitude"] is None for p in pts):
+                    fixed.append(f"{ft}: {pts[0]['detected']}/{pts[0]['n']}")
+                    continue
+                pts = sorted(pts, key=lambda p: p["magnitude"])
+                err = [[p["rate"] - p["ci_low"] for p in pts],
+                       [p["ci_high"] - p["rate"] for p in pts]]
+                ax.errorbar([p["magnitude"] for p in pts], [p["rate"] for p in pts],
+                            yerr=err, marker="o", capsize=3, label=ft)
+            ax.set_xscale("log")
+            ax.set_xlabel("fault magnitude (fault units)")
+            ax.set_ylabel("detection rate (95 % CI)")
+            ax.set_ylim(-0.05, 1.05)
+            ax.set_title(cls + ("\n" + ", ".join(fixed) + " detected" if fixed else ""),
+                         fontsize=9)
+            ax.legend(fontsize=7)
+            ax.grid(alpha=0.3)
+        fig.tight_layout()
+        paths.append(out / "detection_rate.png")
+        fig.savefig(paths[-1], dpi=110)
+        plt.close(fig)
+
+    delays = defaultdict(list)
+    for r in records:
+        if r.get("status") == "ok" and r["run"]["kind"] == "fault" and r["detected"]:
+            delays[r["run"]["channel"]].append(r["delay_s"])
+    if delays:
+        fig, axes = plt.subplots(1, len(delays), figsize=(5 * len(delays), 3.5), squeeze=False)
+        for ax, (ch, d) in zip(axes[0], sorted(delays.items()), strict=True):
+            ax.hist(d, bins=30)
+            ax.set_title(f"detection delay, {ch}")
+            ax.set_xlabel("delay (s)")
+            ax.set_ylabel("runs")
+        fig.tight_layout()
+        paths.append(out / "delay_hist.png")
+        fig.savefig(paths[-1], dpi=110)
+        plt.close(fig)
+
+    for ch, c in summary["confusion"].items():
+        m = np.asarray(c["matrix"])
+        fig, ax = plt.subplots(figsize=(1.2 + 0.8 * m.shape[1], 1.2 + 0.6 * m.shape[0]))
+        ax.imshow(m, cmap="Blues")
+        for i in range(m.shape[0]):
+            for j in range(m.shape[1]):
+                ax.text(j, i, str(m[i, j]), ha="center", va="center", fontsize=8)
+        ax.set_xticks(range(m.shape[1]), c["diagnosed"], rotation=45, ha="right", fontsize=8)
+        ax.set_yticks(range(m.shape[0]), c["injected"], fontsize=8)
+        ax.set_xlabel("diagnosed")
+        ax.set_ylabel("injected")
+        ax.set_title(f"isolation, {ch}")
+        fig.tight_layout()
+        paths.append(out / f"confusion_{ch}.png")
+        fig.savefig(paths[-1], dpi=110)
+        plt.close(fig)
+
+    for key, s in summary["threshold_sweep"].items():
+        fig, ax = plt.subplots(figsize=(6, 4))
+        fa = np.asarray(s["false_alarms_per_h"], dtype=float)
+        ax.plot(fa, s["detection_rate"], "o-", label="false alarms/h")
+        ax.plot(s["upper_95_per_h"], s["detection_rate"], "x--", alpha=0.6,
+                label="95 % upper bound")
+        for x, y, t in zip(fa, s["detection_rate"], s["thresholds"], strict=True):
+            ax.annotate(f"{t:g}", (x, y), fontsize=7, xytext=(3, -8), textcoords="offset points")
+        ax.set_xscale("symlog", linthresh=0.1)
+        ax.set_xlabel("false alarms per hour")
+        ax.set_ylabel("detection rate")
+        ax.set_ylim(-0.05, 1.05)
+        ax.set_title(f"threshold sweep, {key} (labels: threshold)")
+        ax.legend(fontsize=7)
+        ax.grid(alpha=0.3)
+        fig.tight_layout()
+        paths.append(out / f"threshold_sweep_{key.replace(':', '_')}.png")
+        fig.savefig(paths[-1], dpi=110)
+        plt.close(fig)
+    return paths
+
+
+def _fmt(x: Any, digits: int = 3) -> str:
+    if x is None or (isinstance(x, float) and math.isnan(x)):
+        return "–"
+    if isinstance(x, float):
+        return f"{x:.{digits}g}"
+    return html.escape(str(x))
+
+
+def _table(header: list[str], rows: list[list[Any]]) -> str:
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{_fmt(c)}</td>" for c in r) + "</tr>" for r in rows)
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def write_report(summary: dict[str, Any], records: list[dict[str, Any]], out_dir: Path,
+                 title: str = "campaign") -> dict[str, Path]:
+    """Write ``summary.json``, the plots and ``report.html`` into ``out_dir``."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    json_path = out_dir / "summary.json"
+    json_path.write_text(json.dumps(summary, indent=1), encoding="utf-8")
+    plots = _plots(summary, records, out_dir)
+    parts = [f"<h1>Campaign {html.escape(title)}</h1>",
+             f"<p>{summary['n_finished']} of {summary['n_planned']} runs finished: "
+             f"{summary['n_fault_runs']} fault runs, {summary['n_nominal_runs']} nominal, "
+             f"{summary['n_failed']} failed.</p>", "<h2>False alarms</h2>",
+             _table(["channel", "count", "fault-free h", "nominal h", "rate /h",
+                     "95 % low", "95 % high"],
+                    [[ch, f["count"], f["hours"], f["nominal_hours"], f["rate_per_h"],
+                      f["lower_95"], f["upper_95"]]
+                     for ch, f in summary["false_alarms"].items()]),
+             "<h2>Detection rate</h2>",
+             _table(["class", "fault", "magnitude", "runs", "detected", "rate", "95 % CI"],
+                    [[r["class"], r["fault_type"], r["magnitude"], r["n"], r["detected"],
+                      r["rate"], f"{_fmt(r['ci_low'])}–{_fmt(r['ci_high'])}"]
+                     for r in summary["detection"]]),
+             "<h2>Detection delay (s)</h2>",
+             _table(["group", "n", "median", "p95", "max"],
+                    [[k, d["n"], d["median_s"], d["p95_s"], d["max_s"]]
+                     for k, d in summary["delay"].items()])]
+    for ch, c in summary["confusion"].items():
+        parts.append(f"<h2>Isolation, {html.escape(ch)}: {c['correct']} of {c['n']} right</h2>")
+        parts.append(_table(["injected \\ diagnosed", *c["diagnosed"]],
+                            [[lab, *row] for lab, row in zip(c["injected"], c["matrix"],
+                                                              strict=True)]))
+    for key, s in summary["threshold_sweep"].items():
+        parts.append(f"<h2>Threshold sweep, {html.escape(key)} (configured "
+                     f"{s['configured_threshold']}, reconstruction mismatch "
+                     f"{_fmt(s['max_mismatch'])})</h2>")
+        parts.append(_table(["threshold", "detection rate", "false alarms /h", "95 % upper /h"],
+                            [list(x) for x in zip(s["thresholds"], s["detection_rate"],
+                                                  s["false_alarms_per_h"], s["upper_95_per_h"],
+                                                  strict=True)]))
+    if summary["failures"]:
+        parts.append("<h2>Failed runs</h2>")
+        parts.append(_table(["run", "status", "error"],
+                            [[f["run_id"], f["status"], f["error"]]
+                             for f in summary["failures"]]))
+    parts += [f'<p><img src="{p.name}" alt="{p.stem}"></p>' for p in plots]
+    style = ("<style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse;"
+             "margin:0.5em 0}td,th{border:1px solid #bbb;padding:2px 6px;font-size:90%}"
+             "</style>")
+    html_path = out_dir / "report.html"
+    html_path.write_text(f"<!doctype html><html><head><meta charset='utf-8'><title>"
+                         f"{html.escape(title)}</title>{style}</head><body>"
+                         + "\n".join(parts) + "</body></html>", encoding="utf-8")
+    return {"json": json_path, "html": html_path, **{p.stem: p for p in plots}}

@@ -1,0 +1,220 @@
+"""Monte Carlo campaigns (harness/campaign.py, harness/campaign_report.py).
+
+Crash/hang/resume tests use a fake per-run function (tests/_campaign_fake_runner.py)
+run in the same per-run processes as real runs; the FMU tests run campaigns/smoke.toml
+(6 aircraft runs of 4 s at 100 Hz) on the process pool and on a dask LocalCluster.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from harness.campaign import (
+    CampaignSpec,
+    _kth_largest_window,
+    build_scenario,
+    expand_runs,
+    judge,
+    load_campaign,
+    run_campaign,
+)
+from harness.campaign_report import clopper_pearson, garwood_interval, summarize
+from harness.scenario import InjectorFault
+
+ROOT = Path(__file__).resolve().parents[1]
+SMOKE = ROOT / "campaigns" / "smoke.toml"
+FAKE = "_campaign_fake_runner:fake"
+
+
+def fake_spec(magnitudes: list[float], nominal_runs: int = 0, timeout_s: float = 60.0,
+              seeds: int = 1) -> CampaignSpec:
+    return CampaignSpec.model_validate({
+        "name": "fake", "timeout_s": timeout_s, "runner": FAKE,
+        "classes": {"air": {"scenario": "unused.toml", "channel": "df"}},
+        "sweeps": [{"class": "air", "type": "bias", "magnitudes": magnitudes,
+                    "onsets_s": [1.0], "channels": [3], "seeds": seeds, "duration_s": 2.0}],
+        "nominal": ([{"class": "air", "duration_s": 60.0, "runs": nominal_runs}]
+                    if nominal_runs else []),
+    })
+
+
+# --------------------------------------------------------------------------- statistics
+def test_garwood_interval_matches_the_published_table():
+    # Garwood (1936) 95 % limits: n=0 -> [0, 3.689], n=1 -> [0.0253, 5.572],
+    # n=10 -> [4.795, 18.39]
+    assert garwood_interval(0, 1.0) == pytest.approx((0.0, 3.689), abs=1e-3)
+    assert garwood_interval(1, 1.0) == pytest.approx((0.0253, 5.572), abs=1e-3)
+    assert garwood_interval(10, 2.0) == pytest.approx((4.795 / 2, 18.39 / 2), rel=1e-3)
+    with pytest.raises(ValueError, match="hours"):
+        garwood_interval(1, 0.0)
+
+
+def test_clopper_pearson_edges():
+    assert clopper_pearson(10, 10)[1] == 1.0
+    # all n succeed: lower bound (alpha/2)^(1/n)
+    assert clopper_pearson(10, 10)[0] == pytest.approx(0.025 ** (1 / 10))
+    assert clopper_pearson(0, 5)[0] == 0.0
+
+
+def test_kth_largest_window_matches_brute_force():
+    rng = np.random.default_rng(0)
+    z = rng.random(50)
+    got = _kth_largest_window(z, 3, 5)
+    padded = np.concatenate([np.zeros(4), z])
+    want = [np.sort(padded[i:i + 5])[-3] for i in range(50)]
+    np.testing.assert_array_equal(got, want)
+
+
+def test_judge_counts_false_alarms_before_onset_and_the_delay_after():
+    t = np.arange(0, 10.01, 0.5)
+    alarm = np.zeros_like(t, dtype=bool)
+    alarm[[3, 4, 8, 15, 16]] = True          # 1.5-2.0 s, 4.0 s, 7.5-8.0 s
+    det, delay, n_false, free = judge(t, alarm, t_ready=1.0, onset_s=7.0)
+    assert (det, n_false) == (True, 2)
+    assert delay == pytest.approx(0.5)
+    assert free == pytest.approx(6.0)
+    # nominal: the whole run after t_ready is fault-free, 3 rising edges
+    assert judge(t, alarm, 1.0, None) == (False, None, 3, 9.0)
+
+
+def test_summary_figures_from_synthetic_records():
+    def rec(kind, ftype, mag, detected, delay, fa, free, injected, diagnosed):
+        return {"status": "ok", "run": {"run_id": f"{ftype}{mag}{delay}{fa}", "kind": kind,
+                                        "cls": "c", "channel": "df", "fault_type": ftype,
+                                        "magnitude": mag, "injected": injected,
+                                        "thresholds": [1.0, 2.0]},
+                "detected": detected, "delay_s": delay, "false_alarms": fa,
+                "fault_free_s": free, "diagnosed": diagnosed, "threshold_config": 1.0,
+                "sweep": {"detected": [detected, False], "false_alarms": [fa, 0]},
+                "sweep_mismatch": 0.0}
+    records = [rec("fault", "bias", 0.1, True, 0.2, 0, 1800.0, "q", "q"),
+               rec("fault", "bias", 0.1, False, None, 1, 1800.0, "q", "none"),
+               rec("fault", "bias", 0.3, True, 0.4, 0, 0.0, "alpha", "q"),
+               rec("nominal", None, None, False, None, 2, 3600.0, None, "none"),
+               {"status": "timeout", "error": "timeout: killed", "run": {"run_id": "x"}}]
+    records[3]["run"]["injected"] = None
+    s = summarize(records, n_planned=6)
+    assert (s["n_finished"], s["n_ok"], s["n_failed"], s["n_planned"]) == (5, 4, 1, 6)
+    rows = {(r["fault_type"], r["magnitude"]): r for r in s["detection"]}
+    assert rows[("bias", 0.1)]["rate"] == 0.5 and rows[("bias", 0.3)]["rate"] == 1.0
+    fa = s["false_alarms"]["df"]
+    assert fa["count"] == 3 and fa["hours"] == pytest.approx(2.0)
+    assert fa["rate_per_h"] == pytest.approx(1.5)
+    assert fa["upper_95"] == pytest.approx(garwood_interval(3, 2.0)[1])
+    assert s["delay"]["all df"]["median_s"] == pytest.approx(0.3)
+    assert s["delay"]["all df"]["max_s"] == pytest.approx(0.4)
+    c = s["confusion"]["df"]
+    assert c["injected"] == ["alpha", "q"] and c["diagnosed"] == ["alpha", "none", "q"]
+    assert c["matrix"] == [[0, 0, 1], [0, 1, 1]] and c["correct"] == 1
+    sw = s["threshold_sweep"]["df"]
+    assert sw["detection_rate"] == pytest.approx([2 / 3, 0.0])
+    assert sw["false_alarms_per_h"] == pytest.approx([1.5, 0.0])
+
+
+# --------------------------------------------------------------------------- expansion
+def test_expansion_is_deterministic_and_applies_fault_seed_and_overrides(tmp_path):
+    spec, base = load_campaign(SMOKE)
+    runs = expand_runs(spec, base, tmp_path / "a")
+    again = expand_runs(spec, base, tmp_path / "b")
+    assert [r.run_id for r in runs] == [r.run_id for r in again]
+    assert len(runs) == 6 and len({r.run_id for r in runs}) == 6
+    assert [r.kind for r in runs].count("nominal") == 2
+    assert len({r.seed for r in runs}) == 6
+    bias = next(r for r in runs if r.fault_type == "bias" and r.magnitude == 0.2)
+    sc = build_scenario(bias)
+    (fault,) = sc.faults
+    assert isinstance(fault, InjectorFault)
+    assert (fault.type, fault.channel, fault.magnitude, fault.start_s) == ("bias", 3, 0.2, 3.0)
+    assert sc.duration_s == 4.0 and sc.expect == []
+    assert sc.fmus["aircraft"].parameters["seed"] == bias.seed
+    assert sc.fmus["diag"].parameters["df.calibrate_s"] == 2.0
+    assert sc.fmus["diag"].parameters["df.burn_in_s"] == 0.5
+    nominal = next(r for r in runs if r.kind == "nominal")
+    assert build_scenario(nominal).faults == []
+
+
+def test_identical_sweep_entries_are_rejected():
+    spec = fake_spec([0.7, 0.7])
+    with pytest.raises(ValueError, match="identical"):
+        expand_runs(spec, Path("/tmp"))
+
+
+# --------------------------------------------------------------------------- execution
+def test_raising_hanging_and_dying_runs_are_recorded_and_the_rest_complete(tmp_path):
+    spec = fake_spec([0.7, 1.0, 2.0, 3.0, 0.9], timeout_s=4.0)
+    out = run_campaign(spec, tmp_path, tmp_path / "out", workers=2, progress=False)
+    assert out.n_total == out.n_executed == 5
+    by_mag = {r["run"]["magnitude"]: r for r in out.records}
+    assert by_mag[0.7]["status"] == by_mag[0.9]["status"] == "ok"
+    assert by_mag[0.9]["delay_s"] == pytest.approx(0.1 / 0.9)
+    assert by_mag[1.0]["status"] == "error"
+    assert "ValueError: fake runner: magnitude 1 raises" in by_mag[1.0]["error"]
+    assert by_mag[2.0]["status"] == "timeout" and "4 s" in by_mag[2.0]["error"]
+    assert by_mag[3.0]["status"] == "error" and "exit status" in by_mag[3.0]["error"]
+    assert sorted(out.failed) == sorted(by_mag[m]["run"]["run_id"] for m in (1.0, 2.0, 3.0))
+    files = sorted((tmp_path / "out" / "runs").glob("*.json"))
+    assert len(files) == 5
+    s = summarize(out.records, out.n_total)
+    assert s["n_failed"] == 3 and sum(r["n"] for r in s["detection"]) == 2
+
+
+def test_resume_skips_finished_runs_and_leaves_their_records_untouched(tmp_path, monkeypatch):
+    log = tmp_path / "log"
+    log.mkdir()
+    monkeypatch.setenv("GD_FAKE_LOG", str(log))
+    spec = fake_spec([0.6, 0.7, 0.8], nominal_runs=3)
+    out_dir = tmp_path / "out"
+    first = run_campaign(spec, tmp_path, out_dir, workers=2, max_runs=2, progress=False)
+    assert (first.n_total, first.n_executed, len(first.records)) == (6, 2, 2)
+    files = {p: (p.stat().st_mtime_ns, p.read_bytes())
+             for p in (out_dir / "runs").glob("*.json")}
+    assert len(files) == 2
+    second = run_campaign(spec, tmp_path, out_dir, workers=2, progress=False)
+    assert (second.n_skipped, second.n_executed, len(second.records)) == (2, 4, 6)
+    for p, (mtime, content) in files.items():
+        assert p.stat().st_mtime_ns == mtime and p.read_bytes() == content
+    executions = [p.name.split(".")[0] for p in log.iterdir()]
+    assert sorted(executions) == sorted(r["run"]["run_id"] for r in second.records)
+    third = run_campaign(spec, tmp_path, out_dir, workers=2, progress=False)
+    assert (third.n_skipped, third.n_executed) == (6, 0)
+    assert summarize(third.records, 6)["false_alarms"]["df"]["count"] == 3
+
+
+def test_smoke_campaign_pool_and_dask_give_the_same_figures(tmp_path, fmu_dir, monkeypatch):
+    pytest.importorskip("distributed")
+    monkeypatch.setenv("GYRODIAG_FMU_DIR", str(fmu_dir))
+    spec, base = load_campaign(SMOKE)
+    pool = run_campaign(spec, base, tmp_path / "pool", workers=2, progress=False)
+    dask = run_campaign(spec, base, tmp_path / "dask", workers=2, dask="local",
+                        progress=False)
+    assert pool.failed == [] and dask.failed == [], [r.get("error") for r in pool.records]
+    s_pool, s_dask = summarize(pool.records, 6), summarize(dask.records, 6)
+    assert json.dumps(s_pool, sort_keys=True) == json.dumps(s_dask, sort_keys=True)
+    # what the figures say about the seed aircraft (calibration 0.5-2 s, 6 sigma, 3 of 5)
+    assert s_pool["false_alarms"]["df"]["count"] == 0
+    for r in pool.records:
+        assert r["sweep_mismatch"] == 0.0  # offline statistic reproduces the FMU's alarm
+        if r["run"]["kind"] == "fault":
+            assert r["detected"] and 0 < r["delay_s"] < 0.5
+            j = r["run"]["thresholds"].index(6.0)
+            assert r["sweep"]["detected"][j] is True
+            assert r["peak_after"] > 6.0 > r["peak_before"]
+        if r["run"]["fault_type"] == "bias" and r["run"]["magnitude"] == 0.2:
+            assert r["diagnosed"] == "q"
+    sweep = s_pool["threshold_sweep"]["df"]
+    assert all(np.diff(sweep["detection_rate"]) <= 0)
+    assert not math.isnan(sweep["upper_95_per_h"][0])
+    # the report writes figures and plots
+    from harness.cli import main
+
+    assert main(["campaign", str(SMOKE), "--out", str(tmp_path / "pool"),
+                 "--report-only"]) == 0
+    assert (tmp_path / "pool" / "report.html").stat().st_size > 1000
+    assert (tmp_path / "pool" / "threshold_sweep_df.png").is_file()
+    assert os.path.getsize(tmp_path / "pool" / "summary.json") > 100
