@@ -322,6 +322,10 @@ class Diagnoser(FacadeBase):
             _meta(f"df.residual[{i + 1}]", SEED.output_units[i])
             p(f"df.alarm[{i + 1}]", "Boolean", "output", False,
               f"Residual alarm of sensor {SEED.output_names[i]}")
+            p(f"df.threshold_in_use[{i + 1}]", "Real", "output", 0.0,
+              f"Residual threshold in use for sensor {SEED.output_names[i]} "
+              "(learned or given; 0 while calibrating)")
+            _meta(f"df.threshold_in_use[{i + 1}]", SEED.output_units[i])
         p("df.calibrating", "Boolean", "output", False, "Thresholds still being learned")
         p("df.detected", "Boolean", "output", False, "Sensor fault detected (latched)")
         p("df.isolated_sensor", "Integer", "output", 0,
@@ -361,6 +365,12 @@ class Diagnoser(FacadeBase):
         for i in range(DF_M):
             v[f"df.residual[{i + 1}]"] = float(out.residual[i])
             v[f"df.alarm[{i + 1}]"] = bool(out.alarms[i])
+        assert self._df is not None
+        thresholds = self._df.thresholds
+        for i in range(DF_M):
+            v[f"df.threshold_in_use[{i + 1}]"] = (
+                0.0 if thresholds is None else float(thresholds[0][i])
+            )
         v["df.calibrating"] = bool(out.calibrating)
         v["df.detected"] = bool(out.detected)
         v["df.isolated_sensor"] = int(out.isolated_sensor)
@@ -377,6 +387,12 @@ class Diagnoser(FacadeBase):
         try:
             self._build_channels()
             self._dtg_first_alarm_time = math.nan
+            # Outputs at the start time (before the first step) describe the channels'
+            # initial state, e.g. df.calibrating and dtg.learning are already true.
+            if self._dtg is not None:
+                self._copy_dtg(self._dtg.last_output)
+            if self._df is not None:
+                self._copy_df(self._df.last_output)
             self._ready = True
         except (ValueError, TypeError, OSError, KeyError) as exc:
             self._ready = False

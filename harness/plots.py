@@ -443,7 +443,8 @@ def figures_for_result(result: RunResult, scenario: Any = None) -> list[tuple[st
 
     * ``<prefix>.theta_x[i]`` / ``theta_y[i]`` → :func:`plot_theta` per prefix.
     * ``<inst>.df.residual[i]`` → :func:`plot_signals_with_faults` per instance, with
-      thresholds from recorded ``<inst>.df.threshold[i]`` signals, else from the
+      thresholds from recorded ``<inst>.df.threshold_in_use[i]`` (the Diagnoser's
+      learned or given thresholds) or ``<inst>.df.threshold[i]`` signals, else from the
       scenario's ``df.threshold[i]`` parameters of ``<inst>`` (none if calibrated).
     * ``<inst>.grey.prediction`` → :func:`plot_grey_prediction`; the measurement is
       ``<inst>.grey.y`` if recorded, else the recorded source connected to it in the
@@ -485,8 +486,13 @@ def figures_for_result(result: RunResult, scenario: Any = None) -> list[tuple[st
         params = scenario_parameters(scenario, inst.split(".")[0])
         thresholds: dict[str, Any] = {}
         for n in group:
+            in_use = f"{inst}.df.threshold_in_use[{_index(n)}]"
             thr_signal = f"{inst}.df.threshold[{_index(n)}]"
-            if thr_signal in result.signals:
+            if in_use in result.signals:
+                # 0 while the Diagnoser calibrates: draw nothing there
+                curve = np.asarray(result.signals[in_use], dtype=float)
+                thresholds[n] = np.where(curve > 0.0, curve, np.nan)
+            elif thr_signal in result.signals:
                 thresholds[n] = result.signals[thr_signal]
             elif (v := _number(params.get(f"df.threshold[{_index(n)}]"))) is not None:
                 thresholds[n] = v

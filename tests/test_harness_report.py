@@ -262,6 +262,22 @@ def test_residual_thresholds_from_scenario(full_run: RunResult) -> None:
     assert float(ax2.get_lines()[1].get_ydata()[0]) == 0.06
 
 
+def test_residual_thresholds_from_the_diagnosers_threshold_output() -> None:
+    t = np.arange(0.0, 2.0, 0.5)
+    run = RunResult(
+        scenario="thr", time=t, step_s=0.5,
+        signals={
+            "diag.df.residual[3]": np.array([0.0, 0.01, -0.02, 0.5]),
+            "diag.df.threshold_in_use[3]": np.array([0.0, 0.0, 0.04, 0.04]),
+        },
+    )
+    figs = dict(plots.figures_for_result(run))
+    (ax,) = figs["detection-filter residuals — diag"].axes
+    upper = np.asarray(ax.get_lines()[1].get_ydata(), dtype=float)
+    assert np.all(np.isnan(upper[:2]))  # nothing drawn while calibrating
+    np.testing.assert_array_equal(upper[2:], [0.04, 0.04])
+
+
 def test_write_html_standalone(tmp_path: Path) -> None:
     run = _broken_run()
     verdicts = verify_results([run], [BROKEN_SCENARIO])

@@ -220,6 +220,15 @@ def test_aircraft_fault_free_minute_has_no_alarm(verify):
     assert r.signal("diag.df.calibrating")[-1] == 0
     residual = r.signal("diag.df.residual[3]")[r.time > 8.0]
     assert 1e-5 < np.std(residual) < 1e-2
+    # the learned threshold is published once calibrated (0 before) and the residual
+    # stays below it: thresholds at 6 sigma of the calibration residuals
+    thr = r.signal("diag.df.threshold_in_use[3]")
+    calibrating = r.signal("diag.df.calibrating") > 0.5
+    assert np.all(thr[calibrating] == 0.0)
+    after = thr[~calibrating]
+    assert np.all(after == after[0]) and after[0] > 0
+    assert np.max(np.abs(residual)) < after[0]
+    assert 4.0 < after[0] / np.std(residual) < 8.0
 
 
 # ---------------------------------------------------------------------- isolability

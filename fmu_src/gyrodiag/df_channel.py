@@ -320,6 +320,11 @@ class DFChannel:
             b.observer.set_state(s)
 
     @property
+    def last_output(self) -> DFChannelOutput:
+        """Outputs of the most recent update (the initial outputs before any)."""
+        return self._last
+
+    @property
     def thresholds(self) -> list[NDArray[np.float64]] | None:
         """Thresholds in use: main filter first, then observer j; None while calibrating."""
         if self._installed is None:
