@@ -124,8 +124,8 @@ def _new_figure(rows: int, height_per_row: float, width: float = 9.0) -> tuple[F
 
 
 def _robust_ylim(ax: Axes, curves: Sequence[NDArray[np.float64]]) -> None:
-    # RLS starts from θ = 0 with a huge P: the first samples dwarf the converged
-    # trajectory the paper's figures show; clip the axis to the bulk of the data
+    # RLS starts from θ = 0 with a huge P, observers from x̂ = 0: the first samples
+    # dwarf the converged trajectory; clip the axis to the bulk of the data
     data = np.concatenate([c[np.isfinite(c)] for c in curves]) if curves else np.array([])
     if data.size < 10:
         return
@@ -223,11 +223,15 @@ def plot_signals_with_faults(
         shade_fault_windows(ax, result.fault_windows, _t_end(result), label=k == 0)
         _plot(ax, t, result.signal(name), lw=0.8, color="tab:blue", label=name)
         thr = thresholds.get(name)
+        curves = [np.asarray(result.signal(name), dtype=float)]
         if thr is not None:
             thr_arr = np.broadcast_to(np.asarray(thr, dtype=float), t.shape)
             for sign in (1.0, -1.0):
                 _plot(ax, t, sign * thr_arr, lw=0.8, ls="--", color="k",
                       label="± threshold" if sign > 0 else None)
+                curves.append(sign * np.asarray(thr_arr, dtype=float))
+        # an observer's start-up transient must not squash the thresholds into a line
+        _robust_ylim(ax, curves)
         ax.set_ylabel(name.rsplit(".", 1)[-1], fontsize=8)
         ax.legend(loc="upper left", fontsize=7)
         ax.grid(alpha=0.3)

@@ -278,6 +278,18 @@ def test_residual_thresholds_from_the_diagnosers_threshold_output() -> None:
     np.testing.assert_array_equal(upper[2:], [0.04, 0.04])
 
 
+def test_residual_plot_is_not_squashed_by_a_start_up_transient() -> None:
+    t = np.arange(0.0, 60.0, 0.01)
+    residual = 1e-3 * np.sin(7.0 * t)
+    residual[:50] = -0.25 * np.exp(-t[:50] / 0.1)  # observer start-up, 0.5 s
+    run = RunResult(scenario="tr", time=t, step_s=0.01,
+                    signals={"diag.df.residual[3]": residual,
+                             "diag.df.threshold_in_use[3]": np.full(t.size, 5e-3)})
+    (ax,) = dict(plots.figures_for_result(run))["detection-filter residuals — diag"].axes
+    lo, hi = ax.get_ylim()
+    assert -0.05 < lo < -5e-3 and 5e-3 < hi < 0.05  # the thresholds stay readable
+
+
 def test_write_html_standalone(tmp_path: Path) -> None:
     run = _broken_run()
     verdicts = verify_results([run], [BROKEN_SCENARIO])
