@@ -218,7 +218,7 @@ class DTGRegressor:
         return self._count >= 2
 
     def update(
-        self, Utx: float, Uty: float, Ux: float, Uy: float
+        self, Utx: float, Uty: float, Ux: float, Uy: float, *, validate: bool = True
     ) -> (
         tuple[NDArray[np.float64], float, NDArray[np.float64], float] | None
     ):
@@ -229,7 +229,11 @@ class DTGRegressor:
         ValueError
             On a non-finite value; the history is untouched.
         """
-        v = check_finite_array("(Utx, Uty, Ux, Uy)", [Utx, Uty, Ux, Uy], shape=(4,))
+        v = (
+            check_finite_array("(Utx, Uty, Ux, Uy)", [Utx, Uty, Ux, Uy], shape=(4,))
+            if validate
+            else np.array([Utx, Uty, Ux, Uy], dtype=float)
+        )
         tx, ty, ux, uy = v
         (tx1, ty1), (tx2, ty2) = self._hist
         out = None

@@ -263,11 +263,14 @@ class DTGChannel:
             return self._last
         t = self._n_samples * self.T
         self._n_samples += 1
-        sample = self._prefilter.update(raw) if self._prefilter is not None else raw
-        rows = self._regressor.update(*sample)
+        # raw was checked finite above; the stages downstream need not check again
+        sample = (
+            self._prefilter.update(raw, validate=False) if self._prefilter is not None else raw
+        )
+        rows = self._regressor.update(*sample, validate=False)
         if rows is not None:
-            self._estimators[0].update(rows[0], rows[1])
-            self._estimators[1].update(rows[2], rows[3])
+            self._estimators[0].update(rows[0], rows[1], validate=False)
+            self._estimators[1].update(rows[2], rows[3], validate=False)
         theta = np.vstack([e.theta for e in self._estimators])
 
         if self.theta0 is None:

@@ -75,7 +75,12 @@ class _Estimator:
         """True while the last ``convergence_hold`` updates each moved θ by < tol."""
         return self._quiet_count >= self.convergence_hold
 
-    def _check_sample(self, phi: ArrayLike, y: float) -> tuple[NDArray[np.float64], float]:
+    def _check_sample(
+        self, phi: ArrayLike, y: float, validate: bool = True
+    ) -> tuple[NDArray[np.float64], float]:
+        if not validate:
+            # the caller (e.g. a channel) has already checked the raw sample
+            return np.asarray(phi, dtype=float), float(y)
         p = check_finite_array("phi", phi, shape=(self.n_params,))
         yy = check_finite_array("y", y, ndim=0)
         return p, float(yy)
@@ -149,15 +154,20 @@ class RLS(_Estimator):
         self._reset_common()
         self._S = np.sqrt(self.p0) * np.eye(self.n_params)
 
-    def update(self, phi: ArrayLike, y: float) -> NDArray[np.float64]:
+    def update(
+        self, phi: ArrayLike, y: float, *, validate: bool = True
+    ) -> NDArray[np.float64]:
         """Incorporate one sample and return the new θ (a view; copy to keep).
+
+        ``validate=False`` skips the shape/finiteness checks, for callers that have
+        checked the sample already (hot path of a channel).
 
         Raises
         ------
         ValueError
             On a wrong shape or non-finite value; the state is untouched.
         """
-        p, yy = self._check_sample(phi, y)
+        p, yy = self._check_sample(phi, y, validate)
         self._rls_step(p, yy, forgetting=1.0)
         return self.theta
 
@@ -227,15 +237,20 @@ class ForgettingRLS(RLS):
                 f"got {max_trace!r}"
             )
 
-    def update(self, phi: ArrayLike, y: float) -> NDArray[np.float64]:
+    def update(
+        self, phi: ArrayLike, y: float, *, validate: bool = True
+    ) -> NDArray[np.float64]:
         """Incorporate one sample with forgetting and return the new θ.
+
+        ``validate=False`` skips the shape/finiteness checks, for callers that have
+        checked the sample already (hot path of a channel).
 
         Raises
         ------
         ValueError
             On a wrong shape or non-finite value; the state is untouched.
         """
-        p, yy = self._check_sample(phi, y)
+        p, yy = self._check_sample(phi, y, validate)
         self._rls_step(p, yy, forgetting=self.forgetting)
         tr = float(np.sum(self._S * self._S))  # trace(S·Sᵀ) without forming P
         if tr > self.max_trace:
@@ -285,15 +300,20 @@ class SlidingWindowLS(_Estimator):
         self._since_solve = 0
         self.well_posed = False
 
-    def update(self, phi: ArrayLike, y: float) -> NDArray[np.float64]:
+    def update(
+        self, phi: ArrayLike, y: float, *, validate: bool = True
+    ) -> NDArray[np.float64]:
         """Push one sample into the window, re-solve when due, and return θ.
+
+        ``validate=False`` skips the shape/finiteness checks, for callers that have
+        checked the sample already (hot path of a channel).
 
         Raises
         ------
         ValueError
             On a wrong shape or non-finite value; the state is untouched.
         """
-        p, yy = self._check_sample(phi, y)
+        p, yy = self._check_sample(phi, y, validate)
         self._phi[self._head] = p
         self._y[self._head] = yy
         self._head = (self._head + 1) % self.window

@@ -84,7 +84,7 @@ class ButterworthPrefilter:
         """Return to zero state (as at construction)."""
         self._zi[...] = 0.0
 
-    def update(self, x: ArrayLike) -> NDArray[np.float64]:
+    def update(self, x: ArrayLike, *, validate: bool = True) -> NDArray[np.float64]:
         """Filter one sample or a record, advancing the state.
 
         Parameters
@@ -103,7 +103,8 @@ class ButterworthPrefilter:
         ValueError
             If ``x`` has the wrong shape or contains NaN/Inf; the state is untouched.
         """
-        arr = check_finite_array("x", x)
+        # validate=False: the caller checked finiteness already (hot path of a channel)
+        arr = check_finite_array("x", x) if validate else np.asarray(x, dtype=float)
         single = arr.ndim <= 1
         if arr.ndim == 0:
             arr = arr.reshape(1)
