@@ -70,18 +70,23 @@ static void pin_self(const char *self_path)
     (void)dlopen(self_path, RTLD_NOW | RTLD_NOLOAD | RTLD_NODELETE);
 }
 
+/* Every FMI 2.0 co-simulation function, listed once (X-macro). */
+#define FMI2_FUNCTIONS(X) \
+    X(fmi2GetTypesPlatform) X(fmi2GetVersion) X(fmi2SetDebugLogging) \
+    X(fmi2Instantiate) X(fmi2FreeInstance) X(fmi2SetupExperiment) \
+    X(fmi2EnterInitializationMode) X(fmi2ExitInitializationMode) X(fmi2Terminate) \
+    X(fmi2Reset) X(fmi2GetReal) X(fmi2GetInteger) X(fmi2GetBoolean) \
+    X(fmi2GetString) X(fmi2SetReal) X(fmi2SetInteger) X(fmi2SetBoolean) \
+    X(fmi2SetString) X(fmi2GetFMUstate) X(fmi2SetFMUstate) X(fmi2FreeFMUstate) \
+    X(fmi2SerializedFMUstateSize) X(fmi2SerializeFMUstate) \
+    X(fmi2DeSerializeFMUstate) X(fmi2GetDirectionalDerivative) \
+    X(fmi2SetRealInputDerivatives) X(fmi2GetRealOutputDerivatives) X(fmi2DoStep) \
+    X(fmi2CancelStep) X(fmi2GetStatus) X(fmi2GetRealStatus) \
+    X(fmi2GetIntegerStatus) X(fmi2GetBooleanStatus) X(fmi2GetStringStatus)
+
 #define REAL(name) static name##TYPE *real_##name = NULL;
-REAL(fmi2GetTypesPlatform) REAL(fmi2GetVersion) REAL(fmi2SetDebugLogging)
-REAL(fmi2Instantiate) REAL(fmi2FreeInstance) REAL(fmi2SetupExperiment)
-REAL(fmi2EnterInitializationMode) REAL(fmi2ExitInitializationMode) REAL(fmi2Terminate)
-REAL(fmi2Reset) REAL(fmi2GetReal) REAL(fmi2GetInteger) REAL(fmi2GetBoolean)
-REAL(fmi2GetString) REAL(fmi2SetReal) REAL(fmi2SetInteger) REAL(fmi2SetBoolean)
-REAL(fmi2SetString) REAL(fmi2GetFMUstate) REAL(fmi2SetFMUstate) REAL(fmi2FreeFMUstate)
-REAL(fmi2SerializedFMUstateSize) REAL(fmi2SerializeFMUstate)
-REAL(fmi2DeSerializeFMUstate) REAL(fmi2GetDirectionalDerivative)
-REAL(fmi2SetRealInputDerivatives) REAL(fmi2GetRealOutputDerivatives) REAL(fmi2DoStep)
-REAL(fmi2CancelStep) REAL(fmi2GetStatus) REAL(fmi2GetRealStatus)
-REAL(fmi2GetIntegerStatus) REAL(fmi2GetBooleanStatus) REAL(fmi2GetStringStatus)
+FMI2_FUNCTIONS(REAL)
+#undef REAL
 
 static int load_real(void)
 {
@@ -97,17 +102,7 @@ static int load_real(void)
     void *lib = dlopen(path, RTLD_NOW | RTLD_LOCAL);
     if (!lib) return 0;
 #define LOAD(name) real_##name = (name##TYPE *)dlsym(lib, #name); if (!real_##name) return 0;
-    LOAD(fmi2GetTypesPlatform) LOAD(fmi2GetVersion) LOAD(fmi2SetDebugLogging)
-    LOAD(fmi2Instantiate) LOAD(fmi2FreeInstance) LOAD(fmi2SetupExperiment)
-    LOAD(fmi2EnterInitializationMode) LOAD(fmi2ExitInitializationMode) LOAD(fmi2Terminate)
-    LOAD(fmi2Reset) LOAD(fmi2GetReal) LOAD(fmi2GetInteger) LOAD(fmi2GetBoolean)
-    LOAD(fmi2GetString) LOAD(fmi2SetReal) LOAD(fmi2SetInteger) LOAD(fmi2SetBoolean)
-    LOAD(fmi2SetString) LOAD(fmi2GetFMUstate) LOAD(fmi2SetFMUstate) LOAD(fmi2FreeFMUstate)
-    LOAD(fmi2SerializedFMUstateSize) LOAD(fmi2SerializeFMUstate)
-    LOAD(fmi2DeSerializeFMUstate) LOAD(fmi2GetDirectionalDerivative)
-    LOAD(fmi2SetRealInputDerivatives) LOAD(fmi2GetRealOutputDerivatives) LOAD(fmi2DoStep)
-    LOAD(fmi2CancelStep) LOAD(fmi2GetStatus) LOAD(fmi2GetRealStatus)
-    LOAD(fmi2GetIntegerStatus) LOAD(fmi2GetBooleanStatus) LOAD(fmi2GetStringStatus)
+    FMI2_FUNCTIONS(LOAD)
 #undef LOAD
     real_lib = lib;
     real_finalize = (void (*)(void))dlsym(lib, "finalizePythonInterpreter");
