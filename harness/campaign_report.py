@@ -3,7 +3,9 @@
 :func:`summarize` turns the run records of :mod:`harness.campaign` into figures:
 
 * detection rate per class, fault type and magnitude, with a 95 % Clopper-Pearson
-  interval;
+  interval, and in the same rows how many runs were isolated right (diagnosed class =
+  injected class): the paper's DTG feature is a decade count of η, so fault size moves it
+  as much as fault type, and only a per-magnitude view shows where classification holds;
 * false alarms per hour per channel over all fault-free time (nominal runs and the
   pre-onset part of fault runs), with the exact Poisson (Garwood) 95 % interval
   ``[chi2(0.025; 2n) / 2, chi2(0.975; 2n + 2) / 2] / hours``;
@@ -96,9 +98,11 @@ def summarize(records: list[dict[str, Any]], n_planned: int | None = None) -> di
     for (cls, ftype, mag), rs in sorted(groups.items(),
                                         key=lambda kv: (kv[0][0], kv[0][1], kv[0][2] or 0.0)):
         k = sum(bool(r["detected"]) for r in rs)
+        right = sum(r["diagnosed"] == r["run"]["injected"] for r in rs)
         lo, hi = clopper_pearson(k, len(rs))
         detection.append({"class": cls, "fault_type": ftype, "magnitude": mag, "n": len(rs),
-                          "detected": k, "rate": k / len(rs), "ci_low": lo, "ci_high": hi})
+                          "detected": k, "rate": k / len(rs), "ci_low": lo, "ci_high": hi,
+                          "isolated": right, "isolation_rate": right / len(rs)})
 
     false_alarms: dict[str, dict[str, Any]] = {}
     for ch in sorted({r["run"]["channel"] for r in ok}):
@@ -300,9 +304,11 @@ def write_report(summary: dict[str, Any], records: list[dict[str, Any]], out_dir
                       f["lower_95"], f["upper_95"]]
                      for ch, f in summary["false_alarms"].items()]),
              "<h2>Detection rate</h2>",
-             _table(["class", "fault", "magnitude", "runs", "detected", "rate", "95 % CI"],
+             _table(["class", "fault", "magnitude", "runs", "detected", "rate", "95 % CI",
+                     "isolated right"],
                     [[r["class"], r["fault_type"], r["magnitude"], r["n"], r["detected"],
-                      r["rate"], f"{_fmt(r['ci_low'])}–{_fmt(r['ci_high'])}"]
+                      r["rate"], f"{_fmt(r['ci_low'])}–{_fmt(r['ci_high'])}",
+                      r.get("isolated", "")]
                      for r in summary["detection"]]),
              "<h2>Detection delay (s)</h2>",
              _table(["group", "n", "median", "p95", "max"],

@@ -103,6 +103,8 @@ def test_summary_figures_from_synthetic_records():
     assert (s["n_finished"], s["n_ok"], s["n_failed"], s["n_planned"]) == (5, 4, 1, 6)
     rows = {(r["fault_type"], r["magnitude"]): r for r in s["detection"]}
     assert rows[("bias", 0.1)]["rate"] == 0.5 and rows[("bias", 0.3)]["rate"] == 1.0
+    assert rows[("bias", 0.1)]["isolated"] == 1 and rows[("bias", 0.1)]["isolation_rate"] == 0.5
+    assert rows[("bias", 0.3)]["isolated"] == 0
     fa = s["false_alarms"]["df"]
     assert fa["count"] == 3 and fa["hours"] == pytest.approx(2.0)
     assert fa["rate_per_h"] == pytest.approx(1.5)
