@@ -839,7 +839,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     summary = summarize(records, n_planned=n_total)
     paths = write_report(summary, records, Path(out), title=spec.name)
     print(summary_text(summary))
-    print(f"summary: {paths['json']}; report: {paths['html']}")
+    print(f"summary: {paths['json']}, {paths['markdown']}; report: {paths['html']}")
     return 0 if summary["n_finished"] == n_total and not summary["n_failed"] else 1
 
 
@@ -853,7 +853,8 @@ def summary_text(summary: dict[str, Any]) -> str:
     for row in summary["detection"]:
         mag = "" if row["magnitude"] is None else f" {row['magnitude']:g}"
         lines.append(f"  {row['class']} {row['fault_type']}{mag}: "
-                     f"{row['detected']}/{row['n']} detected")
+                     f"{row['detected']}/{row['n']} detected, "
+                     f"{row.get('isolated', 0)}/{row['n']} isolated right")
     for key, d in summary["delay"].items():
         if d["n"]:
             lines.append(f"  delay {key}: median {d['median_s']:.3g} s, p95 {d['p95_s']:.3g} s, "

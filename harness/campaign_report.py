@@ -173,6 +173,7 @@ def summarize(records: list[dict[str, Any]], n_planned: int | None = None) -> di
         "failures": [{"run_id": r["run"]["run_id"], "status": r["status"],
                       "error": str(r.get("error")).strip().splitlines()[0][:300]}
                      for r in failed],
+        "class_channels": {r["run"]["cls"]: r["run"]["channel"] for r in ok},
         "detection": detection, "false_alarms": false_alarms, "delay": delay,
         "confusion": confusion, "threshold_sweep": sweep,
     }
@@ -286,13 +287,64 @@ def _table(header: list[str], rows: list[list[Any]]) -> str:
     return f"<table><tr>{head}</tr>{body}</table>"
 
 
+def _md_table(header: list[str], rows: list[list[Any]]) -> list[str]:
+    def cell(x: Any) -> str:
+        return html.unescape(_fmt(x)).replace("|", "\\|")
+
+    return ["| " + " | ".join(header) + " |", "|" + " --- |" * len(header),
+            *("| " + " | ".join(cell(c) for c in r) + " |" for r in rows), ""]
+
+
+def markdown_summary(summary: dict[str, Any], title: str = "campaign") -> str:
+    """The campaign's headline figures as Markdown tables (what README.md quotes).
+
+    One row per channel (false alarms with the 95 % Garwood upper bound, delay median /
+    p95 / max over all detected fault runs, isolation right), then detection and
+    isolation per class, fault type and magnitude, then each threshold sweep.
+    """
+    lines = [f"## Campaign {title}", "",
+             f"{summary['n_finished']} of {summary['n_planned']} runs finished: "
+             f"{summary['n_fault_runs']} fault runs, {summary['n_nominal_runs']} nominal, "
+             f"{summary['n_failed']} failed.", ""]
+    rows = []
+    for ch, fa in summary["false_alarms"].items():
+        d = summary["delay"].get(f"all {ch}", {})
+        c = summary["confusion"].get(ch, {})
+        det = [r for r in summary["detection"] if _channel_of(summary, r) == ch]
+        rows.append([ch, f"{fa['count']} in {fa['hours']:.2f} h (≤ {fa['upper_95']:.3g})",
+                     f"{sum(r['detected'] for r in det)} of {sum(r['n'] for r in det)}",
+                     " / ".join(_fmt(d.get(k)) for k in ("median_s", "p95_s", "max_s")),
+                     f"{c.get('correct', 0)} of {c.get('n', 0)}"])
+    lines += _md_table(["channel", "false alarms / h (95 % upper)", "detected",
+                        "delay median / p95 / max, s", "isolated right"], rows)
+    lines += _md_table(["class", "fault", "magnitude", "detected", "isolated right"],
+                       [[r["class"], r["fault_type"], r["magnitude"],
+                         f"{r['detected']} of {r['n']}", f"{r.get('isolated', '–')} of {r['n']}"]
+                        for r in summary["detection"]])
+    for key, sw in summary["threshold_sweep"].items():
+        lines.append(f"Threshold sweep, {key} (configured {sw['configured_threshold']}):")
+        lines.append("")
+        lines += _md_table(["threshold", "detection rate", "false alarms / h", "95 % upper / h"],
+                           [list(x) for x in zip(sw["thresholds"], sw["detection_rate"],
+                                                 sw["false_alarms_per_h"], sw["upper_95_per_h"],
+                                                 strict=True)])
+    return "\n".join(lines)
+
+
+def _channel_of(summary: dict[str, Any], row: dict[str, Any]) -> str:
+    return summary.get("class_channels", {}).get(row["class"], row["class"])
+
+
 def write_report(summary: dict[str, Any], records: list[dict[str, Any]], out_dir: Path,
                  title: str = "campaign") -> dict[str, Path]:
-    """Write ``summary.json``, the plots and ``report.html`` into ``out_dir``."""
+    """Write ``summary.json``, ``summary.md``, the plots and ``report.html`` into
+    ``out_dir``."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     json_path = out_dir / "summary.json"
     json_path.write_text(json.dumps(summary, indent=1), encoding="utf-8")
+    md_path = out_dir / "summary.md"
+    md_path.write_text(markdown_summary(summary, title), encoding="utf-8")
     plots = _plots(summary, records, out_dir)
     parts = [f"<h1>Campaign {html.escape(title)}</h1>",
              f"<p>{summary['n_finished']} of {summary['n_planned']} runs finished: "
@@ -340,4 +392,5 @@ def write_report(summary: dict[str, Any], records: list[dict[str, Any]], out_dir
     html_path.write_text(f"<!doctype html><html><head><meta charset='utf-8'><title>"
                          f"{html.escape(title)}</title>{style}</head><body>"
                          + "\n".join(parts) + "</body></html>", encoding="utf-8")
-    return {"json": json_path, "html": html_path, **{p.stem: p for p in plots}}
+    return {"json": json_path, "markdown": md_path, "html": html_path,
+            **{p.stem: p for p in plots}}

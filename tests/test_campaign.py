@@ -24,7 +24,12 @@ from harness.campaign import (
     load_campaign,
     run_campaign,
 )
-from harness.campaign_report import clopper_pearson, garwood_interval, summarize
+from harness.campaign_report import (
+    clopper_pearson,
+    garwood_interval,
+    markdown_summary,
+    summarize,
+)
 from harness.scenario import InjectorFault
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -117,6 +122,11 @@ def test_summary_figures_from_synthetic_records():
     sw = s["threshold_sweep"]["df"]
     assert sw["detection_rate"] == pytest.approx([2 / 3, 0.0])
     assert sw["false_alarms_per_h"] == pytest.approx([1.5, 0.0])
+    md = markdown_summary(s, "t").splitlines()
+    up = garwood_interval(3, 2.0)[1]
+    assert f"| df | 3 in 2.00 h (≤ {up:.3g}) | 2 of 3 | 0.3 / 0.39 / 0.4 | 1 of 3 |" in md
+    assert "| c | bias | 0.1 | 1 of 2 | 1 of 2 |" in md
+    assert "| 1 | 0.667 | 1.5 | " + f"{up:.3g} |" in md
 
 
 # --------------------------------------------------------------------------- expansion
@@ -220,3 +230,4 @@ def test_smoke_campaign_pool_and_dask_give_the_same_figures(tmp_path, fmu_dir, m
     assert (tmp_path / "pool" / "report.html").stat().st_size > 1000
     assert (tmp_path / "pool" / "threshold_sweep_df.png").is_file()
     assert os.path.getsize(tmp_path / "pool" / "summary.json") > 100
+    assert "| df | 0 in " in (tmp_path / "pool" / "summary.md").read_text(encoding="utf-8")
