@@ -190,6 +190,10 @@ class Diagnoser(FacadeBase):
         p("dtg.max_distance", "Real", "parameter", -1.0,
           "Eq. 7 distance beyond which a fault is unknown (code -1); < 0: no limit")
         _meta("dtg.max_distance", "1")
+        p("dtg.classify_window_s", "Real", "parameter", 0.5,
+          "An alarm is classified by the median feature of its samples in this last "
+          "window (the signature-learning rule); 0: each sample alone (paper)")
+        _meta("dtg.classify_window_s", "s", 0.0)
         for name in ("Utx", "Uty", "Ux", "Uy"):
             p(f"dtg.{name}", "Real", "input", 0.0, f"DTG signal {name}")
             _meta(f"dtg.{name}", "V")
@@ -445,6 +449,7 @@ class Diagnoser(FacadeBase):
             monitored=[bool(v[f"dtg.monitored[{i}]"]) for i in range(1, N_THETA + 1)],
             signatures=self._signatures(),
             max_distance=None if max_distance < 0 else max_distance,
+            classify_window_s=float(v["dtg.classify_window_s"]),
         )
 
     def _signatures(self) -> dict[str, list[float]]:

@@ -79,10 +79,6 @@ def signal_names(diagnoser: str) -> list[str]:
     return [*names, f"{diagnoser}.dtg.alarm"]
 
 
-def _round_half_away(x: NDArray[np.float64]) -> NDArray[np.int64]:
-    return (np.sign(x) * np.floor(np.abs(x) + 0.5)).astype(np.int64)
-
-
 @dataclass(frozen=True)
 class RunFeature:
     """Feature vector of one training run.
@@ -133,7 +129,7 @@ def run_feature(result: RunResult, diagnoser: str, signature: str,
     KeyError
         If a needed signal was not recorded (names it).
     """
-    from gyrodiag.decision import feature_vector
+    from gyrodiag.decision import feature_vector, median_feature
 
     if not (isinstance(window_s, (int, float)) and math.isfinite(window_s) and window_s >= 0):
         raise ValueError(f"window_s must be a finite number >= 0 s, got {window_s!r}")
@@ -159,7 +155,7 @@ def run_feature(result: RunResult, diagnoser: str, signature: str,
         worst = int(np.argmax([np.abs(f).sum() for f in per_axis]))
         features.append(per_axis[worst])
         axes.add(_AXES[worst])
-    feature = _round_half_away(np.median(np.array(features, dtype=float), axis=0))
+    feature = median_feature(features)
     return RunFeature(result.scenario, signature, feature, ",".join(sorted(axes)),
                       eta[-1].copy(), len(rows))
 
@@ -269,6 +265,8 @@ def learn_signatures(scenarios: Sequence[Scenario], results: Sequence[RunResult]
     ScenarioError, ValueError, KeyError
         See :func:`check_training_scenarios` and :func:`run_feature`.
     """
+    from gyrodiag.decision import median_feature
+
     if len(scenarios) != len(results):
         raise ValueError(f"{len(scenarios)} scenarios but {len(results)} runs")
     codes = check_training_scenarios(scenarios)
@@ -278,8 +276,7 @@ def learn_signatures(scenarios: Sequence[Scenario], results: Sequence[RunResult]
         runs.append(run_feature(r, s.training.diagnoser, s.training.signature, window_s))
     signatures = {}
     for name in codes:
-        feats = np.array([r.feature for r in runs if r.signature == name], dtype=float)
-        signatures[name] = _round_half_away(np.median(feats, axis=0))
+        signatures[name] = median_feature([r.feature for r in runs if r.signature == name])
     return SignatureLibrary(signatures, codes, runs, window_s)
 
 

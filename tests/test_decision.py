@@ -143,3 +143,17 @@ def test_feature_of_vanished_parameter_is_finite():
 def test_bad_arguments_name_the_argument(call, name):
     with pytest.raises((ValueError, TypeError), match=name):
         call()
+
+
+def test_median_feature_rounds_half_away_from_zero():
+    from gyrodiag.decision import median_feature
+
+    np.testing.assert_array_equal(
+        median_feature([[0, -2, 1], [0, -3, 1], [1, -3, 2]]), [0, -3, 1])
+    # even counts: the mean of the middle pair, .5 rounded away from zero
+    np.testing.assert_array_equal(median_feature([[-1, 1, 0], [-2, 2, 0]]), [-2, 2, 0])
+    np.testing.assert_array_equal(median_feature([0, -1, 3]), [0, -1, 3])
+    with pytest.raises(ValueError, match="features"):
+        median_feature(np.zeros((0, 5)))
+    with pytest.raises(ValueError, match="features"):
+        median_feature([[0, np.nan]])

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from _dtg_sim import STABLE_ROTOR, simulate_difference_equation
 
-from gyrodiag.decision import UNKNOWN_CODE
+from gyrodiag.decision import UNKNOWN_CODE, median_feature
 from gyrodiag.dtg import theta_from_physical
 from gyrodiag.dtg_channel import DTGChannel, DTGChannelConfig
 
@@ -100,6 +100,49 @@ def test_nan_sample_is_skipped_and_state_round_trip_is_exact():
         np.testing.assert_array_equal(a.theta, b.theta)
 
 
+def test_windowed_classification_is_the_median_of_the_per_sample_features():
+    """Ku falls to 35 % (log10 0.35 = -0.46, near a decade boundary): with noise the
+    per-sample feature flickers between [0,0,0,0,0] and [0,0,0,0,-1]; the channel
+    classifies the median of the alarm samples of the last window instead, exactly the
+    signature-learning rule, and flickers an order of magnitude less."""
+    broken = dataclasses.replace(STABLE_ROTOR, Ku=0.35 * STABLE_ROTOR.Ku)
+    rec = np.vstack([_record(STABLE_ROTOR, 1000, 5, noise=1e-3),
+                     _record(broken, 2000, 6, noise=1e-3)])
+    window = 50
+    outs = {}
+    for w in (0.0, window * T):
+        ch = DTGChannel(DTGChannelConfig(
+            sample_period_s=T, prefilter_enabled=False, p0=1e8, forgetting=0.99,
+            theta0=list(theta_from_physical(STABLE_ROTOR, T)), classify_window_s=w,
+            signatures={"torquer_weak": [0, 0, 0, 0, -1], "near_nominal": [0, 0, 0, 0, 0]}))
+        outs[w] = _run(ch, rec)
+    single, smooth = outs[0.0], outs[window * T]
+    feats = np.array([o.feature for o in single])
+    alarm = np.array([o.alarm for o in single])
+    assert alarm[1300:].all()
+    for k in range(1300, len(rec), 7):
+        lo = max(0, k - window + 1)
+        expected = median_feature(feats[lo:k + 1][alarm[lo:k + 1]])
+        np.testing.assert_array_equal(smooth[k].feature, expected, err_msg=f"sample {k}")
+        assert smooth[k].fault_code == (1 if expected[4] == -1 else 2)
+    flips = [np.count_nonzero(np.diff([o.fault_code for o in outs[w][1300:]])) for w in outs]
+    assert flips[0] > 50 and flips[1] < flips[0] / 5, flips
+    # the ring buffer is part of the state: a restored channel classifies identically
+    ch = DTGChannel(DTGChannelConfig(
+        sample_period_s=T, prefilter_enabled=False, p0=1e8, forgetting=0.99,
+        theta0=list(theta_from_physical(STABLE_ROTOR, T)), classify_window_s=window * T,
+        signatures={"torquer_weak": [0, 0, 0, 0, -1], "near_nominal": [0, 0, 0, 0, 0]}))
+    _run(ch, rec[:1500])
+    state = ch.get_state()
+    ref = _run(ch, rec[1500:1600])
+    ch.set_state(state)
+    assert [o.fault_code for o in _run(ch, rec[1500:1600])] == [o.fault_code for o in ref]
+    with pytest.raises(ValueError, match="feature_ring"):
+        DTGChannel(DTGChannelConfig(
+            sample_period_s=T, prefilter_enabled=False, p0=1e8, classify_window_s=0.2,
+            theta0=list(theta_from_physical(STABLE_ROTOR, T)))).set_state(state)
+
+
 @pytest.mark.parametrize(
     ("changes", "name"),
     [
@@ -112,6 +155,7 @@ def test_nan_sample_is_skipped_and_state_round_trip_is_exact():
         ({"learn_start_s": 2.0, "learn_end_s": 1.0}, "learn_end_s"),
         ({"low": 2.0}, "low"),
         ({"signatures": {"a": [0, 0, 0]}}, "signatures"),
+        ({"classify_window_s": -0.1}, "classify_window_s"),
     ],
 )
 def test_invalid_settings_name_the_setting(changes, name):

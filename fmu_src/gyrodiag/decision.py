@@ -26,6 +26,7 @@ __all__ = [
     "SignatureClassifier",
     "ThresholdDecision",
     "feature_vector",
+    "median_feature",
     "parameter_ratios",
     "signature_distance",
 ]
@@ -63,6 +64,28 @@ def feature_vector(eta: ArrayLike) -> NDArray[np.int64]:
         raise ValueError("eta must be non-negative (it is a ratio of magnitudes)")
     lg = np.log10(np.maximum(e, ETA_FLOOR))
     return (np.sign(lg) * np.floor(np.abs(lg) + 0.5)).astype(np.int64)
+
+
+def median_feature(features: ArrayLike) -> NDArray[np.int64]:
+    """Element-wise median of feature vectors, rounded half away from zero.
+
+    The robust summary of a run of per-sample features: a forgetting estimator's η
+    jitters by a decade from sample to sample in a fault, so one sample's C is a poor
+    witness. Signature learning and the DTG channel's classification use this same rule,
+    so what is classified is what was learned.
+
+    Parameters
+    ----------
+    features : array_like, shape (n, k) or (k,)
+        n ≥ 1 feature vectors (rows).
+    """
+    f = check_finite_array("features", features)
+    if f.ndim == 1:
+        f = f[None, :]
+    if f.ndim != 2 or f.shape[0] == 0:
+        raise ValueError(f"features must have shape (n >= 1, k), got {f.shape}")
+    med = np.median(f, axis=0)
+    return (np.sign(med) * np.floor(np.abs(med) + 0.5)).astype(np.int64)
 
 
 def signature_distance(c_a: ArrayLike, c_b: ArrayLike) -> float:

@@ -28,6 +28,7 @@ from .decision import (
     SignatureClassifier,
     ThresholdDecision,
     feature_vector,
+    median_feature,
 )
 from .dtg import N_THETA, DTGRegressor, physical_from_theta
 from .estimators import RLS, ForgettingRLS, SlidingWindowLS
@@ -83,6 +84,12 @@ class DTGChannelConfig:
         reported with code ``UNKNOWN_CODE``.
     max_distance : float or None
         Feature vectors farther than this from every signature are "unknown".
+    classify_window_s : float
+        An alarm is classified by the median feature of the alarm samples in the last
+        ``classify_window_s`` seconds (:func:`~gyrodiag.decision.median_feature`), the
+        rule by which signatures are learned (``harness learn-signatures``, 0.5 s); the
+        per-sample feature flickers between classes. 0: each sample's own feature (the
+        paper's rule).
     """
 
     sample_period_s: float = 1e-3
@@ -105,6 +112,7 @@ class DTGChannelConfig:
     monitored: Sequence[bool] = (True, True, True, True, True)
     signatures: Mapping[str, Sequence[float]] = field(default_factory=dict)
     max_distance: float | None = None
+    classify_window_s: float = 0.5
 
     def validate(self) -> None:
         """Raise ValueError/TypeError naming the first invalid setting."""
@@ -143,6 +151,7 @@ class DTGChannelConfig:
                 check_finite_array(f"signatures[{name!r}]", sig, shape=(N_THETA,))
         elif self.max_distance is not None:
             check_nonnegative("max_distance", self.max_distance)
+        check_nonnegative("classify_window_s", self.classify_window_s)
 
 
 @dataclass(frozen=True)
@@ -167,7 +176,9 @@ class DTGChannelOutput:
     fault_code : int
         0 no alarm, 1… signature index, ``UNKNOWN_CODE`` (−1) unclassified.
     feature : ndarray of int, shape (5,)
-        Feature vector C of the axis judged most deviant.
+        Feature vector C that is classified: at each sample, C of the axis with the
+        larger Σ|C_i|; in alarm, the median of those over the alarm samples of the last
+        ``classify_window_s``.
     first_alarm_time_s : float
         Time of the first alarm since reset, s (NaN if none).
     """
@@ -240,6 +251,11 @@ class DTGChannel:
         )
         self._decisions = None if self.theta0 is None else self._make_decisions(self.theta0)
         self._first_alarm_time = float("nan")
+        n_window = max(1, round(c.classify_window_s / self.T))
+        # ring buffer of per-sample features; rows of fault-free samples are masked out
+        self._feat_ring = np.zeros((n_window, N_THETA), dtype=np.int64)
+        self._feat_alarm = np.zeros(n_window, dtype=bool)
+        self._feat_pos = 0
         self._last = self._initial_output()
 
     def _initial_output(self) -> DTGChannelOutput:
@@ -288,10 +304,15 @@ class DTGChannel:
         feats = [feature_vector(e) for e in eta]
         worst = int(np.argmax([np.abs(f).sum() for f in feats]))
         feature = feats[worst]
+        self._feat_ring[self._feat_pos] = feature
+        self._feat_alarm[self._feat_pos] = alarm
+        self._feat_pos = (self._feat_pos + 1) % self._feat_alarm.size
         code = 0
         if alarm:
             if np.isnan(self._first_alarm_time):
                 self._first_alarm_time = t
+            if self._feat_alarm.size > 1:
+                feature = median_feature(self._feat_ring[self._feat_alarm])
             code = (
                 self._classifier.classify(feature).code
                 if self._classifier is not None
@@ -333,12 +354,21 @@ class DTGChannel:
             if self._decisions is None
             else [d.get_state() for d in self._decisions],
             "first_alarm_time": self._first_alarm_time,
+            "feature_ring": self._feat_ring.copy(),
+            "feature_alarm": self._feat_alarm.copy(),
+            "feature_pos": self._feat_pos,
             "last": _output_to_dict(self._last),
         }
 
     def set_state(self, state: dict[str, Any]) -> None:
         """Restore a state produced by :meth:`get_state` of an identically configured
         channel."""
+        ring = np.asarray(state["feature_ring"], dtype=np.int64)
+        if ring.shape != self._feat_ring.shape:
+            raise ValueError(
+                f"state['feature_ring'] has shape {ring.shape}, this channel's "
+                f"classify_window_s gives {self._feat_ring.shape}"
+            )
         if (state["prefilter"] is None) != (self._prefilter is None):
             raise ValueError("state['prefilter'] does not match prefilter_enabled")
         if self._prefilter is not None:
@@ -359,6 +389,9 @@ class DTGChannel:
             for d, s in zip(self._decisions, state["decisions"], strict=True):
                 d.set_state(s)
         self._first_alarm_time = float(state["first_alarm_time"])
+        self._feat_ring = ring.copy()
+        self._feat_alarm = np.asarray(state["feature_alarm"], dtype=bool).copy()
+        self._feat_pos = int(state["feature_pos"])
         self._last = _output_from_dict(state["last"])
 
     @property
