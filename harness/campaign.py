@@ -62,9 +62,11 @@ import importlib
 import json
 import math
 import os
+import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 import tomllib
 import traceback
@@ -563,14 +565,22 @@ def execute_run(run_dict: dict[str, Any], runner: str, timeout_s: float,
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                 env=_child_env(), cwd=str(REPO_ROOT), text=True,
                                 start_new_session=True)
+        _LIVE_RUNS.add(proc)
         try:
             _, stderr = proc.communicate(timeout=timeout_s)
         except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, 9)
-            proc.communicate()
+            _LIVE_RUNS.discard(proc)
+            _kill_group(proc)
             record.update(status="timeout",
                           error=f"timeout: run killed after {timeout_s:g} s")
+        except BaseException:
+            # interrupted: the run process lives in its own session, so nobody else will
+            # stop it; the run is redone on resume
+            _LIVE_RUNS.discard(proc)
+            _kill_group(proc)
+            raise
         else:
+            _LIVE_RUNS.discard(proc)
             payload = json.loads(out.read_text(encoding="utf-8")) if out.is_file() else None
             if payload is not None and payload.get("error") is None:
                 record.update(status="ok", error=None, **payload["result"])
@@ -585,6 +595,43 @@ def execute_run(run_dict: dict[str, Any], runner: str, timeout_s: float,
     return record
 
 
+#: Run processes this process has started and not yet reaped (for _worker_terminate).
+_LIVE_RUNS: set[subprocess.Popen[str]] = set()
+
+
+def _kill_group(proc: subprocess.Popen[str]) -> None:
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    proc.communicate()
+
+
+#: How often a run process checks that its parent (the pool or Dask worker) lives, s.
+ORPHAN_POLL_S = 0.5
+
+
+def _exit_when_orphaned(parent_pid: int) -> None:
+    """Daemon thread of run processes and pool workers: when the process that started
+    this one is gone (a killed pool worker, a closed Dask cluster, a SIGKILL of the
+    campaign), kill the runs this process started and exit: a run process has its own
+    session, so no signal of the campaign reaches it, and its result would have nobody
+    to read it."""
+    while True:
+        time.sleep(ORPHAN_POLL_S)
+        if os.getppid() != parent_pid:
+            _kill_live_runs()
+            os._exit(3)
+
+
+def _kill_live_runs() -> None:
+    for proc in list(_LIVE_RUNS):
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+
+
 def _load_runner(runner: str) -> Callable[[dict[str, Any]], dict[str, Any]]:
     module, _, func = runner.partition(":")
     if not module or not func:
@@ -593,6 +640,8 @@ def _load_runner(runner: str) -> Callable[[dict[str, Any]], dict[str, Any]]:
 
 
 def _child_main(runner: str, inp: str, out: str) -> int:
+    threading.Thread(target=_exit_when_orphaned, args=(os.getppid(),), daemon=True,
+                     name="orphan-watch").start()
     run_dict = json.loads(Path(inp).read_text(encoding="utf-8"))
     try:
         result = _load_runner(runner)(run_dict)
@@ -604,6 +653,11 @@ def _child_main(runner: str, inp: str, out: str) -> int:
 
 
 # --------------------------------------------------------------------------- campaign
+class CampaignInterrupted(KeyboardInterrupt):
+    """A campaign stopped by Ctrl-C or SIGTERM; finished runs are saved (the message
+    says where), runs in flight were killed."""
+
+
 @dataclass
 class CampaignOutcome:
     """What :func:`run_campaign` did: records of every finished run (old and new)."""
@@ -634,15 +688,42 @@ def _iter_pool(runs: Sequence[RunSpec], runner: str, timeout_s: float, records_d
     import multiprocessing
 
     ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
+                             initializer=_worker_init) as pool:
         futures = [pool.submit(execute_run, r.model_dump(), runner, timeout_s,
                                str(records_dir)) for r in runs]
         try:
             for f in as_completed(futures):
                 yield f.result()
+        except BaseException:
+            # without this, leaving the with-block would wait for the runs in flight;
+            # take the workers first: shutdown() forgets them (Python 3.11)
+            procs = list((getattr(pool, "_processes", None) or {}).values())
+            pool.shutdown(wait=False, cancel_futures=True)
+            for proc in procs:
+                proc.terminate()
+            raise
         finally:
             for f in futures:
                 f.cancel()
+
+
+def _worker_init() -> None:
+    signal.signal(signal.SIGTERM, _worker_terminate)
+    # Ctrl-C reaches the whole foreground process group: the campaign process decides
+    # (it terminates the workers, see _iter_pool)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    threading.Thread(target=_exit_when_orphaned, args=(os.getppid(),), daemon=True,
+                     name="orphan-watch").start()
+
+
+def _worker_terminate(signum: int, frame: Any) -> None:
+    _kill_live_runs()
+    os._exit(128 + signum)
+
+
+def _raise_interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
 
 
 def _iter_dask(runs: Sequence[RunSpec], runner: str, timeout_s: float, records_dir: Path,
@@ -750,15 +831,30 @@ def run_campaign(spec: CampaignSpec, base_dir: Path, out_dir: Path, *, workers: 
         it = (_iter_pool(pending, runner, timeout, records_dir, workers) if dask is None
               else _iter_dask(pending, runner, timeout, records_dir, workers, dask))
         bar = _bar(len(pending), n_skipped, progress)
-        for rec in it:
-            new.append(rec)
+        # a batch system's kill (SIGTERM) stops the campaign as cleanly as Ctrl-C
+        main = threading.current_thread() is threading.main_thread()
+        previous = signal.signal(signal.SIGTERM, _raise_interrupt) if main else None
+        try:
+            for rec in it:
+                new.append(rec)
+                if bar is not None:
+                    bar.update(1)
+                    if rec.get("status") != "ok":
+                        bar.write(f"{rec['run']['run_id']}: {rec['status']}: "
+                                  f"{str(rec.get('error')).strip().splitlines()[0][:150]}")
+        except KeyboardInterrupt as exc:
+            raise CampaignInterrupted(
+                f"campaign {spec.name!r} interrupted: {n_skipped + len(new)} of {len(runs)} "
+                f"runs are saved in {records_dir}; the runs in flight were stopped and will "
+                "be redone; run the same command again to resume") from exc
+        finally:
+            # the interrupt may land outside the generator: close it here, or its pool
+            # would wait for the runs in flight at interpreter exit
+            it.close()
+            if main:
+                signal.signal(signal.SIGTERM, previous)
             if bar is not None:
-                bar.update(1)
-                if rec.get("status") != "ok":
-                    bar.write(f"{rec['run']['run_id']}: {rec['status']}: "
-                              f"{str(rec.get('error')).strip().splitlines()[0][:150]}")
-        if bar is not None:
-            bar.close()
+                bar.close()
     ids = {r.run_id for r in runs}
     records = [rec for rid, rec in load_records(records_dir).items() if rid in ids]
     return CampaignOutcome(records=records, n_total=len(runs), n_skipped=n_skipped,
@@ -829,10 +925,14 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         records = [r for rid, r in load_records(Path(out) / "runs").items() if rid in ids]
         n_total = len(runs)
     else:
-        outcome = run_campaign(spec, base_dir, Path(out), workers=args.workers,
-                               dask=args.dask, timeout_s=args.timeout,
-                               max_runs=args.max_runs, retry_failed=args.retry_failed,
-                               fraction=args.fraction, progress=not args.no_progress)
+        try:
+            outcome = run_campaign(spec, base_dir, Path(out), workers=args.workers,
+                                   dask=args.dask, timeout_s=args.timeout,
+                                   max_runs=args.max_runs, retry_failed=args.retry_failed,
+                                   fraction=args.fraction, progress=not args.no_progress)
+        except CampaignInterrupted as exc:
+            print(exc, file=sys.stderr)
+            return 130
         records, n_total = outcome.records, outcome.n_total
         print(f"{spec.name}: {outcome.n_executed} runs executed, {outcome.n_skipped} "
               f"already done, {len(outcome.failed)} failed, in {outcome.wall_s:.0f} s")

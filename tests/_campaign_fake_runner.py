@@ -1,6 +1,6 @@
 """Fake per-run functions for tests/test_campaign.py (run in the campaign's run process).
 
-``fake``'s behaviour is chosen by the run's fault magnitude: 1 raises, 2 hangs, 3 kills
+``fake``'s behaviour is chosen by the run's fault magnitude: 1 raises, 2 to 3 hang, 3 kills
 its process (abort), anything else returns a synthetic record: detected when the
 magnitude is >= 0.5, delay = 0.1 / magnitude s, one false alarm per nominal run, 60 s of
 fault-free time, diagnosed = the injected label.  When ``GD_FAKE_LOG`` names a folder,
@@ -22,7 +22,7 @@ def fake(run: dict[str, Any]) -> dict[str, Any]:
     mag = run.get("magnitude")
     if mag == 1.0:
         raise ValueError("fake runner: magnitude 1 raises")
-    if mag == 2.0:
+    if mag is not None and 2.0 <= mag < 3.0:
         time.sleep(3600)
     if mag == 3.0:
         os.abort()

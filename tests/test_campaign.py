@@ -10,6 +10,10 @@ from __future__ import annotations
 import json
 import math
 import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -196,6 +200,78 @@ def test_resume_skips_finished_runs_and_leaves_their_records_untouched(tmp_path,
     third = run_campaign(spec, tmp_path, out_dir, workers=2, progress=False)
     assert (third.n_skipped, third.n_executed) == (6, 0)
     assert summarize(third.records, 6)["false_alarms"]["df"]["count"] == 3
+
+
+def _alive(pid: int) -> bool:
+    """pid runs (a zombie nobody reaps in a container counts as dead)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except FileNotFoundError:
+        return False
+    return "\nState:\tZ" not in status
+
+
+def _wait_for(predicate, timeout_s: float) -> bool:
+    t_end = time.monotonic() + timeout_s
+    while time.monotonic() < t_end:
+        if predicate():
+            return True
+        time.sleep(0.1)
+    return predicate()
+
+
+DRIVER = """
+import json, sys
+sys.path.insert(0, {tests!r})
+from harness.campaign import CampaignInterrupted, CampaignSpec, run_campaign
+from pathlib import Path
+spec = CampaignSpec.model_validate(json.loads({spec!r}))
+try:
+    run_campaign(spec, Path({tmp!r}), Path({out!r}), workers=2, progress=False)
+except CampaignInterrupted as exc:
+    print(exc, flush=True)
+    sys.exit(130)
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").is_file(), reason="needs /proc")
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
+def test_stopping_a_campaign_kills_its_runs_in_flight_and_keeps_finished_ones(tmp_path, sig):
+    """Two quick runs finish, two hang; the campaign process is stopped. SIGTERM: it
+    says how many runs are saved and exits 130; SIGKILL: it just dies. Either way the
+    hanging run processes (own sessions: no signal of the campaign reaches them) are
+    gone within a few seconds, and the two finished records are intact."""
+    log = tmp_path / "log"
+    log.mkdir()
+    spec = fake_spec([0.6, 0.7, 2.0, 2.1], timeout_s=3600.0)
+    hang = spec.model_dump(by_alias=True)
+    script = DRIVER.format(tests=str(Path(__file__).parent), spec=json.dumps(hang),
+                           tmp=str(tmp_path), out=str(tmp_path / "out"))
+    env = {**os.environ, "GD_FAKE_LOG": str(log)}
+    proc = subprocess.Popen([sys.executable, "-c", script], env=env, cwd=str(ROOT),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert _wait_for(lambda: len(list(log.iterdir())) == 4, 60.0), list(log.iterdir())
+        assert _wait_for(lambda: len(list((tmp_path / "out" / "runs").glob("*.json"))) == 2,
+                         30.0)
+        pids = [int(p.suffix[1:]) for p in log.iterdir()]
+        assert sum(_alive(pid) for pid in pids) == 2  # the hanging ones
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    if sig == signal.SIGTERM:
+        assert proc.returncode == 130, err
+        assert "2 of 4 runs are saved" in out and "resume" in out
+    else:
+        assert proc.returncode == -signal.SIGKILL
+    # the poll period of the orphan watch (0.5 s), twice over for a killed worker
+    assert _wait_for(lambda: not any(_alive(pid) for pid in pids), 10.0), \
+        [pid for pid in pids if _alive(pid)]
+    records = [json.loads(p.read_text()) for p in (tmp_path / "out" / "runs").glob("*")]
+    assert sorted(r["run"]["magnitude"] for r in records) == [0.6, 0.7]
+    assert all(r["status"] == "ok" for r in records)
 
 
 def test_smoke_campaign_pool_and_dask_give_the_same_figures(tmp_path, fmu_dir, monkeypatch):
