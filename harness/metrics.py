@@ -687,6 +687,7 @@ def _m_false_alarms(
 def _m_isolation(
     result: RunResult, signal: str, how: str = "end", alarm: str | None = None,
     fault: str | None = None, ignore: Sequence[float] = (), level: float = DEFAULT_LEVEL,
+    delay_s: float = 0.0,
 ) -> float:
     after: float | None = None
     if fault is not None:
@@ -696,6 +697,10 @@ def _m_isolation(
                                  -math.inf if after is None else after, level)
         if math.isnan(after):
             return math.nan  # never detected: nothing was isolated after detection
+    if delay_s:
+        if after is None:
+            raise ValueError("delay_s needs 'fault' or 'alarm' to count from")
+        after += _real("delay_s", delay_s)
     return isolation_result(result.time, result.signal(signal), how, after, ignore)  # type: ignore[arg-type]
 
 
@@ -785,7 +790,10 @@ METRICS: dict[str, MetricSpec] = {
              MetricParam("fault", "fault", "for how='mode': count from this fault's start"),
              MetricParam("ignore", "number_list", "values left out of the mode, e.g. [0]",
                          default=()),
-             _LEVEL),
+             _LEVEL,
+             MetricParam("delay_s", "number",
+                         "for how='mode': count from this long after that start, s",
+                         default=0.0)),
             "Value of an isolation signal at the end, or its mode after detection "
             "(NaN if never detected).", "signal units",
         ),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 import math
 
@@ -228,6 +229,20 @@ def test_registry_metrics_on_a_run(run: RunResult) -> None:
     assert metrics.compute_metric("theta_statistics", run,
                                   {"signal": "d.iso", "t0_s": 150.0, "t1_s": 160.0},
                                   "mean") == 4.0
+
+
+def test_isolation_mode_counts_from_a_delay_after_the_fault(run: RunResult) -> None:
+    iso = np.where(run.time >= 1000.0, 4.0, np.where(run.time >= 100.5, 2.0, 0.0))
+    run = dataclasses.replace(run, signals={**run.signals, "d.iso": iso})
+    args = {"signal": "d.iso", "how": "mode", "fault": "bias"}
+    assert metrics.compute_metric("isolation_result", run, args) == 2.0
+    assert metrics.compute_metric("isolation_result", run, {**args, "delay_s": 950.0}) == 4.0
+    # from the alarm's first rise (100.5 s) + 900 s = 1000.5 s
+    assert metrics.compute_metric("isolation_result", run,
+                                  {**args, "alarm": "d.alarm", "delay_s": 900.0}) == 4.0
+    with pytest.raises(ValueError, match="delay_s"):
+        metrics.compute_metric("isolation_result", run,
+                               {"signal": "d.iso", "how": "mode", "delay_s": 1.0})
 
 
 def test_registry_errors_name_metric_and_argument(run: RunResult) -> None:
