@@ -630,7 +630,7 @@ _PARAMETER_NAMES: dict[str, dict[str, str]] = {
         "theta0": "dtg.theta0[1..5]", "learn_start_s": "dtg.learn_start_s",
         "learn_end_s": "dtg.learn_end_s", "low": "dtg.low", "high": "dtg.high",
         "persistence_k": "dtg.persistence_k", "persistence_n": "dtg.persistence_n",
-        "monitored": "dtg.monitored[1..5]",
+        "monitored": "dtg.monitored[1..5]", "classify_window_s": "dtg.classify_window_s",
         "signatures": "signatures (dtg.signature[j,i] or dtg.signature_file)",
         "max_distance": "dtg.max_distance",
     },

@@ -62,6 +62,7 @@ import importlib
 import json
 import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -562,25 +563,26 @@ def execute_run(run_dict: dict[str, Any], runner: str, timeout_s: float,
         inp, out = Path(tmp) / "run.json", Path(tmp) / "out.json"
         inp.write_text(json.dumps(run_dict), encoding="utf-8")
         cmd = [sys.executable, "-m", "harness.campaign", "--child", runner, str(inp), str(out)]
+        env = {**_child_env(), PARENT_PID_ENV: str(os.getpid())}
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                env=_child_env(), cwd=str(REPO_ROOT), text=True,
+                                env=env, cwd=str(REPO_ROOT), text=True,
                                 start_new_session=True)
-        _LIVE_RUNS.add(proc)
+        _LIVE_RUNS[proc] = tmp
         try:
             _, stderr = proc.communicate(timeout=timeout_s)
         except subprocess.TimeoutExpired:
-            _LIVE_RUNS.discard(proc)
+            _LIVE_RUNS.pop(proc, None)
             _kill_group(proc)
             record.update(status="timeout",
                           error=f"timeout: run killed after {timeout_s:g} s")
         except BaseException:
             # interrupted: the run process lives in its own session, so nobody else will
             # stop it; the run is redone on resume
-            _LIVE_RUNS.discard(proc)
+            _LIVE_RUNS.pop(proc, None)
             _kill_group(proc)
             raise
         else:
-            _LIVE_RUNS.discard(proc)
+            _LIVE_RUNS.pop(proc, None)
             payload = json.loads(out.read_text(encoding="utf-8")) if out.is_file() else None
             if payload is not None and payload.get("error") is None:
                 record.update(status="ok", error=None, **payload["result"])
@@ -595,8 +597,11 @@ def execute_run(run_dict: dict[str, Any], runner: str, timeout_s: float,
     return record
 
 
-#: Run processes this process has started and not yet reaped (for _worker_terminate).
-_LIVE_RUNS: set[subprocess.Popen[str]] = set()
+#: Run processes this process has started and not yet reaped, with their temporary
+#: folders (for _worker_terminate and the orphan watch).
+_LIVE_RUNS: dict[subprocess.Popen[str], str] = {}
+#: Environment variable telling a run process the pid of the worker that started it.
+PARENT_PID_ENV = "GYRODIAG_CAMPAIGN_PARENT_PID"
 
 
 def _kill_group(proc: subprocess.Popen[str]) -> None:
@@ -616,20 +621,22 @@ def _exit_when_orphaned(parent_pid: int) -> None:
     this one is gone (a killed pool worker, a closed Dask cluster, a SIGKILL of the
     campaign), kill the runs this process started and exit: a run process has its own
     session, so no signal of the campaign reaches it, and its result would have nobody
-    to read it."""
+    to read it.  ``parent_pid`` is passed down by the parent (not read here), so a
+    parent that died before this thread started is noticed too."""
     while True:
-        time.sleep(ORPHAN_POLL_S)
         if os.getppid() != parent_pid:
             _kill_live_runs()
             os._exit(3)
+        time.sleep(ORPHAN_POLL_S)
 
 
 def _kill_live_runs() -> None:
-    for proc in list(_LIVE_RUNS):
+    for proc, tmp in list(_LIVE_RUNS.items()):
         try:
             os.killpg(proc.pid, signal.SIGKILL)
         except ProcessLookupError:
             pass
+        shutil.rmtree(tmp, ignore_errors=True)  # os._exit follows: no with-block cleanup
 
 
 def _load_runner(runner: str) -> Callable[[dict[str, Any]], dict[str, Any]]:
@@ -640,7 +647,8 @@ def _load_runner(runner: str) -> Callable[[dict[str, Any]], dict[str, Any]]:
 
 
 def _child_main(runner: str, inp: str, out: str) -> int:
-    threading.Thread(target=_exit_when_orphaned, args=(os.getppid(),), daemon=True,
+    parent = int(os.environ.get(PARENT_PID_ENV, os.getppid()))
+    threading.Thread(target=_exit_when_orphaned, args=(parent,), daemon=True,
                      name="orphan-watch").start()
     run_dict = json.loads(Path(inp).read_text(encoding="utf-8"))
     try:
@@ -689,10 +697,12 @@ def _iter_pool(runs: Sequence[RunSpec], runner: str, timeout_s: float, records_d
 
     ctx = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
-                             initializer=_worker_init) as pool:
-        futures = [pool.submit(execute_run, r.model_dump(), runner, timeout_s,
-                               str(records_dir)) for r in runs]
+                             initializer=_worker_init, initargs=(os.getpid(),)) as pool:
+        futures: list[Any] = []
         try:
+            # submitting is inside the try: an interrupt here must stop the pool too
+            futures += [pool.submit(execute_run, r.model_dump(), runner, timeout_s,
+                                    str(records_dir)) for r in runs]
             for f in as_completed(futures):
                 yield f.result()
         except BaseException:
@@ -708,12 +718,12 @@ def _iter_pool(runs: Sequence[RunSpec], runner: str, timeout_s: float, records_d
                 f.cancel()
 
 
-def _worker_init() -> None:
+def _worker_init(campaign_pid: int) -> None:
     signal.signal(signal.SIGTERM, _worker_terminate)
     # Ctrl-C reaches the whole foreground process group: the campaign process decides
     # (it terminates the workers, see _iter_pool)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    threading.Thread(target=_exit_when_orphaned, args=(os.getppid(),), daemon=True,
+    threading.Thread(target=_exit_when_orphaned, args=(campaign_pid,), daemon=True,
                      name="orphan-watch").start()
 
 
@@ -817,6 +827,9 @@ def run_campaign(spec: CampaignSpec, base_dir: Path, out_dir: Path, *, workers: 
     _write_json_atomic(out_dir / "campaign.json", {
         "spec": spec.model_dump(by_alias=True), "base_dir": str(base_dir),
         "fraction": fraction, "run_ids": [r.run_id for r in runs]})
+    for stale in records_dir.glob(".*.tmp"):  # atomic writes cut short by a kill
+        if time.time() - stale.stat().st_mtime > 60.0:  # not one being written now
+            stale.unlink(missing_ok=True)
     done = load_records(records_dir)
     keep = {rid for rid, rec in done.items()
             if not (retry_failed and rec.get("status") != "ok")}
@@ -834,27 +847,41 @@ def run_campaign(spec: CampaignSpec, base_dir: Path, out_dir: Path, *, workers: 
         # a batch system's kill (SIGTERM) stops the campaign as cleanly as Ctrl-C
         main = threading.current_thread() is threading.main_thread()
         previous = signal.signal(signal.SIGTERM, _raise_interrupt) if main else None
+        interrupted: KeyboardInterrupt | None = None
         try:
-            for rec in it:
-                new.append(rec)
-                if bar is not None:
-                    bar.update(1)
-                    if rec.get("status") != "ok":
-                        bar.write(f"{rec['run']['run_id']}: {rec['status']}: "
-                                  f"{str(rec.get('error')).strip().splitlines()[0][:150]}")
-        except KeyboardInterrupt as exc:
-            raise CampaignInterrupted(
-                f"campaign {spec.name!r} interrupted: {n_skipped + len(new)} of {len(runs)} "
-                f"runs are saved in {records_dir}; the runs in flight were stopped and will "
-                "be redone; run the same command again to resume") from exc
+            try:
+                for rec in it:
+                    new.append(rec)
+                    if bar is not None:
+                        bar.update(1)
+                        if rec.get("status") != "ok":
+                            bar.write(f"{rec['run']['run_id']}: {rec['status']}: "
+                                      f"{str(rec.get('error')).strip().splitlines()[0][:150]}")
+            except KeyboardInterrupt as exc:
+                interrupted = exc
+            finally:
+                try:
+                    # the interrupt may land outside the generator: close it here, or
+                    # its pool would wait for the runs in flight at interpreter exit
+                    it.close()
+                except KeyboardInterrupt as exc:  # a second interrupt while stopping
+                    interrupted = interrupted or exc
         finally:
-            # the interrupt may land outside the generator: close it here, or its pool
-            # would wait for the runs in flight at interpreter exit
-            it.close()
             if main:
-                signal.signal(signal.SIGTERM, previous)
+                signal.signal(signal.SIGTERM,
+                              previous if previous is not None else signal.SIG_DFL)
             if bar is not None:
                 bar.close()
+        if interrupted is not None:
+            ids = {r.run_id for r in runs}
+            saved = sum(1 for rid, rec in load_records(records_dir).items() if rid in ids)
+            fate = ("were stopped and will be redone" if dask in (None, "local") else
+                    "were cancelled (on a remote cluster a run already started may still "
+                    "finish and be saved)")
+            raise CampaignInterrupted(
+                f"campaign {spec.name!r} interrupted: {saved} of {len(runs)} runs are saved "
+                f"in {records_dir}; the runs in flight {fate}; run the same command again "
+                "to resume") from interrupted
     ids = {r.run_id for r in runs}
     records = [rec for rid, rec in load_records(records_dir).items() if rid in ids]
     return CampaignOutcome(records=records, n_total=len(runs), n_skipped=n_skipped,

@@ -311,7 +311,8 @@ def markdown_summary(summary: dict[str, Any], title: str = "campaign") -> str:
         d = summary["delay"].get(f"all {ch}", {})
         c = summary["confusion"].get(ch, {})
         det = [r for r in summary["detection"] if _channel_of(summary, r) == ch]
-        rows.append([ch, f"{fa['count']} in {fa['hours']:.2f} h (≤ {fa['upper_95']:.3g})",
+        rows.append([ch, f"{fa['count']} in {fa['hours']:.2f} h (≤ "
+                         f"{html.unescape(_fmt(fa['upper_95']))})",
                      f"{sum(r['detected'] for r in det)} of {sum(r['n'] for r in det)}",
                      " / ".join(_fmt(d.get(k)) for k in ("median_s", "p95_s", "max_s")),
                      f"{c.get('correct', 0)} of {c.get('n', 0)}"])

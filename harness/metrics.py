@@ -698,9 +698,11 @@ def _m_isolation(
         if math.isnan(after):
             return math.nan  # never detected: nothing was isolated after detection
     if delay_s:
-        if after is None:
-            raise ValueError("delay_s needs 'fault' or 'alarm' to count from")
-        after += _real("delay_s", delay_s)
+        if _real("delay_s", delay_s) < 0:
+            raise ValueError(f"delay_s must be >= 0, got {delay_s!r}")
+        if after is None or how != "mode":
+            raise ValueError("delay_s needs how='mode' and 'fault' or 'alarm' to count from")
+        after += delay_s
     return isolation_result(result.time, result.signal(signal), how, after, ignore)  # type: ignore[arg-type]
 
 

@@ -227,7 +227,7 @@ from harness.campaign import CampaignInterrupted, CampaignSpec, run_campaign
 from pathlib import Path
 spec = CampaignSpec.model_validate(json.loads({spec!r}))
 try:
-    run_campaign(spec, Path({tmp!r}), Path({out!r}), workers=2, progress=False)
+    run_campaign(spec, Path({tmp!r}), Path({out!r}), workers=2, progress=False, dask={dask!r})
 except CampaignInterrupted as exc:
     print(exc, flush=True)
     sys.exit(130)
@@ -235,18 +235,23 @@ except CampaignInterrupted as exc:
 
 
 @pytest.mark.skipif(not Path("/proc/self/status").is_file(), reason="needs /proc")
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
-def test_stopping_a_campaign_kills_its_runs_in_flight_and_keeps_finished_ones(tmp_path, sig):
+@pytest.mark.parametrize(("sig", "dask"), [(signal.SIGTERM, None), (signal.SIGKILL, None),
+                                           (signal.SIGTERM, "local")])
+def test_stopping_a_campaign_kills_its_runs_in_flight_and_keeps_finished_ones(
+        tmp_path, sig, dask):
     """Two quick runs finish, two hang; the campaign process is stopped. SIGTERM: it
     says how many runs are saved and exits 130; SIGKILL: it just dies. Either way the
     hanging run processes (own sessions: no signal of the campaign reaches them) are
-    gone within a few seconds, and the two finished records are intact."""
+    gone within a few seconds, and the two finished records are intact. On Dask the
+    runs die with their workers when the campaign closes its LocalCluster."""
+    if dask:
+        pytest.importorskip("distributed")
     log = tmp_path / "log"
     log.mkdir()
     spec = fake_spec([0.6, 0.7, 2.0, 2.1], timeout_s=3600.0)
     hang = spec.model_dump(by_alias=True)
     script = DRIVER.format(tests=str(Path(__file__).parent), spec=json.dumps(hang),
-                           tmp=str(tmp_path), out=str(tmp_path / "out"))
+                           tmp=str(tmp_path), out=str(tmp_path / "out"), dask=dask)
     env = {**os.environ, "GD_FAKE_LOG": str(log)}
     proc = subprocess.Popen([sys.executable, "-c", script], env=env, cwd=str(ROOT),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

@@ -157,3 +157,36 @@ def test_median_feature_rounds_half_away_from_zero():
         median_feature(np.zeros((0, 5)))
     with pytest.raises(ValueError, match="features"):
         median_feature([[0, np.nan]])
+
+
+def test_windowed_median_feature_equals_the_batch_median_at_every_sample():
+    from gyrodiag.decision import WindowedMedianFeature, median_feature
+
+    rng = np.random.default_rng(7)
+    feats = rng.integers(-4, 3, size=(400, 5))
+    flags = rng.random(400) < 0.6
+    w = WindowedMedianFeature(5, 9)
+    for k in range(400):
+        w.update(feats[k], bool(flags[k]))
+        lo = max(0, k - 8)
+        rows = feats[lo:k + 1][flags[lo:k + 1]]
+        if rows.size == 0:
+            assert w.median() is None and w.n_flagged == 0
+        else:
+            np.testing.assert_array_equal(w.median(), median_feature(rows), err_msg=str(k))
+        if k == 200:
+            state = w.get_state()
+    # restore mid-record: the counts are rebuilt from the window
+    w2 = WindowedMedianFeature(5, 9)
+    w2.set_state(state)
+    for k in range(201, 400):
+        w2.update(feats[k], bool(flags[k]))
+    np.testing.assert_array_equal(w2.median(), w.median())
+    with pytest.raises(ValueError, match="shapes"):
+        WindowedMedianFeature(5, 10).set_state(state)
+    with pytest.raises(ValueError, match="pos"):
+        w2.set_state({**state, "pos": 9})
+    with pytest.raises(ValueError, match="window"):
+        WindowedMedianFeature(5, 0)
+    with pytest.raises(ValueError, match="features"):
+        median_feature([])

@@ -108,7 +108,7 @@ def test_windowed_classification_is_the_median_of_the_per_sample_features():
     broken = dataclasses.replace(STABLE_ROTOR, Ku=0.35 * STABLE_ROTOR.Ku)
     rec = np.vstack([_record(STABLE_ROTOR, 1000, 5, noise=1e-3),
                      _record(broken, 2000, 6, noise=1e-3)])
-    window = 50
+    window = 50  # s = 0.05: 51 samples, both ends
     outs = {}
     for w in (0.0, window * T):
         ch = DTGChannel(DTGChannelConfig(
@@ -121,7 +121,7 @@ def test_windowed_classification_is_the_median_of_the_per_sample_features():
     alarm = np.array([o.alarm for o in single])
     assert alarm[1300:].all()
     for k in range(1300, len(rec), 7):
-        lo = max(0, k - window + 1)
+        lo = max(0, k - window)
         expected = median_feature(feats[lo:k + 1][alarm[lo:k + 1]])
         np.testing.assert_array_equal(smooth[k].feature, expected, err_msg=f"sample {k}")
         assert smooth[k].fault_code == (1 if expected[4] == -1 else 2)
@@ -136,8 +136,11 @@ def test_windowed_classification_is_the_median_of_the_per_sample_features():
     state = ch.get_state()
     ref = _run(ch, rec[1500:1600])
     ch.set_state(state)
-    assert [o.fault_code for o in _run(ch, rec[1500:1600])] == [o.fault_code for o in ref]
-    with pytest.raises(ValueError, match="feature_ring"):
+    again = _run(ch, rec[1500:1600])
+    assert [o.fault_code for o in again] == [o.fault_code for o in ref]
+    for a, b in zip(again, ref, strict=True):
+        np.testing.assert_array_equal(a.feature, b.feature)
+    with pytest.raises(ValueError, match="classify_window_s"):
         DTGChannel(DTGChannelConfig(
             sample_period_s=T, prefilter_enabled=False, p0=1e8, classify_window_s=0.2,
             theta0=list(theta_from_physical(STABLE_ROTOR, T)))).set_state(state)

@@ -243,6 +243,10 @@ def test_isolation_mode_counts_from_a_delay_after_the_fault(run: RunResult) -> N
     with pytest.raises(ValueError, match="delay_s"):
         metrics.compute_metric("isolation_result", run,
                                {"signal": "d.iso", "how": "mode", "delay_s": 1.0})
+    with pytest.raises(ValueError, match="delay_s"):
+        metrics.compute_metric("isolation_result", run, {**args, "delay_s": -1.0})
+    with pytest.raises(ValueError, match="delay_s"):
+        metrics.compute_metric("isolation_result", run, {**args, "how": "end", "delay_s": 1.0})
 
 
 def test_registry_errors_name_metric_and_argument(run: RunResult) -> None:

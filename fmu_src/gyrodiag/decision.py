@@ -25,6 +25,7 @@ __all__ = [
     "DecisionOutput",
     "SignatureClassifier",
     "ThresholdDecision",
+    "WindowedMedianFeature",
     "feature_vector",
     "median_feature",
     "parameter_ratios",
@@ -82,10 +83,104 @@ def median_feature(features: ArrayLike) -> NDArray[np.int64]:
     f = check_finite_array("features", features)
     if f.ndim == 1:
         f = f[None, :]
-    if f.ndim != 2 or f.shape[0] == 0:
+    if f.ndim != 2 or f.shape[0] == 0 or f.shape[1] == 0:
         raise ValueError(f"features must have shape (n >= 1, k), got {f.shape}")
     med = np.median(f, axis=0)
     return (np.sign(med) * np.floor(np.abs(med) + 0.5)).astype(np.int64)
+
+
+class WindowedMedianFeature:
+    """Streaming :func:`median_feature` of the flagged samples of a sliding window.
+
+    Keeps the last ``window`` feature vectors with a flag each (the DTG channel flags
+    alarm samples) and per component a count of each value, so that the median of the
+    flagged vectors costs O(k · values) per sample instead of sorting the window.
+
+    Parameters
+    ----------
+    n_features : int
+        Length k of a feature vector.
+    window : int
+        Samples in the window (>= 1).
+
+    Notes
+    -----
+    Features are integers (decade counts, :func:`feature_vector`); they are clipped to
+    ±``LIMIT`` decades, far beyond any ratio of two finite parameters that matters.
+    """
+
+    #: Features are clipped to [−LIMIT, LIMIT].
+    LIMIT = 64
+
+    def __init__(self, n_features: int, window: int) -> None:
+        self.n_features = check_int("n_features", n_features, minimum=1)
+        self.window = check_int("window", window, minimum=1)
+        self.reset()
+
+    def reset(self) -> None:
+        """Empty window."""
+        self._ring = np.zeros((self.window, self.n_features), dtype=np.int64)
+        self._flags = np.zeros(self.window, dtype=bool)
+        self._pos = 0
+        self._counts = np.zeros((self.n_features, 2 * self.LIMIT + 1), dtype=np.int64)
+        self._n_flagged = 0
+
+    def update(self, feature: NDArray[np.int64], flagged: bool) -> None:
+        """Push one feature vector (ints, shape (k,)); ``flagged`` ones count in the
+        median. Not validated: the caller passes :func:`feature_vector` output."""
+        cols = np.arange(self.n_features)
+        if self._flags[self._pos]:
+            self._counts[cols, self._ring[self._pos] + self.LIMIT] -= 1
+            self._n_flagged -= 1
+        f = np.clip(feature, -self.LIMIT, self.LIMIT)
+        self._ring[self._pos] = f
+        self._flags[self._pos] = flagged
+        if flagged:
+            self._counts[cols, f + self.LIMIT] += 1
+            self._n_flagged += 1
+        self._pos = (self._pos + 1) % self.window
+
+    @property
+    def n_flagged(self) -> int:
+        """Flagged samples in the window."""
+        return self._n_flagged
+
+    def median(self) -> NDArray[np.int64] | None:
+        """Median of the flagged vectors, rounded half away from zero (None if none)."""
+        n = self._n_flagged
+        if n == 0:
+            return None
+        cum = np.cumsum(self._counts, axis=1)
+        lo = np.argmax(cum > (n - 1) // 2, axis=1)
+        hi = np.argmax(cum > n // 2, axis=1)
+        med = (lo + hi) / 2.0 - self.LIMIT
+        return (np.sign(med) * np.floor(np.abs(med) + 0.5)).astype(np.int64)
+
+    def get_state(self) -> dict[str, Any]:
+        """Window contents (the counts are derived from them)."""
+        return {"ring": self._ring.copy(), "flags": self._flags.copy(), "pos": self._pos}
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        """Restore :meth:`get_state` output of a window of the same size; checked first,
+        so a bad state leaves this one untouched."""
+        ring = np.asarray(state["ring"], dtype=np.int64)
+        flags = np.asarray(state["flags"], dtype=bool)
+        pos = int(state["pos"])
+        if ring.shape != self._ring.shape or flags.shape != self._flags.shape:
+            raise ValueError(
+                f"state['ring'] / state['flags'] have shapes {ring.shape} / {flags.shape}, "
+                f"this window needs {self._ring.shape} / {self._flags.shape}"
+            )
+        if not 0 <= pos < self.window:
+            raise ValueError(f"state['pos'] must be in [0, {self.window}), got {pos}")
+        if np.any(np.abs(ring) > self.LIMIT):
+            raise ValueError(f"state['ring'] has features beyond ±{self.LIMIT}")
+        self._ring, self._flags, self._pos = ring.copy(), flags.copy(), pos
+        self._counts[:] = 0
+        for k in range(self.n_features):
+            self._counts[k] = np.bincount(ring[flags, k] + self.LIMIT,
+                                          minlength=2 * self.LIMIT + 1)
+        self._n_flagged = int(flags.sum())
 
 
 def signature_distance(c_a: ArrayLike, c_b: ArrayLike) -> float:

@@ -27,8 +27,8 @@ from .decision import (
     UNKNOWN_CODE,
     SignatureClassifier,
     ThresholdDecision,
+    WindowedMedianFeature,
     feature_vector,
-    median_feature,
 )
 from .dtg import N_THETA, DTGRegressor, physical_from_theta
 from .estimators import RLS, ForgettingRLS, SlidingWindowLS
@@ -86,10 +86,10 @@ class DTGChannelConfig:
         Feature vectors farther than this from every signature are "unknown".
     classify_window_s : float
         An alarm is classified by the median feature of the alarm samples in the last
-        ``classify_window_s`` seconds (:func:`~gyrodiag.decision.median_feature`), the
-        rule by which signatures are learned (``harness learn-signatures``, 0.5 s); the
-        per-sample feature flickers between classes. 0: each sample's own feature (the
-        paper's rule).
+        ``classify_window_s`` seconds, both ends included (round(w/T) + 1 samples;
+        :func:`~gyrodiag.decision.median_feature`), the rule by which signatures are
+        learned (``harness learn-signatures``, 0.5 s); the per-sample feature flickers
+        between classes. 0: each sample's own feature (the paper's rule).
     """
 
     sample_period_s: float = 1e-3
@@ -251,11 +251,8 @@ class DTGChannel:
         )
         self._decisions = None if self.theta0 is None else self._make_decisions(self.theta0)
         self._first_alarm_time = float("nan")
-        n_window = max(1, round(c.classify_window_s / self.T))
-        # ring buffer of per-sample features; rows of fault-free samples are masked out
-        self._feat_ring = np.zeros((n_window, N_THETA), dtype=np.int64)
-        self._feat_alarm = np.zeros(n_window, dtype=bool)
-        self._feat_pos = 0
+        # both ends of the window, as the training window of harness.signatures
+        self._features = WindowedMedianFeature(N_THETA, round(c.classify_window_s / self.T) + 1)
         self._last = self._initial_output()
 
     def _initial_output(self) -> DTGChannelOutput:
@@ -304,15 +301,13 @@ class DTGChannel:
         feats = [feature_vector(e) for e in eta]
         worst = int(np.argmax([np.abs(f).sum() for f in feats]))
         feature = feats[worst]
-        self._feat_ring[self._feat_pos] = feature
-        self._feat_alarm[self._feat_pos] = alarm
-        self._feat_pos = (self._feat_pos + 1) % self._feat_alarm.size
+        self._features.update(feature, alarm)
         code = 0
         if alarm:
             if np.isnan(self._first_alarm_time):
                 self._first_alarm_time = t
-            if self._feat_alarm.size > 1:
-                feature = median_feature(self._feat_ring[self._feat_alarm])
+            if self._features.window > 1:
+                feature = self._features.median()
             code = (
                 self._classifier.classify(feature).code
                 if self._classifier is not None
@@ -354,21 +349,17 @@ class DTGChannel:
             if self._decisions is None
             else [d.get_state() for d in self._decisions],
             "first_alarm_time": self._first_alarm_time,
-            "feature_ring": self._feat_ring.copy(),
-            "feature_alarm": self._feat_alarm.copy(),
-            "feature_pos": self._feat_pos,
+            "features": self._features.get_state(),
             "last": _output_to_dict(self._last),
         }
 
     def set_state(self, state: dict[str, Any]) -> None:
         """Restore a state produced by :meth:`get_state` of an identically configured
         channel."""
-        ring = np.asarray(state["feature_ring"], dtype=np.int64)
-        if ring.shape != self._feat_ring.shape:
-            raise ValueError(
-                f"state['feature_ring'] has shape {ring.shape}, this channel's "
-                f"classify_window_s gives {self._feat_ring.shape}"
-            )
+        try:  # first: a state of another classify_window_s leaves this channel untouched
+            self._features.set_state(state["features"])
+        except ValueError as exc:
+            raise ValueError(f"state['features'] (classify_window_s): {exc}") from exc
         if (state["prefilter"] is None) != (self._prefilter is None):
             raise ValueError("state['prefilter'] does not match prefilter_enabled")
         if self._prefilter is not None:
@@ -389,9 +380,6 @@ class DTGChannel:
             for d, s in zip(self._decisions, state["decisions"], strict=True):
                 d.set_state(s)
         self._first_alarm_time = float(state["first_alarm_time"])
-        self._feat_ring = ring.copy()
-        self._feat_alarm = np.asarray(state["feature_alarm"], dtype=bool).copy()
-        self._feat_pos = int(state["feature_pos"])
         self._last = _output_from_dict(state["last"])
 
     @property
