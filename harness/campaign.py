@@ -570,7 +570,9 @@ def execute_run(run_dict: dict[str, Any], runner: str, timeout_s: float,
         _LIVE_RUNS[proc] = tmp
         try:
             _, stderr = proc.communicate(timeout=timeout_s)
+            _hold_if_stopping()
         except subprocess.TimeoutExpired:
+            _hold_if_stopping()
             _LIVE_RUNS.pop(proc, None)
             _kill_group(proc)
             record.update(status="timeout",
@@ -630,7 +632,21 @@ def _exit_when_orphaned(parent_pid: int) -> None:
         time.sleep(ORPHAN_POLL_S)
 
 
+#: Set when this worker is stopping: the runs it kills must not be recorded as failed.
+_STOPPING = threading.Event()
+
+
+def _hold_if_stopping() -> None:
+    """Called where execute_run would record a run's end: if the run ended because this
+    worker is stopping (orphan watch), wait for the watch to exit the process instead of
+    writing an "exit status -9" record that a resume would take as a finished run."""
+    if _STOPPING.is_set():
+        while True:
+            time.sleep(3600)
+
+
 def _kill_live_runs() -> None:
+    _STOPPING.set()
     for proc, tmp in list(_LIVE_RUNS.items()):
         try:
             os.killpg(proc.pid, signal.SIGKILL)
