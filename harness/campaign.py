@@ -607,11 +607,15 @@ PARENT_PID_ENV = "GYRODIAG_CAMPAIGN_PARENT_PID"
 
 
 def _kill_group(proc: subprocess.Popen[str]) -> None:
+    _killpg(proc.pid)
+    proc.communicate()
+
+
+def _killpg(pid: int) -> None:
     try:
-        os.killpg(proc.pid, signal.SIGKILL)
+        os.killpg(pid, signal.SIGKILL)
     except ProcessLookupError:
         pass
-    proc.communicate()
 
 
 #: How often a run process checks that its parent (the pool or Dask worker) lives, s.
@@ -648,10 +652,7 @@ def _hold_if_stopping() -> None:
 def _kill_live_runs() -> None:
     _STOPPING.set()
     for proc, tmp in list(_LIVE_RUNS.items()):
-        try:
-            os.killpg(proc.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
+        _killpg(proc.pid)
         shutil.rmtree(tmp, ignore_errors=True)  # os._exit follows: no with-block cleanup
 
 

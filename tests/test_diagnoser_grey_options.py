@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from _grey_options_runner import CASES, INVALID, K_SAVE, H
+from test_diagnoser_fmu import _grey_columns
 
 from gyrodiag.grey import ClassicGreyPredictor, GreyFaultDetector, ImprovedGreyPredictor
 
@@ -39,14 +40,7 @@ def library(label: str, t: np.ndarray, y: np.ndarray) -> dict[str, np.ndarray]:
     else:
         predictor = ClassicGreyPredictor(None if window == 0 else window,
                                          evaluation="textbook" if evaluation else "careful")
-    det = GreyFaultDetector(predictor, THRESHOLD, H, CLEAR_S)
-    outs = [det.update(float(v), time_s=float(tk)) for v, tk in zip(y, t, strict=True)]
-    return {
-        "grey.prediction": np.array([o.prediction for o in outs]),
-        "grey.error": np.array([o.error for o in outs]),
-        "grey.alarm": np.array([o.alarm for o in outs], dtype=float),
-        "grey.valid": np.array([o.valid for o in outs], dtype=float),
-    }
+    return _grey_columns(GreyFaultDetector(predictor, THRESHOLD, H, CLEAR_S), y, t)
 
 
 @pytest.fixture(scope="module")

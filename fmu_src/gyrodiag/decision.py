@@ -39,6 +39,10 @@ UNKNOWN_CODE = -1
 ETA_FLOOR = 1e-12
 
 
+def _round_half_away(x: NDArray[np.float64]) -> NDArray[np.int64]:
+    return (np.sign(x) * np.floor(np.abs(x) + 0.5)).astype(np.int64)
+
+
 def parameter_ratios(theta: ArrayLike, theta0: ArrayLike) -> NDArray[np.float64]:
     """η_i = |θ_i| / |θ0_i| (paper eq. 6).
 
@@ -64,7 +68,7 @@ def feature_vector(eta: ArrayLike) -> NDArray[np.int64]:
     if np.any(e < 0):
         raise ValueError("eta must be non-negative (it is a ratio of magnitudes)")
     lg = np.log10(np.maximum(e, ETA_FLOOR))
-    return (np.sign(lg) * np.floor(np.abs(lg) + 0.5)).astype(np.int64)
+    return _round_half_away(lg)
 
 
 def median_feature(features: ArrayLike) -> NDArray[np.int64]:
@@ -86,7 +90,7 @@ def median_feature(features: ArrayLike) -> NDArray[np.int64]:
     if f.ndim != 2 or f.shape[0] == 0 or f.shape[1] == 0:
         raise ValueError(f"features must have shape (n >= 1, k), got {f.shape}")
     med = np.median(f, axis=0)
-    return (np.sign(med) * np.floor(np.abs(med) + 0.5)).astype(np.int64)
+    return _round_half_away(med)
 
 
 class WindowedMedianFeature:
@@ -115,6 +119,7 @@ class WindowedMedianFeature:
     def __init__(self, n_features: int, window: int) -> None:
         self.n_features = check_int("n_features", n_features, minimum=1)
         self.window = check_int("window", window, minimum=1)
+        self._cols = np.arange(self.n_features)
         self.reset()
 
     def reset(self) -> None:
@@ -128,7 +133,7 @@ class WindowedMedianFeature:
     def update(self, feature: NDArray[np.int64], flagged: bool) -> None:
         """Push one feature vector (ints, shape (k,)); ``flagged`` ones count in the
         median. Not validated: the caller passes :func:`feature_vector` output."""
-        cols = np.arange(self.n_features)
+        cols = self._cols
         if self._flags[self._pos]:
             self._counts[cols, self._ring[self._pos] + self.LIMIT] -= 1
             self._n_flagged -= 1
@@ -154,7 +159,7 @@ class WindowedMedianFeature:
         lo = np.argmax(cum > (n - 1) // 2, axis=1)
         hi = np.argmax(cum > n // 2, axis=1)
         med = (lo + hi) / 2.0 - self.LIMIT
-        return (np.sign(med) * np.floor(np.abs(med) + 0.5)).astype(np.int64)
+        return _round_half_away(med)
 
     def get_state(self) -> dict[str, Any]:
         """Window contents (the counts are derived from them)."""

@@ -301,12 +301,14 @@ class DTGChannel:
         feats = [feature_vector(e) for e in eta]
         worst = int(np.argmax([np.abs(f).sum() for f in feats]))
         feature = feats[worst]
-        self._features.update(feature, alarm)
+        windowed = self._features.window > 1
+        if windowed:  # window 1 (the paper's rule) needs no history
+            self._features.update(feature, alarm)
         code = 0
         if alarm:
             if np.isnan(self._first_alarm_time):
                 self._first_alarm_time = t
-            if self._features.window > 1:
+            if windowed:
                 feature = self._features.median()
             code = (
                 self._classifier.classify(feature).code
