@@ -101,8 +101,11 @@ def test_write_report_uses_default_file_names(written: dict) -> None:
 def test_junit_counts_failures_and_errors(written: dict) -> None:
     root = ET.parse(written["paths"].junit).getroot()
     assert root.tag == "testsuites"
-    # tests: expectations + one run case per scenario = (3+1) + (2+1) + (1+1)
-    assert (root.get("tests"), root.get("failures"), root.get("errors")) == ("9", "4", "2")
+    # tests: expectations + one run case per scenario = (3+1) + (2+1) + (1+1); the
+    # expectations of the broken and the missing run are not evaluated (skipped): their
+    # reason is said once, by the run case's error
+    assert (root.get("tests"), root.get("failures"), root.get("errors"),
+            root.get("skipped")) == ("9", "1", "2", "3")
     suites = {s.get("name"): s for s in root.findall("testsuite")}
     assert list(suites) == ["full", "broken", "missing"]
     full = suites["full"]
@@ -122,7 +125,12 @@ def test_junit_run_errors_survive_control_characters(written: dict) -> None:
     error = run_case.find("error")
     assert error.get("message") == "instance diag: doStep at t=0.02:"
     assert "FATAL" in error.text and "<nan> & stop" in error.text and "\x1b" not in error.text
-    assert broken.get("failures") == "2" and broken.get("errors") == "1"
+    assert (broken.get("failures"), broken.get("errors"), broken.get("skipped")) == (
+        "0", "1", "2")
+    skipped = [c.find("skipped") for c in broken.findall("testcase") if c.get("name") != "run"]
+    assert [e.get("message") for e in skipped] == ["not evaluated: the run did not complete"] * 2
+    assert all("FATAL" not in c.find("system-out").text for c in broken.findall("testcase")
+               if c.get("name") != "run")
     missing = next(s for s in root.findall("testsuite") if s.get("name") == "missing")
     assert "no run result" in missing.find("testcase[@name='run']/error").get("message")
 
@@ -163,8 +171,12 @@ def test_html_has_tables_and_embedded_plots(written: dict, full_run: RunResult) 
     cells = page.cells
     assert "fast <detection> & more" in cells  # escaped in HTML, intact after parsing
     assert "detected_within(diag.df.detected, q_bias, 0.5 s)" in cells
-    # no scenario passes; 2 expectations do; FAIL: 3 summary rows + 1 + 2 + 1 expectations
-    assert cells.count("PASS") == 2 and cells.count("FAIL") == 3 + 4
+    # no scenario passes; 2 expectations do; the full run FAILs (summary row and one
+    # expectation), the broken run is an ERROR, the missing one NOT RUN, and the
+    # expectations of both are NOT EVALUATED
+    assert cells.count("PASS") == 2 and cells.count("FAIL") == 2
+    assert cells.count("ERROR") == 1 and cells.count("NOT RUN") == 1
+    assert cells.count("NOT EVALUATED") == 3
     assert "2/3" in cells and "0/2" in cells and "0/1" in cells
     assert "0.37" in cells  # metrics table: detection delay of diag.df.detected
     assert "<nan> & stop" in html.unescape(text) and "\x1b" not in text

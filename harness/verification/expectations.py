@@ -86,6 +86,10 @@ class ExpectationResult:
         could be measured.
     kind : str
         The expectation's kind ("" if it could not be parsed).
+    evaluated : bool
+        False when there was nothing to evaluate it on (the run failed, was interrupted
+        or is missing): it does not pass, and the reason is the verdict's ``error``,
+        said once there rather than under every expectation.
     """
 
     name: str
@@ -93,6 +97,7 @@ class ExpectationResult:
     message: str
     value: float | None = None
     kind: str = ""
+    evaluated: bool = True
 
 
 @dataclass
@@ -135,7 +140,9 @@ class ScenarioLike(Protocol):
 
 # -------------------------------------------------------------------- models
 class _Base(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # attribute docstrings are the field descriptions of the JSON Schema and of
+    # docs/scenarios.md (python -m harness schema)
+    model_config = ConfigDict(extra="forbid", frozen=True, use_attribute_docstrings=True)
 
     name: str | None = Field(default=None, description="Label in reports")
 
@@ -152,9 +159,13 @@ class DetectedWithin(_Base):
 
     kind: Literal["detected_within"]
     signal: str
+    """Alarm signal (on where > ``level``)."""
     fault: str
+    """The fault whose start the delay counts from."""
     max_delay_s: float = Field(ge=0.0)
+    """Longest delay that passes, s."""
     level: float = metrics.DEFAULT_LEVEL
+    """Switching level of the alarm."""
 
     def _default_label(self) -> str:
         return f"detected_within({self.signal}, {self.fault}, {self.max_delay_s:g} s)"
@@ -165,8 +176,11 @@ class NoAlarmBefore(_Base):
 
     kind: Literal["no_alarm_before"]
     signal: str
+    """Alarm signal (on where > ``level``)."""
     t_s: float | None = None
+    """End of the quiet time, s (default: the first fault's start, or the whole run)."""
     level: float = metrics.DEFAULT_LEVEL
+    """Switching level of the alarm."""
 
 
 class NoAlarmOutsideFaults(_Base):
@@ -174,13 +188,18 @@ class NoAlarmOutsideFaults(_Base):
 
     kind: Literal["no_alarm_outside_faults"]
     signal: str
+    """Alarm signal (on where > ``level``)."""
     margin_s: float = Field(default=0.0, ge=0.0)
+    """Time after each fault's end still attributed to it, s."""
     level: float = metrics.DEFAULT_LEVEL
+    """Switching level of the alarm."""
 
 
 class _Bounds(_Base):
     min: float | None = None
+    """Lowest value that passes."""
     max: float | None = None
+    """Highest value that passes."""
 
     @model_validator(mode="after")
     def _ordered(self) -> Self:
@@ -207,7 +226,9 @@ class _Bounds(_Base):
 
 class _ValueCheck(_Bounds):
     equals: float | None = None
+    """Value that passes (± ``tol``); instead of ``min``/``max``."""
     tol: float = Field(default=1e-9, ge=0.0)
+    """Tolerance of ``equals``."""
 
     @model_validator(mode="after")
     def _one_check(self) -> Self:
@@ -235,6 +256,7 @@ class ValueAtEnd(_ValueCheck):
 
     kind: Literal["value_at_end"]
     signal: str
+    """Recorded signal."""
 
 
 class ValueAt(_ValueCheck):
@@ -242,7 +264,9 @@ class ValueAt(_ValueCheck):
 
     kind: Literal["value_at"]
     signal: str
+    """Recorded signal."""
     t_s: float
+    """Time, s: the last sample at or before it is checked."""
 
     def _default_label(self) -> str:
         return f"value_at({self.signal}, {self.t_s:g} s)"
@@ -253,8 +277,11 @@ class ValueInWindow(_Bounds):
 
     kind: Literal["value_in_window"]
     signal: str
+    """Recorded signal."""
     t0_s: float
+    """Window start, s."""
     t1_s: float
+    """Window end, s."""
 
     @model_validator(mode="after")
     def _window(self) -> Self:
@@ -272,8 +299,11 @@ class MetricExpectation(_Bounds):
 
     kind: Literal["metric"]
     metric: str
+    """Metric name (table below)."""
     args: dict[str, Any] = Field(default_factory=dict)
+    """The metric's arguments (signal names, fault names, numbers)."""
     field: str | None = None
+    """Which value of a metric that returns several (e.g. ``mean``)."""
 
     @model_validator(mode="after")
     def _metric_call(self) -> Self:
@@ -493,7 +523,8 @@ def evaluate(expectation: Expectation | Mapping[str, Any], result: RunResult) ->
     expectation : Expectation or mapping
         A model of this module or a raw ``[[expect]]`` table.
     result : RunResult
-        The run. If ``result.error`` is set, the expectation fails with that error.
+        The run. If ``result.error`` is set, the expectation is not evaluated (it fails,
+        ``evaluated`` False; the error itself belongs to the scenario's verdict).
 
     Returns
     -------
@@ -509,7 +540,9 @@ def evaluate(expectation: Expectation | Mapping[str, Any], result: RunResult) ->
                                  f"invalid expectation: {exc}", None, kind)
     name = exp.label()
     if result.error is not None:
-        return ExpectationResult(name, False, f"run failed: {result.error}", None, exp.kind)
+        what = "was interrupted" if getattr(result, "interrupted", False) else "did not complete"
+        return ExpectationResult(name, False, f"not evaluated: the run {what}", None, exp.kind,
+                                 evaluated=False)
     try:
         passed, message, value = _EVALUATORS[type(exp)](exp, result)
     except (KeyError, ValueError, TypeError) as exc:
@@ -565,7 +598,7 @@ def verify_results(
         expect = _scenario_expect(scenario)
         if result is None:
             error = f"no run result for scenario {name!r}"
-            outcomes = [_failed_without_run(e, error) for e in expect]
+            outcomes = [_failed_without_run(e, "not evaluated: no run result") for e in expect]
         else:
             error = result.error
             outcomes = [evaluate(e, result) for e in expect]
@@ -580,4 +613,4 @@ def _failed_without_run(raw: Any, error: str) -> ExpectationResult:
         exp = parse_expectation(raw)
     except ValidationError as exc:
         return ExpectationResult("invalid expectation", False, f"invalid expectation: {exc}")
-    return ExpectationResult(exp.label(), False, error, None, exp.kind)
+    return ExpectationResult(exp.label(), False, error, None, exp.kind, evaluated=False)
