@@ -351,13 +351,13 @@ def _scenario_section(
             parts.append(_table(["metric", "signal", "condition", "value", "unit"], [
                 [_esc(r.metric), _esc(r.subject), _esc(r.condition), _esc(r.text),
                  _esc(r.unit)] for r in rows]))
-        parts.append(_figures_html(result, scenario))
+        parts.append(_figures_html(result, scenario, v))
     return "\n".join(parts)
 
 
-def _figures_html(result: RunResult, scenario: Any) -> str:
+def _figures_html(result: RunResult, scenario: Any, verdict: ScenarioVerdict) -> str:
     try:
-        figures = plots.figures_for_result(result, scenario)
+        figures = plots.figures_for_result(result, scenario, verdict)
     except Exception as exc:  # a broken plot must not hide the verdicts; show why instead
         return f'<p class="fail">plots failed: {_esc(repr(exc))}</p>'
     out = ["<h3>Plots</h3>"] if figures else []
