@@ -49,7 +49,7 @@ def test_bench_harness_provides_the_files_the_seed_scenarios_need(tmp_path, fmu_
         for spec in inst.files.values())]
     assert needing, "no seed scenario reads a run-time file any more: drop this test"
     # without preparation, those scenarios cannot start (the crash of issue 15)
-    with pytest.raises(ScenarioError, match="dtg_signatures.json"):
+    with pytest.raises(ScenarioError, match=r"dtg_signatures\.json"):
         preflight(load_scenario(needing[0]), fmu_dir, tmp_path)
     learned = []
 

@@ -39,10 +39,11 @@ def _long_scenario(tmp: Path, name: str, seed: int) -> Path:
 def _start(args: list[str], tmp: Path) -> tuple[subprocess.Popen, Path, Path]:
     stdout, stderr = tmp / "stdout.txt", tmp / "stderr.txt"
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "harness", *args, "-v", "--no-progress"], cwd=ROOT, env=env,
-        stdout=open(stdout, "w"), stderr=open(stderr, "w"),  # noqa: SIM115
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    with open(stdout, "w") as out, open(stderr, "w") as err:  # the child keeps its copies
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "harness", *args, "-v", "--no-progress"], cwd=ROOT,
+            env=env, stdout=out, stderr=err,
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     return proc, stdout, stderr
 
 
