@@ -104,9 +104,9 @@ static int Sos_init(SosObject *self, PyObject *args, PyObject *kwds)
 static void Sos_dealloc(SosObject *self)
 {
     free(self->coef); free(self->z); free(self->x);
-    PyTypeObject *tp = Py_TYPE(self);
+    PyTypeObject *tp = Py_TYPE((PyObject *)self);
     freefunc tp_free = PyType_GetSlot(tp, Py_tp_free);
-    tp_free(self);
+    tp_free((void *)self);
     Py_DECREF(tp);
 }
 
@@ -215,9 +215,9 @@ static int Rls_init(RlsObject *self, PyObject *args, PyObject *kwds)
 static void Rls_dealloc(RlsObject *self)
 {
     free(self->S); free(self->theta); free(self->work);
-    PyTypeObject *tp = Py_TYPE(self);
+    PyTypeObject *tp = Py_TYPE((PyObject *)self);
     freefunc tp_free = PyType_GetSlot(tp, Py_tp_free);
-    tp_free(self);
+    tp_free((void *)self);
     Py_DECREF(tp);
 }
 
