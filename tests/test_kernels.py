@@ -262,11 +262,13 @@ def test_compiled_kernels_equal_the_fallback_exactly() -> None:
         for row in rng.standard_normal((3000, 6)).tolist():
             assert a.step(row[:5], row[5]) == b.step(row[:5], row[5])
         assert list(a.theta) == list(b.theta) and a.get_S() == b.get_S()
-    pred = grey.ImprovedGreyPredictor(10)
-    x = (2.0 + np.cumsum(rng.standard_normal(3000)) * 1e-3).tolist() + [3.0] * 20
-    for k in range(len(x) - 10):
-        args = (x[k:k + 10], 10.0, 1e-6, pred._poly_weights, pred._residual_weights)
-        assert _pykernels.improved_grey_predict(*args) == ck.improved_grey_predict(*args)
+    # generated straight-line code (m <= 256) and the loop version (longer windows)
+    x = (2.0 + np.cumsum(rng.standard_normal(1500)) * 1e-3).tolist() + [3.0] * 320
+    for m in (4, 10, 300):
+        pred = grey.ImprovedGreyPredictor(m, residual_order=min(2, m - 2))
+        for k in range(0, len(x) - m, 3):
+            args = (x[k:k + m], 10.0, 1e-6, pred._poly_weights, pred._residual_weights)
+            assert _pykernels.improved_grey_predict(*args) == ck.improved_grey_predict(*args)
 
 
 def test_compiled_kernels_reject_wrong_lengths() -> None:

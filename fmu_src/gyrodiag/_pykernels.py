@@ -28,7 +28,8 @@ def _compiled(key: tuple, source: str, name: str) -> object:
     """
     fn = _STEP_CACHE.get(key)
     if fn is None:
-        namespace: dict[str, object] = {"sqrt": math.sqrt}
+        namespace: dict[str, object] = {"sqrt": math.sqrt, "exp": math.exp,
+                                         "expm1": math.expm1}
         exec(compile(source, f"<gyrodiag kernel {name}>", "exec"), namespace)
         fn = _STEP_CACHE[key] = namespace[name]
     return fn
@@ -187,6 +188,68 @@ class PotterRLS:
         return self._fn(self._st, phi, y)  # type: ignore[operator]
 
 
+#: Longest window for which the grey kernel is generated as straight-line code.
+_GREY_UNROLL_MAX = 256
+
+
+def _grey_source(m: int) -> str:
+    """Straight-line :func:`improved_grey_predict` for a window of m samples.
+
+    The same operations in the same order as ``_improved_grey_loop`` and the C kernel
+    (every sum accumulated left to right from the first term).
+    """
+    r = range(m)
+    inner = range(1, m)
+    ind = "    "
+    L = ["def grey_predict(window, level_ratio, a_min, pw, rw):"]
+    L.append(ind + "".join(f"w{k}, " for k in r) + "= window")
+    L.append(ind + "lo = min(window)")
+    L.append(ind + "span = max(window) - lo")
+    L.append(ind + "if span > 0.0:")
+    L.append(ind * 2 + "level = level_ratio * span")
+    L.append(ind + "else:")
+    L.append(ind * 2 + "level = abs(lo) if lo != 0.0 else 1.0")
+    for k in r:
+        L.append(ind + f"l{k} = (w{k} - lo) + level")
+    L.append(ind + "x1 = l0")
+    for k in inner:
+        L.append(ind + f"x1 = x1 + l{k}")
+        L.append(ind + f"z{k} = x1 - 0.5 * l{k}")
+    L.append(ind + "z_mean = (" + " + ".join(f"z{k}" for k in inner) + f") / {m - 1}.0")
+    L.append(ind + "l_mean = (" + " + ".join(f"l{k}" for k in inner) + f") / {m - 1}.0")
+    for k in inner:
+        L.append(ind + f"d{k} = z{k} - z_mean")
+    L.append(ind + "szz = " + " + ".join(f"d{k} * d{k}" for k in inner))
+    L.append(ind + "szl = " + " + ".join(f"d{k} * (l{k} - l_mean)" for k in inner))
+    L.append(ind + "a = -szl / szz")
+    L.append(ind + "b = l_mean + a * z_mean")
+    L.append(ind + "if abs(a) < a_min:")
+    L.append(ind * 2 + "".join(f"p{k}, " for k in r) + "= pw")
+    L.append(ind * 2 + "pred = " + " + ".join(f"p{k} * l{k}" for k in r))
+    L.append(ind * 2 + "return (pred - level) + lo, a, True")
+    L.append(ind + "q = exp(-a)")
+    L.append(ind + "az = a == 0.0")
+    L.append(ind + "h = 1.0 if az else -expm1(-a) / a")
+    L.append(ind + "u0 = 1.0")
+    for k in range(1, m):
+        L.append(ind + f"u{k} = u{k - 1} * q")
+    L.append(ind + "c0 = l0")
+    for k in inner:
+        L.append(ind + f"c{k} = c{k - 1} + l{k}")
+    for k in r:
+        L.append(ind + f"g{k} = {k}.0 if az else -expm1(-a * {k}.0) / a")
+    L.append(ind + "num = " + " + ".join(f"u{k} * (c{k} - b * g{k})" for k in r))
+    L.append(ind + "den = " + " + ".join(f"u{k} * u{k}" for k in r))
+    L.append(ind + "amp = (b - a * (num / den)) * h")
+    L.append(ind + "".join(f"r{k}, " for k in inner) + "= rw")
+    L.append(ind + "e1 = amp")
+    for k in range(2, m + 1):
+        L.append(ind + f"e{k} = e{k - 1} * q")
+    L.append(ind + "corr = " + " + ".join(f"r{k} * (l{k} - e{k})" for k in inner))
+    L.append(ind + f"return ((e{m} + corr) - level) + lo, a, False")
+    return "\n".join(L) + "\n"
+
+
 def improved_grey_predict(
     window: Sequence[float], level_ratio: float, a_min: float,
     poly_weights: Sequence[float], residual_weights: Sequence[float],
@@ -222,6 +285,20 @@ def improved_grey_predict(
     combinations of their data (the weights).
     """
     m = len(window)
+    if m > _GREY_UNROLL_MAX:
+        return _improved_grey_loop(window, level_ratio, a_min, poly_weights, residual_weights)
+    fn = _STEP_CACHE.get(("grey", m))
+    if fn is None:
+        fn = _compiled(("grey", m), _grey_source(m), "grey_predict")
+    return fn(window, level_ratio, a_min, poly_weights, residual_weights)  # type: ignore[operator]
+
+
+def _improved_grey_loop(
+    window: Sequence[float], level_ratio: float, a_min: float,
+    poly_weights: Sequence[float], residual_weights: Sequence[float],
+) -> tuple[float, float, bool]:
+    """:func:`improved_grey_predict` as loops (long windows)."""
+    m = len(window)
     lo = min(window)
     span = max(window) - lo
     if span > 0.0:
@@ -237,8 +314,13 @@ def improved_grey_predict(
         x1 += v
         zs.append(x1 - 0.5 * v)
     rows = m - 1
-    z_mean = sum(zs) / rows
-    l_mean = sum(lifted[1:]) / rows
+    z_sum = 0.0
+    l_sum = 0.0
+    for k in range(rows):  # no sum(): Python >= 3.12 compensates it, the C kernel does not
+        z_sum += zs[k]
+        l_sum += lifted[k + 1]
+    z_mean = z_sum / rows
+    l_mean = l_sum / rows
     szz = 0.0
     szl = 0.0
     for k in range(rows):
@@ -248,7 +330,9 @@ def improved_grey_predict(
     a = -szl / szz
     b = l_mean + a * z_mean
     if abs(a) < a_min:
-        pred = sum(w * v for w, v in zip(poly_weights, lifted, strict=True))
+        pred = 0.0
+        for w, v in zip(poly_weights, lifted, strict=True):
+            pred += w * v
         return (pred - level) + lo, a, True
     # optimal initial value: x̂¹(k) = C·u(k) + b·g(k) fitted to x¹(k), k = 1..m
     q = math.exp(-a)
