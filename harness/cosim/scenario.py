@@ -722,7 +722,7 @@ def resolve_file_parameters(scenario: Scenario, results_dir: Path | str | None =
                 above = Path(results_dir).parent / rest
                 if must_exist and not path.is_file():
                     if not above.is_file():
-                        problems.append((key, f"{rest} is neither in {path.parent.resolve()} "
+                        problems.append((key, f"{rest} not found in {path.parent.resolve()} "
                                               f"nor in {above.parent.resolve()} (produce it "
                                               "first, e.g. with 'python -m harness "
                                               f"learn-signatures ... --out {above}')"))

@@ -24,8 +24,8 @@ file (``[tool.pytest.ini_options]`` of pyproject.toml).  Then every ``.toml`` fi
 Options (``pytest --help``, group "gyrodiag"): ``--gyrodiag``, ``--gyrodiag-fmu-dir DIR``
 (default: ``$GYRODIAG_FMU_DIR``, else ``build/fmus`` of the source checkout, built once
 per session when stale), ``--gyrodiag-results DIR`` (signals of every run, and at the
-end ``report.html`` and the harness's ``junit.xml``; default: a folder in pytest's
-temporary directory), ``--gyrodiag-training DIR``.
+end ``report.html`` and the harness's ``junit.xml``; without it the runs go to a folder
+in pytest's temporary directory and no report is written), ``--gyrodiag-training DIR``.
 
 Fixtures for users' own tests (available whenever the package is installed):
 ``gyrodiag_fmu_dir``, ``gyrodiag_results``, ``gyrodiag_scenario`` (load a scenario file),
@@ -119,6 +119,9 @@ class _Session:
 
     def __init__(self, config: pytest.Config) -> None:
         self.config = config
+        #: the results folder was asked for: the report is written there at the end
+        self.report = bool(config.getoption("gyrodiag_results")
+                           or config.getini("gyrodiag_results"))
         self._results: Path | None = None
         self._fmu_dir: Path | None = None
         self._runs: RunCache | None = None
@@ -325,7 +328,7 @@ def pytest_sessionfinish(session: pytest.Session) -> None:
     state = config.stash.get(_STATE, None)
     reported = dict(_REPORTS)
     _REPORTS.clear()
-    if state is None or state.is_worker or not reported:
+    if state is None or state.is_worker or not state.report or not reported:
         return
     from harness.reporting.report import write_report
     from harness.verification.expectations import verify_results
