@@ -141,16 +141,23 @@ def test_xdist_and_fixtures_share_one_run_per_scenario(project: pytest.Pytester,
 
         def test_fmu_dir(gyrodiag_fmu_dir):
             assert (gyrodiag_fmu_dir / "Aircraft.fmu").is_file()
+
+        def test_many_at_once(gyrodiag_run):
+            paths = ["scenarios/nominal.toml", "scenarios/passing.toml"]
+            nominal, passing = gyrodiag_run.many(paths)
+            assert nominal.scenario == "nominal" and passing.scenario == "passing"
+            assert gyrodiag_run(paths[0]) is nominal
+            print("WALL", repr(passing.wall_time_s))
     """)
     results = project.path / "out"
     result = _run(project, fmu_dir, "--gyrodiag", "scenarios", "test_users_own.py", "-n",
                   "2", f"--gyrodiag-results={results}", "--junitxml=j.xml", "-rA")
-    result.assert_outcomes(passed=5, failed=1)
+    result.assert_outcomes(passed=6, failed=1)
     # one run of 'passing' for the scenario item and both user tests, whichever worker
     # got there first: the saved run's wall time is the one every test saw
     from harness.cosim.results import RunResult
 
     saved = RunResult.load(results / "passing")
-    assert f"WALL {saved.wall_time_s!r}" in result.stdout.str()
+    assert result.stdout.str().count(f"WALL {saved.wall_time_s!r}") == 2
     assert len(list(results.glob("*/run.json"))) == 3
     assert ET.parse(project.path / "j.xml").getroot().find(".//testcase") is not None

@@ -60,7 +60,8 @@ def _env() -> dict[str, str]:
 def campaign(gyrodiag_run, gyrodiag_results: Path) -> dict:
     t0 = time.perf_counter()
     faults = sorted(SCEN.glob("dtg_fault_*.toml"))
-    runs = {p.stem: gyrodiag_run(p) for p in [*faults, *(SCEN / f for f in GROUP_B)]}
+    paths = [*faults, *(SCEN / f for f in GROUP_B)]
+    runs = {p.stem: r for p, r in zip(paths, gyrodiag_run.many(paths), strict=True)}
     return {"runs": runs, "library": gyrodiag_results / "dtg_signatures.json",
             "training": gyrodiag_results / "training", "faults": faults,
             "wall_s": time.perf_counter() - t0}
@@ -187,7 +188,8 @@ def test_physical_faults_detected_in_the_fine_band_only(campaign):
 def system_runs(gyrodiag_run) -> dict:
     """Spin scenario and its fault-free control, from the session's run cache."""
     t0 = time.perf_counter()
-    runs = {name: gyrodiag_run(SCEN / f"{name}.toml") for name in SYSTEM}
+    runs = dict(zip(SYSTEM, gyrodiag_run.many([SCEN / f"{n}.toml" for n in SYSTEM]),
+                    strict=True))
     return {"runs": runs, "wall_s": time.perf_counter() - t0}
 
 

@@ -57,7 +57,7 @@ from harness.cosim.results import RunResult
 from harness.cosim.scenario import FMU_DIR_ENV, Scenario, ScenarioError, load_scenario
 from harness.testing.runs import RunCache
 
-__all__ = ["ScenarioFile", "ScenarioItem"]
+__all__ = ["ScenarioFile", "ScenarioItem", "ScenarioRuns"]
 
 SIGNATURES = "dtg_signatures.json"
 #: Plant FMUs that name a channel marker.
@@ -173,6 +173,11 @@ class _Session:
         self.ensure_files(scenario)
         return self.runs.run(scenario)
 
+    def run_many(self, scenarios: list[Scenario]) -> list[RunResult]:
+        for s in scenarios:
+            self.ensure_files(s)
+        return self.runs.run_many(scenarios)
+
     def ensure_files(self, scenario: Scenario) -> None:
         """Learn the DTG signature library once per session if the scenario reads it."""
         specs = [s for inst in scenario.fmus.values() for s in inst.files.values()]
@@ -189,8 +194,7 @@ class _Session:
                 return
             scenarios = load_all([folder])
             check_training_scenarios(scenarios)
-            cache = RunCache(self.results / "training", self.fmu_dir)
-            runs = [cache.run(s) for s in scenarios]
+            runs = RunCache(self.results / "training", self.fmu_dir).run_many(scenarios)
             failed = [r.scenario for r in runs if r.error is not None]
             if failed:
                 raise ScenarioError(str(folder), [("", f"training runs failed: {failed}")])
@@ -379,17 +383,28 @@ def gyrodiag_scenario(pytestconfig: pytest.Config) -> Callable[[str | Path], Sce
     return load
 
 
+class ScenarioRuns:
+    """``run(scenario or path)``: the scenario's :class:`~harness.RunResult`;
+    ``run.many([...])``: several, those not run yet in parallel worker processes."""
+
+    def __init__(self, state: _Session, load: Callable[[str | Path], Scenario]) -> None:
+        self._state = state
+        self._load = load
+
+    def _scenario(self, scenario: Scenario | str | Path) -> Scenario:
+        return scenario if isinstance(scenario, Scenario) else self._load(scenario)
+
+    def __call__(self, scenario: Scenario | str | Path) -> RunResult:
+        return self._state.run(self._scenario(scenario))
+
+    def many(self, scenarios: list[Scenario | str | Path]) -> list[RunResult]:
+        return self._state.run_many([self._scenario(s) for s in scenarios])
+
+
 @pytest.fixture(scope="session")
 def gyrodiag_run(pytestconfig: pytest.Config,
-                 gyrodiag_scenario: Callable[[str | Path], Scenario]
-                 ) -> Callable[[Scenario | str | Path], RunResult]:
-    """``run(scenario or path)``: the scenario's :class:`~harness.RunResult`, run once per
-    session whoever asks first (scenario items and other tests, in any xdist worker)."""
-    state = pytestconfig.stash[_STATE]
-
-    def run(scenario: Scenario | str | Path) -> RunResult:
-        if not isinstance(scenario, Scenario):
-            scenario = gyrodiag_scenario(scenario)
-        return state.run(scenario)
-
-    return run
+                 gyrodiag_scenario: Callable[[str | Path], Scenario]) -> ScenarioRuns:
+    """``gyrodiag_run(scenario or path)``: the scenario's :class:`~harness.RunResult`,
+    run once per session whoever asks first (scenario items and other tests, in any
+    xdist worker); ``gyrodiag_run.many([...])`` runs those not run yet in parallel."""
+    return ScenarioRuns(pytestconfig.stash[_STATE], gyrodiag_scenario)

@@ -71,11 +71,55 @@ class RunCache:
                 (folder / _MARKER).unlink(missing_ok=True)
                 (result,) = run_all([scenario], self.results, self.fmu_dir, progress=False,
                                     workers=1)
-                tmp = folder / f"{_MARKER}.{os.getpid()}"
-                tmp.write_text(json.dumps({"fingerprint": key}), encoding="utf-8")
-                os.replace(tmp, folder / _MARKER)
+                self._mark(folder, key)
         self._memory[scenario.name] = (key, result)
         return result
+
+    def run_many(self, scenarios: list[Scenario], workers: int | None = None
+                 ) -> list[RunResult]:
+        """The runs of several scenarios, in order; those nobody has run yet run in one
+        batch, ``workers`` at a time (default: the CPUs); those another process is
+        running now are waited for."""
+        results: dict[str, RunResult] = {}
+        todo: list[tuple[Scenario, str, object]] = []
+        self.results.mkdir(parents=True, exist_ok=True)
+        try:
+            for s in scenarios:
+                key = fingerprint(s, self.fmu_dir)
+                cached = self._memory.get(s.name)
+                if cached is not None and cached[0] == key:
+                    results[s.name] = cached[1]
+                    continue
+                lock = open(self.results / f".{s.name}.lock", "w")
+                try:
+                    fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except BlockingIOError:  # another process runs it: wait for it below
+                    lock.close()
+                    continue
+                saved = self._saved(self.results / s.name, key)
+                if saved is not None:
+                    lock.close()
+                    self._memory[s.name] = (key, saved)
+                    results[s.name] = saved
+                    continue
+                (self.results / s.name / _MARKER).unlink(missing_ok=True)
+                todo.append((s, key, lock))
+            if todo:
+                runs = run_all([s for s, _, _ in todo], self.results, self.fmu_dir,
+                               progress=False, workers=workers)
+                for (s, key, _), result in zip(todo, runs, strict=True):
+                    self._mark(self.results / s.name, key)
+                    self._memory[s.name] = (key, result)
+                    results[s.name] = result
+        finally:
+            for _, _, lock in todo:
+                lock.close()  # type: ignore[attr-defined]
+        return [results[s.name] if s.name in results else self.run(s) for s in scenarios]
+
+    def _mark(self, folder: Path, key: str) -> None:
+        tmp = folder / f"{_MARKER}.{os.getpid()}"
+        tmp.write_text(json.dumps({"fingerprint": key}), encoding="utf-8")
+        os.replace(tmp, folder / _MARKER)
 
     def _saved(self, folder: Path, key: str) -> RunResult | None:
         marker = folder / _MARKER
