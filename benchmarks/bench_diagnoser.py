@@ -333,12 +333,13 @@ def main(argv: list[str] | None = None) -> int:
                 params = dict(BASE_PARAMS)
                 for ch in ("dtg", "grey", "df"):
                     params[f"{ch}.enabled"] = ch in channels
+                # the Diagnoser first: its instantiation is the process's first
                 specs = {
-                    "trivial": {"fmu": trivial},
-                    "injector": {"fmu": str(fmu_dir / "FaultInjector.fmu")},
                     "diag": {"fmu": str(fmu_dir / "Diagnoser.fmu"), "params": params,
                              "records": str(tmp / "records.npy"), "columns": columns,
                              "inputs": [IN_NAMES[c] for c in columns]},
+                    "trivial": {"fmu": trivial},
+                    "injector": {"fmu": str(fmu_dir / "FaultInjector.fmu")},
                 }
                 results[(kernels, config)] = run_measurement(
                     specs, args.warmup, args.steps, fallback=kernels == "fallback")
