@@ -84,6 +84,9 @@ class RunResult:
         ``"instance.variable"`` → values as float (Booleans 0/1, Integers as float).
     fault_windows : list of FaultWindow
         The scheduled faults.
+    manoeuvre_windows : list of FaultWindow
+        The scheduled manoeuvres (``kind`` = manoeuvre kind, ``target`` = the instance that
+        flies it); fault-free time for false-alarm counts.
     step_s : float
         Base communication step (s).
     error : str or None
@@ -98,6 +101,7 @@ class RunResult:
     time: np.ndarray
     signals: dict[str, np.ndarray]
     fault_windows: list[FaultWindow] = field(default_factory=list)
+    manoeuvre_windows: list[FaultWindow] = field(default_factory=list)
     step_s: float = 0.0
     error: str | None = None
     wall_time_s: float = 0.0
@@ -120,6 +124,14 @@ class RunResult:
             return self.signals[name]
         except KeyError:
             raise KeyError(_missing_signal_message(name, list(self.signals))) from None
+
+    def manoeuvre(self, name: str) -> FaultWindow:
+        """The manoeuvre window called ``name`` (KeyError listing the known ones)."""
+        for window in self.manoeuvre_windows:
+            if window.name == name:
+                return window
+        known = ", ".join(w.name for w in self.manoeuvre_windows) or "none"
+        raise KeyError(f"run {self.scenario!r} has no manoeuvre {name!r}; manoeuvres: {known}")
 
     def fault(self, name: str) -> FaultWindow:
         """The fault window called ``name`` (KeyError listing the known faults)."""
@@ -157,6 +169,7 @@ class RunResult:
             "n_samples": n_rows,
             "signals": names,
             "fault_windows": [w.to_json() for w in self.fault_windows],
+            "manoeuvre_windows": [w.to_json() for w in self.manoeuvre_windows],
         }
         (directory / META_FILE).write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
 
@@ -187,6 +200,8 @@ class RunResult:
             time=table[:, 0].copy(),
             signals=signals,
             fault_windows=[FaultWindow.from_json(w) for w in meta.get("fault_windows", [])],
+            manoeuvre_windows=[FaultWindow.from_json(w)
+                               for w in meta.get("manoeuvre_windows", [])],
             step_s=float(meta.get("step_s", 0.0)),
             error=meta.get("error"),
             wall_time_s=float(meta.get("wall_time_s", 0.0)),

@@ -45,6 +45,7 @@ __all__ = [
     "scenario_connections",
     "scenario_parameters",
     "shade_fault_windows",
+    "shade_manoeuvre_windows",
 ]
 
 MAX_PLOT_POINTS = 3000
@@ -107,6 +108,28 @@ def shade_fault_windows(
             continue
         ax.axvspan(w.start_s, max(end, w.start_s), color=_FAULT_COLOURS[i % len(_FAULT_COLOURS)],
                    alpha=0.15, lw=0, label=f"fault: {w.name}" if label else None)
+
+
+def shade_manoeuvre_windows(
+    ax: Axes, manoeuvre_windows: Sequence[FaultWindow], t_end_s: float, *, label: bool = True
+) -> None:
+    """Mark each manoeuvre window on ``ax`` (grey hatch: fault-free time, unlike faults).
+
+    Parameters are those of :func:`shade_fault_windows`; labels read
+    ``manoeuvre: <name> (<kind>)``.
+    """
+    for w in manoeuvre_windows:
+        end = min(w.end_s, t_end_s)
+        if end < w.start_s:
+            continue
+        ax.axvspan(w.start_s, max(end, w.start_s), facecolor="none", edgecolor="0.55",
+                   hatch="//", lw=0, alpha=0.6,
+                   label=f"manoeuvre: {w.name} ({w.kind})" if label else None)
+
+
+def _shade(ax: Axes, result: RunResult, *, label: bool) -> None:
+    shade_fault_windows(ax, result.fault_windows, _t_end(result), label=label)
+    shade_manoeuvre_windows(ax, result.manoeuvre_windows, _t_end(result), label=label)
 
 
 def _t_end(result: RunResult) -> float:
@@ -220,7 +243,7 @@ def plot_signals_with_faults(
     t = np.asarray(result.time, dtype=float)
     fig, axes = _new_figure(len(names), 1.6)
     for k, (ax, name) in enumerate(zip(axes, names, strict=True)):
-        shade_fault_windows(ax, result.fault_windows, _t_end(result), label=k == 0)
+        _shade(ax, result, label=k == 0)
         _plot(ax, t, result.signal(name), lw=0.8, color="tab:blue", label=name)
         thr = thresholds.get(name)
         curves = [np.asarray(result.signal(name), dtype=float)]
@@ -280,7 +303,7 @@ def plot_theta(
         raise ValueError(f"no {prefix}.theta_x[i] / theta_y[i] signal recorded")
     fig, axes = _new_figure(n_theta, 1.7)
     for i, ax in enumerate(axes, start=1):
-        shade_fault_windows(ax, result.fault_windows, _t_end(result), label=i == 1)
+        _shade(ax, result, label=i == 1)
         curves = []
         for axis, colour in (("x", "tab:blue"), ("y", "tab:green")):
             name = f"{prefix}.theta_{axis}[{i}]"
@@ -345,7 +368,7 @@ def plot_grey_prediction(
     p = np.asarray(result.signal(predicted), dtype=float)
     fig, (top, bottom) = _new_figure(2, 2.3)
     for k, ax in enumerate((top, bottom)):
-        shade_fault_windows(ax, result.fault_windows, _t_end(result), label=k == 0)
+        _shade(ax, result, label=k == 0)
     if measured is not None:
         y = np.asarray(result.signal(measured), dtype=float)
         _plot(top, t, y, lw=0.9, color="tab:blue", label=f"measured ({measured})")
@@ -397,7 +420,7 @@ def plot_alarm_timeline(
     t = np.asarray(result.time, dtype=float)
     fig, axes = _new_figure(len(names), 0.7)
     for k, (ax, name) in enumerate(zip(axes, names, strict=True)):
-        shade_fault_windows(ax, result.fault_windows, _t_end(result), label=k == 0)
+        _shade(ax, result, label=k == 0)
         _plot(ax, t, result.signal(name), lw=1.0, color="tab:blue", drawstyle="steps-post")
         ax.set_ylabel(name, rotation=0, ha="right", va="center", fontsize=7)
         ax.tick_params(axis="y", labelsize=6)

@@ -16,6 +16,10 @@ sine sweep   4   A·sin φ(τ), τ = t − start, frequency rising exponentially
 
 The exponential sweep spends equal time per octave, as flight-test frequency sweeps do.
 Its start is smooth (sin 0 = 0); at its end the command drops from A·sin φ(D) to 0.
+
+Switching instants are judged with a tolerance of ``TIME_TOL`` (1 ns): masters compute
+communication points as k·h, so "t = start + pulse" arrives as 0.15000000000000002 or
+0.1499999999; both count as the instant itself (the new value applies).
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+TIME_TOL = 1e-9
 COMMAND_INPUT = 0
 COMMAND_SQUARE_WAVE = 1
 COMMAND_STEP = 2
@@ -104,16 +109,19 @@ class PitchCommand:
 
     def active(self, t: float) -> bool:
         """True inside the manoeuvre window (never for kind 0)."""
-        if self.kind == COMMAND_INPUT or t < self.start:
+        tau = t - self.start + TIME_TOL
+        if self.kind == COMMAND_INPUT or tau < 0.0:
             return False
-        return self.duration == 0.0 or t < self.start + self.duration
+        return self.duration == 0.0 or tau < self.duration
 
     def value(self, t: float) -> float:
         """ϑ_cmd(t) (rad); 0 outside the window and for kind 0."""
         if not self.active(t):
             return 0.0
         a = self.amplitude
-        tau = t - self.start
+        if self.kind == COMMAND_SINE_SWEEP:
+            return a * math.sin(self.sweep_phase(t - self.start))
+        tau = t - self.start + TIME_TOL
         if self.kind == COMMAND_SQUARE_WAVE:
             return a if (tau % self.period) < 0.5 * self.period else -a
         if self.kind == COMMAND_STEP:
@@ -124,7 +132,7 @@ class PitchCommand:
             if tau < self.pulse:
                 return a
             return -a if tau < 2.0 * self.pulse else 0.0
-        return a * math.sin(self.sweep_phase(tau))
+        raise AssertionError(f"unhandled command kind {self.kind}")  # validated in __init__
 
     def sweep_phase(self, tau: float) -> float:
         """Phase φ(τ) (rad) of the sweep, τ s after its start."""
