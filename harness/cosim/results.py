@@ -84,9 +84,6 @@ class RunResult:
         ``"instance.variable"`` → values as float (Booleans 0/1, Integers as float).
     fault_windows : list of FaultWindow
         The scheduled faults.
-    manoeuvre_windows : list of FaultWindow
-        The scheduled manoeuvres (``kind`` = manoeuvre kind, ``target`` = the instance that
-        flies it); fault-free time for false-alarm counts.
     step_s : float
         Base communication step (s).
     error : str or None
@@ -95,17 +92,20 @@ class RunResult:
         Wall-clock duration of the run (s).
     stop_time_s : float
         Planned simulated duration (s).
+    manoeuvre_windows : list of FaultWindow
+        The scheduled manoeuvres (``kind`` = manoeuvre kind, ``target`` = the instance that
+        flies it); fault-free time for false-alarm counts.
     """
 
     scenario: str
     time: np.ndarray
     signals: dict[str, np.ndarray]
     fault_windows: list[FaultWindow] = field(default_factory=list)
-    manoeuvre_windows: list[FaultWindow] = field(default_factory=list)
     step_s: float = 0.0
     error: str | None = None
     wall_time_s: float = 0.0
     stop_time_s: float = 0.0
+    manoeuvre_windows: list[FaultWindow] = field(default_factory=list)
 
     @property
     def completed(self) -> bool:
