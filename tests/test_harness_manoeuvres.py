@@ -263,3 +263,68 @@ def test_manoeuvre_windows_round_trip_through_files(run: RunResult, tmp_path: Pa
     back = RunResult.load(tmp_path / "r")
     assert back.manoeuvre_windows == run.manoeuvre_windows
     assert back.fault_windows == run.fault_windows
+
+
+# -------------------------------------------------------------------------- witnesses
+@pytest.fixture
+def two_witnesses() -> RunResult:
+    """A fault at 20 s; witness A at 20.7 s, B only once the manoeuvre starts at 28 s."""
+    t = np.arange(3201) * 0.01
+    a = (t >= 20.7).astype(float)
+    b = (t >= 28.1).astype(float)
+    return RunResult(
+        scenario="w", time=t,
+        signals={"fine.dtg.alarm": a, "df.df.detected": b, "quiet.alarm": np.zeros_like(t),
+                 "df.df.fault_magnitude": np.where(t >= 28.1, 0.9, 0.0)},
+        fault_windows=[FaultWindow("spin", "dtg.spin_fraction", "physical", 20.0)],
+        manoeuvre_windows=[FaultWindow("sq", "controller", "square_wave", 28.0, math.inf)],
+        step_s=0.01, stop_time_s=32.0)
+
+
+def test_witnesses_agree_on_one_root_cause(two_witnesses: RunResult) -> None:
+    r = ex.evaluate({"kind": "witnesses_agree", "witnesses": ["fine.dtg.alarm",
+                                                              "df.df.detected"],
+                     "fault": "spin", "max_delay_s": 9.0,
+                     "details": ["df.df.fault_magnitude"]}, two_witnesses)
+    assert r.passed and r.value == pytest.approx(7.4)
+    assert "the witnesses agree" in r.message
+    assert "fine.dtg.alarm: detected after 0.7 s" in r.message
+    assert "df.df.fault_magnitude = 0.9 at the end" in r.message
+    late = ex.evaluate({"kind": "witnesses_agree", "witnesses": ["fine.dtg.alarm",
+                                                                 "df.df.detected"],
+                        "fault": "spin", "max_delay_s": 5.0}, two_witnesses)
+    assert not late.passed and "disagree" in late.message
+    missed = ex.evaluate({"kind": "witnesses_agree", "witnesses": ["quiet.alarm",
+                                                                   "fine.dtg.alarm"],
+                          "fault": "spin"}, two_witnesses)
+    assert not missed.passed and "quiet.alarm: missed" in missed.message
+    clean = RunResult(scenario="c", time=two_witnesses.time,
+                      signals={"x.alarm": np.zeros(3201), "y.alarm": np.zeros(3201)},
+                      step_s=0.01)
+    ok = ex.evaluate({"kind": "witnesses_agree", "witnesses": ["x.alarm", "y.alarm"]}, clean)
+    assert ok.passed and "all quiet" in ok.message
+    bad = ex.evaluate({"kind": "witnesses_agree", "witnesses": ["x.alarm", "fine.dtg.alarm"]},
+                      RunResult(scenario="d", time=two_witnesses.time,
+                                signals={"x.alarm": np.zeros(3201),
+                                         "fine.dtg.alarm": two_witnesses.signals[
+                                             "fine.dtg.alarm"]}, step_s=0.01))
+    assert not bad.passed and "alarm at 20.7 s" in bad.message
+    with pytest.raises(Exception, match="witnesses"):
+        ex.parse_expectation({"kind": "witnesses_agree", "witnesses": ["only.one"]})
+
+
+def test_witness_timeline_is_drawn_for_the_expectation(two_witnesses: RunResult) -> None:
+    from harness.reporting import plots
+
+    scenario = {"expect": [{"kind": "witnesses_agree",
+                            "witnesses": ["fine.dtg.alarm", "df.df.detected"],
+                            "details": ["df.df.fault_magnitude"], "fault": "spin"}]}
+    figures = dict(plots.figures_for_result(two_witnesses, scenario))
+    title = next(k for k in figures if k.startswith("witnesses_agree"))
+    fig = figures[title]
+    assert len(fig.axes) == 3
+    texts = [t.get_text() for ax in fig.axes for t in ax.texts]
+    assert "20.70 s" in texts and "28.10 s" in texts
+    labels = fig.axes[0].get_legend_handles_labels()[1]
+    assert "fault: spin" in labels and "manoeuvre: sq (square_wave)" in labels
+    assert plots.figure_to_png(fig).startswith(b"\x89PNG")
