@@ -84,7 +84,7 @@ start_s = 0.1
     assert proc.returncode == 1
     assert "unstable: ERROR (0.1 s recorded of 0.2 s): instance ctl: doStep at t=0.1" in \
         proc.stdout
-    assert "command_source must be 0 or 1, got 7" in proc.stderr
+    assert "command_source must be 0..4" in proc.stderr
     r = RunResult.load(tmp_path / "r" / "unstable")
     assert len(r.time) == 11 and "got 7" in r.error
 
@@ -182,8 +182,8 @@ min = -1
     proc = harness("verify", str(bad), "--out", str(tmp_path / "r"), "--fmu-dir", str(fmu_dir))
     assert proc.returncode == 1
     text = proc.stdout + proc.stderr
-    assert text.count("command_source must be 0 or 1, got 7") == 1, text
+    assert text.count("ValueError: command_source must be") == 1, text
     assert "failing: ERROR (instance ctl: doStep at t=0.1" in proc.stdout
     assert "5 expectations not evaluated" in proc.stdout
     html = (tmp_path / "r" / "report.html").read_text()
-    assert html.count("command_source must be 0 or 1, got 7") == 1
+    assert html.count("ValueError: command_source must be") == 1

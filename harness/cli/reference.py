@@ -227,6 +227,7 @@ def markdown() -> str:
         ("[[faults]]: physical faults", sc.PhysicalFault,
          "A fault table with a `set` key changes a tunable parameter of any FMU (e.g. "
          "`dtg.spin_fraction`)."),
+        ("[[manoeuvres]]", sc.Manoeuvre, ""),
         ("[record]", sc.Record, ""),
         ("[training]", sc.Training, ""),
     ]

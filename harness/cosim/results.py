@@ -108,6 +108,9 @@ class RunResult:
         Wall-clock duration of the run (s).
     stop_time_s : float
         Planned simulated duration (s).
+    manoeuvre_windows : list of FaultWindow
+        The scheduled manoeuvres (``kind`` = manoeuvre kind, ``target`` = the instance that
+        flies it); fault-free time for false-alarm counts.
     interrupted : bool
         True if a stop request (Ctrl-C, SIGTERM) ended the run early; ``error`` then
         says by what and where.
@@ -121,6 +124,7 @@ class RunResult:
     error: str | None = None
     wall_time_s: float = 0.0
     stop_time_s: float = 0.0
+    manoeuvre_windows: list[FaultWindow] = field(default_factory=list)
     interrupted: bool = False
 
     @property
@@ -140,6 +144,14 @@ class RunResult:
             return self.signals[name]
         except KeyError:
             raise KeyError(_missing_signal_message(name, list(self.signals))) from None
+
+    def manoeuvre(self, name: str) -> FaultWindow:
+        """The manoeuvre window called ``name`` (KeyError listing the known ones)."""
+        for window in self.manoeuvre_windows:
+            if window.name == name:
+                return window
+        known = ", ".join(w.name for w in self.manoeuvre_windows) or "none"
+        raise KeyError(f"run {self.scenario!r} has no manoeuvre {name!r}; manoeuvres: {known}")
 
     def fault(self, name: str) -> FaultWindow:
         """The fault window called ``name`` (KeyError listing the known faults)."""
@@ -187,6 +199,7 @@ class RunResult:
             "signals_encoding": _ENCODING,
             "signals": names,
             "fault_windows": [w.to_json() for w in self.fault_windows],
+            "manoeuvre_windows": [w.to_json() for w in self.manoeuvre_windows],
         }
         text = json.dumps(meta, indent=2) + "\n"
         _atomic_write(directory / META_FILE, lambda fh: fh.write(text.encode("utf-8")))
@@ -231,6 +244,8 @@ class RunResult:
             time=time,
             signals=signals,
             fault_windows=[FaultWindow.from_json(w) for w in meta.get("fault_windows", [])],
+            manoeuvre_windows=[FaultWindow.from_json(w)
+                               for w in meta.get("manoeuvre_windows", [])],
             step_s=float(meta.get("step_s", 0.0)),
             error=meta.get("error"),
             wall_time_s=float(meta.get("wall_time_s", 0.0)),

@@ -8,7 +8,8 @@ What a reader needs from a plot, and how each one gives it:
 * **What passed.** :func:`figures_for_result` titles each channel's figure with the
   verdict of the expectations that read that channel's signals ("2 of 2 expectations
   passed", or which failed).
-* **When things happen.** Fault windows are shaded in colour on every panel;
+* **When things happen.** Fault windows are shaded in colour on every panel,
+  manoeuvre windows hatched;
   calibration (detection filter) and learning (DTG θ0) windows in grey, taken from the
   Diagnoser's own ``df.calibrating`` / ``dtg.learning`` outputs when recorded, else from
   its threshold / θ0 outputs (0 until calibrated / learned), else from the scenario's
@@ -27,6 +28,8 @@ Figures: :func:`plot_dtg_channel` (θ1..θ5 and/or η1..η5 panels, the DTG pape
 lanes), :func:`plot_alarm_timeline` (the flags of no channel, e.g. fault injection).
 The older single-purpose plots (:func:`plot_theta`, :func:`plot_signals_with_faults`,
 :func:`plot_grey_prediction`) remain for scripts.
+Independent witnesses of one root cause (``witnesses_agree`` expectations) share
+one timeline (:func:`plot_witnesses`).
 
 Long records are reduced to a min/max envelope per pixel-column bucket before plotting,
 so spikes (alarms, fault transients) stay visible.
@@ -65,9 +68,11 @@ __all__ = [
     "plot_grey_prediction",
     "plot_signals_with_faults",
     "plot_theta",
+    "plot_witnesses",
     "scenario_connections",
     "scenario_parameters",
     "shade_fault_windows",
+    "shade_manoeuvre_windows",
 ]
 
 MAX_PLOT_POINTS = 3000
@@ -151,9 +156,28 @@ def shade_fault_windows(
 
 def _shade(ax: Axes, result: RunResult, startup: Sequence[Shade], label: bool) -> None:
     for s in startup:
-        ax.axvspan(s.start_s, s.end_s, color="0.55", alpha=_STARTUP_ALPHA, lw=0, hatch="//",
-                   fill=True, label=s.label if label else None)
+        # plain grey: hatching marks manoeuvres
+        ax.axvspan(s.start_s, s.end_s, color="0.55", alpha=_STARTUP_ALPHA, lw=0,
+                   label=s.label if label else None)
     shade_fault_windows(ax, result.fault_windows, _t_end(result), label=label)
+    shade_manoeuvre_windows(ax, result.manoeuvre_windows, _t_end(result), label=label)
+
+
+def shade_manoeuvre_windows(
+    ax: Axes, manoeuvre_windows: Sequence[FaultWindow], t_end_s: float, *, label: bool = True
+) -> None:
+    """Mark each manoeuvre window on ``ax`` (grey hatch: fault-free time, unlike faults).
+
+    Parameters are those of :func:`shade_fault_windows`; labels read
+    ``manoeuvre: <name> (<kind>)``.
+    """
+    for w in manoeuvre_windows:
+        end = min(w.end_s, t_end_s)
+        if end < w.start_s:
+            continue
+        ax.axvspan(w.start_s, max(end, w.start_s), facecolor="none", edgecolor="0.55",
+                   hatch="//", lw=0, alpha=0.6,
+                   label=f"manoeuvre: {w.name} ({w.kind})" if label else None)
 
 
 def _t_end(result: RunResult) -> float:
@@ -906,6 +930,78 @@ def plot_alarm_timeline(
     return fig
 
 
+def plot_witnesses(
+    result: RunResult, witnesses: Sequence[str], details: Sequence[str] = (), *,
+    title: str | None = None,
+) -> Figure:
+    """One timeline for independent witnesses of one root cause.
+
+    Each witness's alarm is a filled lane (first rise marked with its time); ``details``
+    (class codes, isolated sensor, estimated size) follow as step lanes; fault windows
+    are shaded and manoeuvre windows hatched on every lane.
+
+    Parameters
+    ----------
+    result : RunResult
+        The run.
+    witnesses : sequence of str
+        Recorded alarm signals (0/1), one per witness.
+    details : sequence of str
+        Further recorded signals shown under the witnesses.
+    title : str, optional
+        Figure title.
+    """
+    if not witnesses:
+        raise ValueError("witnesses must name at least one recorded signal")
+    t = np.asarray(result.time, dtype=float)
+    names = [*witnesses, *details]
+    fig, axes = _new_figure(len(names), 0.75)
+    for k, (ax, name) in enumerate(zip(axes, names, strict=True)):
+        _shade(ax, result, (), label=k == 0)
+        x = np.asarray(result.signal(name), dtype=float)
+        if k < len(witnesses):
+            colour = _FAULT_COLOURS[k % len(_FAULT_COLOURS)]
+            ax.fill_between(t, 0.0, np.where(x > 0.5, 1.0, 0.0), step="post", color=colour,
+                            alpha=0.55, lw=0)
+            on = np.flatnonzero(x > 0.5)
+            if on.size:
+                ax.annotate(f"{t[on[0]]:.2f} s", (t[on[0]], 1.0), fontsize=6,
+                            xytext=(2, -8), textcoords="offset points")
+            ax.set_ylim(-0.1, 1.3)
+            ax.set_yticks([])
+        else:
+            _plot(ax, t, x, lw=1.0, color="tab:blue", drawstyle="steps-post")
+            ax.margins(y=0.2)
+            ax.tick_params(axis="y", labelsize=6)
+        ax.set_ylabel(name, rotation=0, ha="right", va="center", fontsize=7)
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("time (s)")
+    _legend_below(fig, axes)
+    fig.suptitle(title or "witnesses", fontsize=10)
+    return fig
+
+
+def _witness_specs(scenario: Any) -> list[tuple[list[str], list[str], str]]:
+    """(witnesses, details, label) of the scenario's witnesses_agree expectations."""
+    if scenario is None:
+        return []
+    from harness.verification import expectations as ex
+
+    raw = scenario.get("expect", []) if isinstance(scenario, Mapping) else getattr(
+        scenario, "expect", [])
+    specs = []
+    for e in raw or []:
+        kind = e.get("kind") if isinstance(e, Mapping) else getattr(e, "kind", None)
+        if kind != "witnesses_agree":
+            continue
+        try:
+            w = ex.parse_expectation(e)
+        except Exception:
+            continue
+        specs.append((list(w.witnesses), list(w.details), w.label()))
+    return specs
+
+
 # --------------------------------------------------------------- selection
 def _index(name: str) -> int:
     m = re.search(r"\[(\d+)\]$", name)
@@ -1006,6 +1102,12 @@ def figures_for_result(result: RunResult, scenario: Any = None,
             except ValueError:
                 continue
         figures.append((title, fig))
+
+    for witnesses, details, label in _witness_specs(scenario):
+        shown = [n for n in witnesses if n in result.signals]
+        if len(shown) >= 2:
+            extra = [n for n in details if n in result.signals]
+            figures.append((label, plot_witnesses(result, shown, extra, title=label)))
 
     flags = [n for n in names if n not in used and _is_lane(n, sig[n])]
     if flags:
