@@ -14,6 +14,7 @@ from __future__ import annotations
 import traceback
 from typing import Any
 
+from gd_fmu_base import GuardedSlave
 from gd_pitch_controller_design import (
     PitchController as PitchLaw,
 )
@@ -21,13 +22,15 @@ from gd_pitch_controller_design import (
     design_pitch_controller,
     square_wave,
 )
-from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real
+from pythonfmu import Fmi2Causality, Fmi2Variability, Integer, Real
 from pythonfmu.default_experiment import DefaultExperiment
 from pythonfmu.enums import Fmi2Status
 
 COMMAND_INPUT = 0
 COMMAND_SQUARE_WAVE = 1
 
+#: Lower bound declared for parameters that must be > 0 (FMI bounds are inclusive).
+POSITIVE = 1e-9
 VARIABLE_META: dict[str, dict] = {
     "alpha_meas": {"unit": "rad"},
     "q_meas": {"unit": "rad/s"},
@@ -38,13 +41,14 @@ VARIABLE_META: dict[str, dict] = {
     "theta_cmd": {"unit": "rad"},
     "command_source": {"min": COMMAND_INPUT, "max": COMMAND_SQUARE_WAVE},
     "cmd_amplitude": {"unit": "rad"},
-    "cmd_period": {"unit": "s", "min": 0.0},
+    "cmd_period": {"unit": "s", "min": POSITIVE},
     "throttle_trim": {"unit": "1"},
-    "q_alpha": {"min": 0.0},
-    "q_q": {"min": 0.0},
-    "q_theta": {"min": 0.0},
-    "q_int": {"min": 0.0},
-    "r": {"min": 0.0},
+    # LQR weights are relative: declared dimensionless
+    "q_alpha": {"unit": "1", "min": 0.0},
+    "q_q": {"unit": "1", "min": 0.0},
+    "q_theta": {"unit": "1", "min": POSITIVE},
+    "q_int": {"unit": "1", "min": POSITIVE},
+    "r": {"unit": "1", "min": POSITIVE},
     "k_alpha": {"unit": "1"},
     "k_q": {"unit": "s"},
     "k_theta": {"unit": "1"},
@@ -54,7 +58,7 @@ OUTPUT_DEPENDENCIES: dict[str, list[str]] = {}
 REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10"]
 
 
-class PitchController(Fmi2Slave):
+class PitchController(GuardedSlave):
     author = "gyrodiag"
     description = (
         "LQR pitch-attitude controller (integral action, exact trim feed-forward) for the "
@@ -90,7 +94,7 @@ class PitchController(Fmi2Slave):
         for name, doc in [("elevator", "elevator deflection command"),
                           ("throttle", "throttle command (= throttle_trim)"),
                           ("theta_cmd", "pitch command used for the published elevator")]:
-            self.register_variable(Real(name, causality=P.output, variability=V.continuous,
+            self.register_variable(Real(name, causality=P.output, variability=V.discrete,
                                         description=doc))
         self.register_variable(Integer(
             "command_source", causality=P.parameter, variability=V.tunable,
@@ -131,6 +135,8 @@ class PitchController(Fmi2Slave):
         self._t0 = float(start_time)
 
     def exit_initialization_mode(self) -> None:
+        if not self.parameters_in_range(VARIABLE_META):
+            return
         try:
             self.law = PitchLaw(design_pitch_controller(
                 self.q_alpha, self.q_q, self.q_theta, self.q_int, self.r))
@@ -143,6 +149,8 @@ class PitchController(Fmi2Slave):
             self._fail("exit_initialization_mode")
 
     def do_step(self, current_time: float, step_size: float) -> bool:
+        if not self.check_step(step_size):
+            return True
         try:
             cmd = self._command(current_time)
             self.elevator = self.law.update(step_size, self.alpha_meas, self.q_meas,
@@ -160,15 +168,15 @@ class PitchController(Fmi2Slave):
         self.log(f"PitchController.{where} failed:\n{traceback.format_exc()}",
                  status=Fmi2Status.error)
 
-    def _get_fmu_state(self) -> dict[str, Any]:
-        state = super()._get_fmu_state()
+    def _state_payload(self) -> dict[str, Any]:
+        state = super()._state_payload()
         state["__law__"] = self.law.get_state()
         return state
 
-    def _set_fmu_state(self, state: dict[str, Any]) -> None:
+    def _apply_state_payload(self, state: dict[str, Any]) -> None:
         state = dict(state)
         law_state = state.pop("__law__")
-        super()._set_fmu_state(state)
+        super()._apply_state_payload(state)
         # gains are calculated parameters of fixed weights: rebuild, then restore ξ
         self.law = PitchLaw(design_pitch_controller(
             self.q_alpha, self.q_q, self.q_theta, self.q_int, self.r))
