@@ -146,6 +146,9 @@ class Diagnoser(FacadeBase):
         "grey-prediction detection, Beard-Jones detection filter with isolation"
     )
     default_experiment = DefaultExperiment(start_time=0.0, stop_time=10.0, step_size=1e-3)
+    # building the channels costs up to a second, and the initial outputs (learning,
+    # calibrating flags) depend on no input: computed once, at the end of initialisation
+    provisional_outputs = False
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)

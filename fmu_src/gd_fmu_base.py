@@ -22,6 +22,7 @@ of one process should come from one build.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import traceback
@@ -104,12 +105,96 @@ def samples_in_step(step_size: float, sample_period: float) -> int | None:
 
 
 class GuardedSlave(Fmi2Slave):
-    """Fmi2Slave base of every gyrodiag FMU: errors as fmi2Error, guarded FMU states.
+    """Fmi2Slave base of every gyrodiag FMU: errors as fmi2Error, guarded FMU states,
+    outputs that are right in initialisation mode.
 
     Subclasses keep their algorithm state in :meth:`_state_payload` /
     :meth:`_apply_state_payload` (default: every registered variable through its getter
     and setter) and never override ``_get_fmu_state`` / ``_set_fmu_state``.
+
+    Initialisation mode: FMI masters may read outputs before fmi2ExitInitializationMode
+    (they are initial unknowns) and propagate them through the connections, as libcosim
+    does. pythonfmu facades compute their initial outputs in
+    ``exit_initialization_mode``, so an output read earlier would be a stale start value.
+    Here, reading an output in initialisation mode after a parameter or input changed runs
+    the subclass's ``exit_initialization_mode`` provisionally (its messages held back;
+    the real call at the end of initialisation reports), so that every master sees the
+    same initial outputs. Facades whose initialisation is costly and whose initial
+    outputs depend on no input set :attr:`provisional_outputs` to False.
     """
+
+    #: Compute outputs read in initialisation mode (see the class docstring).
+    provisional_outputs: bool = True
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        own_exit = cls.__dict__.get("exit_initialization_mode")
+        if own_exit is None or getattr(own_exit, "_gd_marks_end", False):
+            return
+
+        @functools.wraps(own_exit)
+        def exit_initialization_mode(self: GuardedSlave, *args: Any, **kw: Any) -> Any:
+            self._in_initialisation = False
+            return own_exit(self, *args, **kw)
+
+        exit_initialization_mode._gd_marks_end = True  # type: ignore[attr-defined]
+        cls.exit_initialization_mode = exit_initialization_mode  # type: ignore[method-assign]
+
+    def enter_initialization_mode(self) -> None:
+        self._in_initialisation = True
+        self._outputs_stale = True
+
+    def _refresh_initial_outputs(self, vrs: list[int]) -> None:
+        if not (getattr(self, "_in_initialisation", False) and self._outputs_stale
+                and self.provisional_outputs):
+            return
+        if not any(self.vars[vr].causality == Fmi2Causality.output for vr in vrs):
+            return
+        self._outputs_stale = False
+        provisional = getattr(type(self).exit_initialization_mode, "__wrapped__", None)
+        if provisional is None:
+            return
+        refused = getattr(self, "_initialisation_refused", False)
+        self.log = lambda *args, **kwargs: None  # type: ignore[method-assign]
+        try:
+            provisional(self)
+        except Exception:  # reported by the real call at the end of initialisation
+            pass
+        finally:
+            del self.log
+            self._initialisation_refused = refused
+
+    def _mark_inputs_changed(self) -> None:
+        if getattr(self, "_in_initialisation", False):
+            self._outputs_stale = True
+
+    def get_real(self, vrs: list[int]) -> list[float]:
+        self._refresh_initial_outputs(vrs)
+        return super().get_real(vrs)
+
+    def get_integer(self, vrs: list[int]) -> list[int]:
+        self._refresh_initial_outputs(vrs)
+        return super().get_integer(vrs)
+
+    def get_boolean(self, vrs: list[int]) -> list[bool]:
+        self._refresh_initial_outputs(vrs)
+        return super().get_boolean(vrs)
+
+    def set_real(self, vrs: list[int], values: list[float]) -> None:
+        super().set_real(vrs, values)
+        self._mark_inputs_changed()
+
+    def set_integer(self, vrs: list[int], values: list[int]) -> None:
+        super().set_integer(vrs, values)
+        self._mark_inputs_changed()
+
+    def set_boolean(self, vrs: list[int], values: list[bool]) -> None:
+        super().set_boolean(vrs, values)
+        self._mark_inputs_changed()
+
+    def set_string(self, vrs: list[int], values: list[str]) -> None:
+        super().set_string(vrs, values)
+        self._mark_inputs_changed()
 
     # -- error reporting ------------------------------------------------------
     def report_error(self, message: str) -> None:
