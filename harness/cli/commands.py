@@ -13,6 +13,7 @@
     python -m harness isolability [--out FILE] [--format text|json|html]
     python -m harness learn-signatures SCENARIO... --out FILE.json [--runs-out DIR]
                                        [--window-s S] [--saved] [--fmu-dir DIR]
+    python -m harness export-ssp SCENARIO --out FILE.ssp [--fmu-dir DIR] [--results DIR]
 
 A SCENARIO argument is a ``.toml`` file or a folder (all its ``*.toml``, sorted).
 ``run`` writes ``<out>/<name>/signals.csv`` and ``run.json`` per scenario and prints one
@@ -23,7 +24,8 @@ without running anything.  ``isolability`` prints which sensor faults of the see
 are detectable and isolable (:mod:`harness.verification.isolability`, analysis only).
 ``learn-signatures`` runs DTG training scenarios and writes the fault-signature library
 that verification scenarios load through a ``files`` parameter
-(:mod:`harness.campaigns.signatures`).
+(:mod:`harness.campaigns.signatures`). ``export-ssp`` writes a scenario as an SSP package
+for other SSP tools (:mod:`harness.cosim.ssp`).
 
 Exit status: 0 all good; 1 a run stopped on an FMU error or an expectation failed;
 2 invalid scenario files or command line.
@@ -41,7 +43,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from harness.cli import campaign, learn_signatures, pipeline
+from harness.cli import campaign, learn_signatures, pipeline, ssp
 from harness.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, verify_and_report
 from harness.cosim.batch import load_all, run_all
 from harness.cosim.results import RunResult
@@ -123,6 +125,7 @@ def _parser() -> argparse.ArgumentParser:
     learn_signatures.add_parser(sub)
     pipeline.add_parser(sub)
     campaign.add_parser(sub)
+    ssp.add_parser(sub)
     return parser
 
 
