@@ -31,6 +31,7 @@ N_RUN = 300
 COMPANIONS: dict[tuple[str, str], dict[str, Any]] = {
     ("Diagnoser", "grey.window"): {"grey.model": 0},  # 0 = whole record, classic only
     ("Diagnoser", "df.persistence_n"): {"df.persistence_k": 1},
+    ("PitchController", "command_source"): {"cmd_duration_s": 1.0},  # 4 = sweep needs it
 }
 
 

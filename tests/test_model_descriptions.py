@@ -52,12 +52,13 @@ UNBOUNDED: dict[str, list[tuple[str, str]]] = {
     ],
     "HRG": [(r"(scale_factor|bias|rate_const)", "model values, any sign"),
             (r"bandwidth_hz", "<= 0 means no filter")],
-    "PitchController": [(r"(cmd_amplitude|throttle_trim)", "command values, any sign")],
+    "PitchController": [(r"(cmd_amplitude|throttle_trim)", "command values, any sign"),
+                        (r"cmd_start_s", "manoeuvre start time, any")],
     "DTG": [(r"k_offset", "detuning, any sign")],
 }
 #: Outputs that are continuous-time signals of a plant (all others are sampled).
 CONTINUOUS_OUTPUTS: dict[str, set[str]] = {
-    "Aircraft": {"x_v", "x_alpha", "x_q", "x_theta", "x_h"},
+    "Aircraft": {"x_v", "x_alpha", "x_q", "x_theta", "x_h", "gust_alpha", "gust_q"},
     "HRG": {"rate_true"},
 }
 #: Bounds that other parameters move: the declared bound is the widest the FMU accepts,
