@@ -32,6 +32,7 @@ COMPANIONS: dict[tuple[str, str], dict[str, Any]] = {
     ("Diagnoser", "grey.window"): {"grey.model": 0},  # 0 = whole record, classic only
     ("Diagnoser", "df.persistence_n"): {"df.persistence_k": 1},
     ("PitchController", "command_source"): {"cmd_duration_s": 1.0},  # 4 = sweep needs it
+    ("PitchController", "cmd_period"): {"command_source": 3},  # 0 = a doublet flown once
 }
 
 

@@ -42,7 +42,7 @@ VARIABLE_META: dict[str, dict] = {
     "theta_cmd": {"unit": "rad"},
     "command_source": {"min": COMMAND_INPUT, "max": COMMAND_SINE_SWEEP},
     "cmd_amplitude": {"unit": "rad"},
-    "cmd_period": {"unit": "s", "min": POSITIVE},
+    "cmd_period": {"unit": "s", "min": 0.0},  # 0: a doublet flown once
     "cmd_start_s": {"unit": "s"},
     "cmd_duration_s": {"unit": "s", "min": 0.0},
     "cmd_pulse_s": {"unit": "s", "min": 0.0},
