@@ -300,7 +300,7 @@ def test_run_result_round_trip_and_missing_signal(tmp_path):
                                  FaultWindow("g", "dtg.spin", "physical", 0.1, 0.2)],
                   step_s=0.1, error="instance a: doStep at t=0.2 returned ERROR: boom\nline 2",
                   wall_time_s=1.5, stop_time_s=0.3)
-    r.save(tmp_path / "run")
+    r.save(tmp_path / "run", precision="float64")
     back = RunResult.load(tmp_path / "run")
     assert back.scenario == "demo" and back.error == r.error and back.step_s == 0.1
     assert back.stop_time_s == 0.3 and back.wall_time_s == 1.5

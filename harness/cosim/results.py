@@ -2,22 +2,46 @@
 
 A run directory holds two files:
 
-* ``signals.npz`` — a numpy compressed archive, one entry per column (``time`` first,
-  then one per signal named ``instance.variable``).  Each column is float64, stored as
-  its 8 byte planes (a ``uint8`` array of shape (8, N): byte 0 of every sample, then
-  byte 1, ...) before deflate: the sign, exponent and leading mantissa bytes of a
-  signal change slowly and compress well once they are not interleaved with the noisy
-  low bytes (16.3 MB instead of 19.8 MB of plain float64 columns for the main job's
-  runs; the same numbers as text took 72 MB).  Lossless: every bit of every sample,
-  NaN and infinities included.  Read it with :meth:`RunResult.load`, or with numpy
-  alone: ``np.load(f)[name].T.copy().view("<f8").ravel()``; ``python -m harness
+* ``signals.npz`` — a numpy compressed archive (deflate), one entry per column
+  (``time`` first, then one per signal named ``instance.variable``), each stored as
+  compactly as its values allow (``run.json`` says how, under ``signal_storage``):
+
+  ========== ==================================================== ======================
+  storage    entry                                                 exact?
+  ========== ==================================================== ======================
+  float64    uint8 (8, N): the 8 byte planes of the float64        every bit
+             samples (byte 0 of every sample, then byte 1, ...)
+  float32    uint8 (4, N): the 4 byte planes of float32 samples    exact unless the
+                                                                   signal is listed in
+                                                                   ``rounded_signals``
+  int8...64  the samples as integers, shape (N,)                   exact
+  constant   float64 (1,): the one value every sample has          exact
+  ========== ==================================================== ======================
+
+  ``time`` is always float64.  A signal whose values are all integers (Booleans,
+  Integers, codes), one constant value, or float32 numbers is stored exactly in the
+  smallest of these.  Any other Real signal is rounded to float32 (round to nearest:
+  ``|stored − value| ≤ 2⁻²⁴·|value|`` ≈ 6e-8 relative, NaN and ±inf kept) when the
+  scenario's ``[record] precision`` is ``"float32"`` (the default) and its magnitudes
+  fit float32's normal range (1.2e-38 … 3.4e38), else it stays float64.  ``run.json``
+  lists the rounded signals (``rounded_signals``) and the bound
+  (``rounded_max_relative_error``).  The main job's runs take 6.0 MB this way instead
+  of 16.4 MB as float64 byte planes (format 2) and 72 MB as text (docs/notes.md).
+
+  Verdicts do not depend on this: a command that runs scenarios judges the run it
+  holds in memory at full precision (:func:`harness.cosim.batch.run_all` hands each
+  run's full-precision signals from its worker process over); only ``report`` on saved
+  runs, ``learn-signatures --saved`` and reloads read the stored values.  Read a run
+  with :meth:`RunResult.load`, or with numpy alone: ``planes = np.load(f)[name]``, then
+  ``planes.T.copy().view("<f8" or "<f4").ravel()`` for byte planes; ``python -m harness
   export-csv`` writes ``signals.csv`` (:meth:`RunResult.export_csv`).
 * ``run.json`` — everything else: scenario name, base step, planned duration, wall time,
   error text (``null`` when the run completed), whether a stop request interrupted it,
-  fault windows (an open end is written as ``null`` because JSON has no infinity) and
-  the signal names in column order.
+  fault windows (an open end is written as ``null`` because JSON has no infinity), the
+  signal names in column order and how each is stored.
 
-Runs saved by earlier versions (``signals.csv``, format 1) still load.
+Runs saved by earlier versions still load: format 2 (every column as float64 byte
+planes, lossless) and format 1 (``signals.csv``).
 
 Sample convention (contract): row ``k`` holds time ``t_k`` and the values read from every
 FMU after the master stepped all FMUs to ``t_k``; row 0 is the state after initialisation.
@@ -32,6 +56,7 @@ import math
 import os
 import tempfile
 import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -41,9 +66,23 @@ import numpy as np
 SIGNALS_FILE = "signals.npz"
 CSV_FILE = "signals.csv"
 META_FILE = "run.json"
-_FORMAT_VERSION = 2
+_FORMAT_VERSION = 3
 _TIME_KEY = "time"
-_ENCODING = "float64-byte-planes"
+_ENCODING = "per-signal"                 # format 3: storage chosen per column
+_V2_ENCODING = "float64-byte-planes"     # format 2: every column float64
+
+#: How Real signals that are not exactly representable otherwise may be stored:
+#: ``"float32"`` (rounded, relative error <= :data:`FLOAT32_MAX_RELATIVE_ERROR`) or
+#: ``"float64"`` (every bit).
+PRECISIONS = ("float32", "float64")
+DEFAULT_PRECISION = "float32"
+#: Bound of ``|stored - value| / |value|`` for a signal rounded to float32: half a unit
+#: in the last place of float32's 24-bit significand.
+FLOAT32_MAX_RELATIVE_ERROR = 2.0 ** -24
+
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+_FLOAT32_TINY = float(np.finfo(np.float32).tiny)  # smallest normal: below it the bound fails
+_INTEGER_TYPES = ("int8", "int16", "int32", "int64")
 
 
 @dataclass
@@ -114,6 +153,10 @@ class RunResult:
     interrupted : bool
         True if a stop request (Ctrl-C, SIGTERM) ended the run early; ``error`` then
         says by what and where.
+    rounded_signals : frozenset of str
+        Signals whose samples were rounded to float32 when the run was saved (a loaded
+        run): each sample is within :data:`FLOAT32_MAX_RELATIVE_ERROR` (relative) of the
+        value the FMU gave.  Empty for a run held in memory since it ran.
     """
 
     scenario: str
@@ -126,6 +169,7 @@ class RunResult:
     stop_time_s: float = 0.0
     manoeuvre_windows: list[FaultWindow] = field(default_factory=list)
     interrupted: bool = False
+    rounded_signals: frozenset[str] = frozenset()
 
     @property
     def completed(self) -> bool:
@@ -172,17 +216,36 @@ class RunResult:
                 raise ValueError(f"signal {name!r} has shape {col.shape}, time has ({n_rows},)")
         return names, columns
 
-    def save(self, directory: Path | str) -> None:
+    def save(self, directory: Path | str, precision: str = DEFAULT_PRECISION) -> None:
         """Write ``signals.npz`` and ``run.json`` into ``directory`` (created if needed).
+
+        Parameters
+        ----------
+        directory : path
+            The run's folder.
+        precision : {"float32", "float64"}
+            How to store a Real signal that no exact compact storage fits (see the
+            module's doc): rounded to float32 (relative error <= 2**-24), or float64
+            with every bit.  ``time``, integer-valued, constant and float32-exact
+            signals are stored exactly either way.
 
         Each file is written under a temporary name and renamed, so that an interrupted
         save never leaves a truncated file under the real name.
         """
+        if precision not in PRECISIONS:
+            raise ValueError(f"precision must be one of {', '.join(map(repr, PRECISIONS))}, "
+                             f"got {precision!r}")
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
         names, columns = self._columns()
-        arrays = {_TIME_KEY: _byte_planes(columns[0])}
-        arrays.update({n: _byte_planes(c) for n, c in zip(names, columns[1:], strict=True)})
+        arrays = {_TIME_KEY: _byte_planes(columns[0], "<f8")}
+        storage = {_TIME_KEY: "float64"}
+        rounded = set(self.rounded_signals) & set(names)
+        for name, column in zip(names, columns[1:], strict=True):
+            kind, array, exact = _encode(column, precision)
+            arrays[name], storage[name] = array, kind
+            if not exact:
+                rounded.add(name)
         _atomic_write(directory / SIGNALS_FILE, lambda fh: np.savez_compressed(fh, **arrays))
         stale_csv = directory / CSV_FILE
         if stale_csv.exists():  # an export of an earlier run would no longer match
@@ -197,7 +260,11 @@ class RunResult:
             "interrupted": self.interrupted,
             "n_samples": len(columns[0]),
             "signals_encoding": _ENCODING,
+            "signals_precision": precision,
+            "rounded_signals": [n for n in names if n in rounded],
+            "rounded_max_relative_error": FLOAT32_MAX_RELATIVE_ERROR,
             "signals": names,
+            "signal_storage": storage,
             "fault_windows": [w.to_json() for w in self.fault_windows],
             "manoeuvre_windows": [w.to_json() for w in self.manoeuvre_windows],
         }
@@ -206,19 +273,25 @@ class RunResult:
 
     def export_csv(self, path: Path | str) -> Path:
         """Write the signals as CSV: header ``time,<instance.variable>,...``, one row per
-        recorded point, floats with 17 significant digits (``repr`` round-trips
-        exactly), ``nan`` / ``inf`` / ``-inf`` for non-finite values."""
+        recorded point, ``nan`` / ``inf`` / ``-inf`` for non-finite values.
+
+        Numbers are the shortest decimals that read back as the stored value: up to 17
+        significant digits (float64) in general, up to 9 for the signals in
+        :attr:`rounded_signals` (the float32 they hold: parse as float32, or as float64
+        and round to float32, to get the stored value back; digits beyond would only
+        show the rounding)."""
         path = Path(path)
         names, columns = self._columns()
         path.parent.mkdir(parents=True, exist_ok=True)
+        texts = [_texts(columns[0], False)]
+        texts += [_texts(c, n in self.rounded_signals)
+                  for n, c in zip(names, columns[1:], strict=True)]
 
         def write(fh: Any) -> None:
             with open(fh.fileno(), "w", newline="", encoding="utf-8", closefd=False) as text:
                 writer = csv.writer(text, lineterminator="\n")
                 writer.writerow([_TIME_KEY, *names])
-                if len(columns[0]):
-                    table = np.column_stack(columns)
-                    writer.writerows([[_fmt(v) for v in row] for row in table.tolist()])
+                writer.writerows(zip(*texts, strict=True))
 
         _atomic_write(path, write)
         return path
@@ -231,12 +304,25 @@ class RunResult:
         if not meta_path.is_file():
             raise FileNotFoundError(f"{meta_path}: no such file (not a saved run directory?)")
         meta = json.loads(meta_path.read_text(encoding="utf-8"))
-        if int(meta.get("format_version", 1)) >= 2:
-            encoding = meta.get("signals_encoding", _ENCODING)
-            if encoding != _ENCODING:
+        version = int(meta.get("format_version", 1))
+        if version > _FORMAT_VERSION:
+            raise ValueError(f"{meta_path}: format_version {version} is newer than this "
+                             f"harness reads ({_FORMAT_VERSION}); update gyrodiag")
+        rounded: list[str] = []
+        if version >= 2:
+            encoding = meta.get("signals_encoding", _V2_ENCODING)
+            names = list(meta.get("signals", []))
+            if encoding == _ENCODING:
+                storage = meta.get("signal_storage")
+                if not isinstance(storage, dict):
+                    raise ValueError(f"{meta_path}: no signal_storage table (format 3)")
+                rounded = [str(n) for n in meta.get("rounded_signals", [])]
+            elif encoding == _V2_ENCODING:
+                storage = dict.fromkeys([_TIME_KEY, *names], "float64")
+            else:
                 raise ValueError(f"{meta_path}: unknown signals_encoding {encoding!r} "
-                                 f"(this version reads {_ENCODING!r})")
-            time, signals = _load_npz(directory / SIGNALS_FILE, list(meta.get("signals", [])))
+                                 f"(this version reads {_ENCODING!r} and {_V2_ENCODING!r})")
+            time, signals = _load_npz(directory / SIGNALS_FILE, names, storage)
         else:
             time, signals = _load_csv(directory / CSV_FILE)
         return cls(
@@ -251,19 +337,66 @@ class RunResult:
             wall_time_s=float(meta.get("wall_time_s", 0.0)),
             stop_time_s=float(meta.get("stop_time_s", 0.0)),
             interrupted=bool(meta.get("interrupted", False)),
+            rounded_signals=frozenset(n for n in rounded if n in signals),
         )
 
 
-def _byte_planes(column: np.ndarray) -> np.ndarray:
-    little = np.ascontiguousarray(column, dtype="<f8")
-    return np.ascontiguousarray(little.view(np.uint8).reshape(-1, 8).T)
+def _byte_planes(column: np.ndarray, dtype: str) -> np.ndarray:
+    little = np.ascontiguousarray(column, dtype=dtype)
+    return np.ascontiguousarray(little.view(np.uint8).reshape(-1, little.itemsize).T)
 
 
-def _from_byte_planes(planes: np.ndarray, path: Path, name: str) -> np.ndarray:
-    if planes.dtype != np.uint8 or planes.ndim != 2 or planes.shape[0] != 8:
-        raise ValueError(f"{path}: entry {name!r} is not a column of 8 byte planes "
-                         f"(dtype {planes.dtype}, shape {planes.shape})")
-    return np.ascontiguousarray(planes.T).view("<f8").ravel().astype(float, copy=False)
+def _same_values(a: np.ndarray, b: np.ndarray) -> bool:
+    # equal numbers, NaN where NaN, and the sign of zeros (NaN payloads do not count)
+    return bool(np.array_equal(a, b, equal_nan=True)
+                and np.array_equal(np.signbit(a), np.signbit(b)))
+
+
+def _encode(column: np.ndarray, precision: str) -> tuple[str, np.ndarray, bool]:
+    """Storage kind, npz entry and whether it is exact, for one float64 column."""
+    n = len(column)
+    if n and _same_values(column, np.full(n, column[0])):
+        return "constant", column[:1].copy(), True
+    if n and np.isfinite(column).all() and not np.signbit(column[column == 0]).any() \
+            and np.array_equal(column, np.trunc(column)):
+        lo, hi = column.min(), column.max()
+        for kind in _INTEGER_TYPES:
+            half = 2.0 ** (np.iinfo(kind).bits - 1)  # exact as a float, unlike iinfo.max
+            if -half <= lo and hi < half:
+                return kind, column.astype(kind), True
+    finite = np.abs(column[np.isfinite(column)])
+    if not (finite.size and (finite.max() > _FLOAT32_MAX
+                             or finite[finite > 0].min(initial=1.0) < _FLOAT32_TINY)):
+        as32 = column.astype("<f4")
+        exact = _same_values(as32.astype(float), column)
+        if exact or precision == "float32":
+            return "float32", _byte_planes(as32, "<f4"), exact
+    return "float64", _byte_planes(column, "<f8"), True
+
+
+def _decode(entry: np.ndarray, kind: str, n_rows: int | None, path: Path,
+            name: str) -> np.ndarray:
+    def bad(expected: str) -> ValueError:
+        return ValueError(f"{path}: entry {name!r} stored as {kind} should be {expected} "
+                          f"(found dtype {entry.dtype}, shape {entry.shape})")
+
+    if kind in ("float64", "float32"):
+        width = 8 if kind == "float64" else 4
+        if entry.dtype != np.uint8 or entry.ndim != 2 or entry.shape[0] != width:
+            raise bad(f"uint8 byte planes of shape ({width}, N)")
+        values = np.ascontiguousarray(entry.T).view(f"<f{width}").ravel()
+        return values.astype(float)
+    if kind in _INTEGER_TYPES:
+        if entry.dtype != np.dtype(kind) or entry.ndim != 1:
+            raise bad(f"a 1-d {kind} array")
+        return entry.astype(float)
+    if kind == "constant":
+        if entry.dtype != np.float64 or entry.shape != (1,) or n_rows is None:
+            raise bad("a float64 array of shape (1,)")
+        return np.full(n_rows, entry[0])
+    raise ValueError(f"{path}: signal {name!r} has an unknown storage {kind!r} (this "
+                     f"version reads float64, float32, {', '.join(_INTEGER_TYPES)}, "
+                     f"constant)")
 
 
 def _atomic_write(path: Path, write: Any) -> None:
@@ -277,11 +410,20 @@ def _atomic_write(path: Path, write: Any) -> None:
         raise
 
 
-def _load_npz(path: Path, names: list[str]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+def _load_npz(path: Path, names: list[str], storage: dict[str, Any]
+              ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file (not a saved run directory?)")
     try:
-        with np.load(path, allow_pickle=False) as data:
+        data = np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+        raise ValueError(f"{path}: unreadable signals file, not a numpy .npz archive "
+                         f"({exc})") from None
+    if not isinstance(data, np.lib.npyio.NpzFile):
+        raise ValueError(f"{path}: unreadable signals file, a single array instead of a "
+                         f"numpy .npz archive")
+    try:
+        with data:
             keys = list(data.files)
             if _TIME_KEY not in keys:
                 raise ValueError(f"{path}: no 'time' array (not a signals file of a run?)")
@@ -290,9 +432,14 @@ def _load_npz(path: Path, names: list[str]) -> tuple[np.ndarray, dict[str, np.nd
                 raise ValueError(f"{path}: signals listed in run.json are missing: "
                                  f"{', '.join(missing[:5])}")
             order = names or [k for k in keys if k != _TIME_KEY]
-            time = _from_byte_planes(data[_TIME_KEY], path, _TIME_KEY)
-            signals = {n: _from_byte_planes(data[n], path, n) for n in order}
-    except (zipfile.BadZipFile, OSError, EOFError) as exc:
+            unlisted = [n for n in [_TIME_KEY, *order] if n not in storage]
+            if unlisted:
+                raise ValueError(f"{path}: run.json does not say how these are stored: "
+                                 f"{', '.join(unlisted[:5])}")
+            time = _decode(data[_TIME_KEY], str(storage[_TIME_KEY]), None, path, _TIME_KEY)
+            signals = {n: _decode(data[n], str(storage[n]), len(time), path, n)
+                       for n in order}
+    except (zipfile.BadZipFile, zlib.error, OSError, EOFError) as exc:
         raise ValueError(f"{path}: unreadable signals file ({exc})") from None
     for n, col in signals.items():
         if col.shape != time.shape:
@@ -320,9 +467,12 @@ def _load_csv(csv_path: Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     return table[:, 0].copy(), signals
 
 
-def _fmt(value: float) -> str:
-    # repr of a Python float is the shortest string that round-trips exactly
-    return repr(float(value))
+def _texts(column: np.ndarray, as_float32: bool) -> list[str]:
+    # repr of a Python float / str of a numpy float32 is the shortest string that reads
+    # back as the same float64 / float32
+    if as_float32:
+        return [str(v) for v in column.astype(np.float32)]
+    return [repr(v) for v in column.tolist()]
 
 
 def _missing_signal_message(name: str, known: list[str]) -> str:
