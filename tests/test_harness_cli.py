@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -38,10 +39,22 @@ def test_run_writes_signals_and_meta_per_scenario(tmp_path, fmu_dir):
     assert r.error is None and r.stop_time_s == 2.0 and r.step_s == 0.01
     np.testing.assert_allclose(r.time[[0, -1]], [0.0, 2.0])
     assert [w.name for w in r.fault_windows] == ["q_bias"]
-    # the q bias reaches the injector output from t = 1.01 s on
-    diff = r.signal("injector.out_3") - r.signal("aircraft.y_q")
+    # saved by default with the Real signals rounded to float32, the rest exact
+    meta = json.loads((out / "closed_loop" / "run.json").read_text())
+    assert meta["signals_precision"] == "float32"
+    assert r.rounded_signals == {"aircraft.y_q", "aircraft.x_theta", "injector.out_3",
+                                 "controller.elevator"}
+    assert meta["signal_storage"]["injector.fault_active_3"] == "int8"
+    np.testing.assert_array_equal(r.signal("injector.fault_active_3"), r.time > 1.005)
+    # the q bias reaches the injector output from t = 1.01 s on; before, both are the
+    # same float64 and so the same float32; after, each is within 2**-24 of its value
+    out3, y_q = r.signal("injector.out_3"), r.signal("aircraft.y_q")
+    diff = out3 - y_q
     assert np.all(diff[r.time < 1.005] == 0.0)
-    np.testing.assert_allclose(diff[r.time > 1.005], 0.1, atol=1e-12)
+    after = r.time > 1.005
+    bound = 2.0**-24 * (np.abs(out3) + np.abs(y_q))[after] + 1e-15
+    assert np.all(np.abs(diff[after] - 0.1) <= bound)
+    assert np.abs(diff[after] - 0.1).max() > 1e-12  # rounded indeed, not float64
 
 
 def test_list_shows_name_duration_fmus_and_expectations():
@@ -147,13 +160,37 @@ def test_export_csv_writes_the_saved_signals_exactly(tmp_path, fmu_dir):
     csv_file = out / "closed_loop" / "signals.csv"
     assert exported.stdout.strip() == str(csv_file)
     saved = RunResult.load(out / "closed_loop")
-    header = csv_file.read_text().splitlines()[0].split(",")
+    lines = csv_file.read_text().splitlines()
+    header = lines[0].split(",")
     table = np.loadtxt(csv_file, delimiter=",", skiprows=1)
     assert header == ["time", *saved.signals]
-    # 17 significant digits: the CSV holds every bit of the binary store
+    # up to 17 significant digits: the CSV holds every bit of the exact signals; the
+    # float32-rounded ones with the shortest digits that give their float32 back
     assert np.array_equal(table[:, 0], saved.time)
+    assert saved.rounded_signals
     for j, name in enumerate(saved.signals, start=1):
-        assert np.array_equal(table[:, j], saved.signals[name]), name
+        if name in saved.rounded_signals:
+            assert np.array_equal(table[:, j].astype(np.float32),
+                                  saved.signals[name].astype(np.float32)), name
+            digits = [len(row.split(",")[j].lstrip("-").split("e")[0].replace(".", "")
+                          .lstrip("0")) for row in lines[1:]]
+            assert max(digits) <= 9, name
+        else:
+            assert np.array_equal(table[:, j], saved.signals[name]), name
+    # --exact-signals: every bit in the store and in the CSV
+    exact = harness("run", str(DATA / "closed_loop.toml"), "--out", str(tmp_path / "x"),
+                    "--fmu-dir", str(fmu_dir), "--no-progress", "-q", "--exact-signals")
+    assert exact.returncode == 0, exact.stderr
+    full = RunResult.load(tmp_path / "x" / "closed_loop")
+    assert not full.rounded_signals
+    assert harness("export-csv", str(tmp_path / "x")).returncode == 0
+    table = np.loadtxt(tmp_path / "x" / "closed_loop" / "signals.csv", delimiter=",",
+                       skiprows=1)
+    for j, name in enumerate(full.signals, start=1):
+        assert np.array_equal(table[:, j], full.signals[name]), name
+        rel = np.abs(saved.signals[name] - full.signals[name]) \
+            / np.maximum(np.abs(full.signals[name]), 1e-300)
+        assert rel.max() <= 2.0**-24, name
     single = harness("export-csv", str(out / "closed_loop"), "--out", str(tmp_path / "x.csv"))
     assert single.returncode == 0 and (tmp_path / "x.csv").read_text() == csv_file.read_text()
     bad = harness("export-csv", str(tmp_path / "nothing"))

@@ -3,17 +3,19 @@
 ::
 
     python -m harness run SCENARIO... [--out DIR] [--fmu-dir DIR] [--workers N]
+                                      [--exact-signals]
     python -m harness verify SCENARIO... [--out DIR] [--fmu-dir DIR] [--workers N]
-                                         [--junit PATH] [--html PATH]
+                                         [--exact-signals] [--junit PATH] [--html PATH]
     python -m harness report SCENARIO... [--out DIR] [--junit PATH] [--html PATH]
     python -m harness list [DIR]
     python -m harness all [--out DIR] [--scenarios DIR] [--fmu-dir DIR] [--no-build]
-                          [--workers N]
+                          [--workers N] [--exact-signals]
     python -m harness campaign SPEC.toml [--out DIR] [--workers N] [--dask local|ADDRESS]
                                [--timeout S] [--fraction F] [--report-only]
     python -m harness isolability [--out FILE] [--format text|json|html]
     python -m harness learn-signatures SCENARIO... [--out FILE.json] [--runs-out DIR]
                                        [--window-s S] [--saved] [--fmu-dir DIR]
+                                       [--exact-signals]
     python -m harness export-csv RUN... [--out FILE]
     python -m harness export-ssp SCENARIO --out FILE.ssp [--fmu-dir DIR] [--results DIR]
     python -m harness schema [--markdown] [--campaign]
@@ -25,10 +27,14 @@ Without ``--out``, ``run``, ``verify``, ``all`` and ``learn-signatures`` write i
 new folder ``results/<command>-<YYYYmmdd-HHMMSS>/`` and point ``results/latest`` to it,
 so that no command overwrites another one's results; ``report`` reads and writes
 ``results/latest`` unless told otherwise.  ``run`` writes ``<out>/<name>/signals.npz``
-and ``run.json`` per scenario and logs one line per scenario.  ``verify`` runs the
-scenarios, evaluates their ``[[expect]]`` tables and writes a JUnit XML and an HTML
-report (default ``<out>/junit.xml``, ``<out>/report.html``).  ``report`` does the same
-from runs saved earlier in ``<out>`` without running anything.  ``isolability`` prints
+and ``run.json`` per scenario and logs one line per scenario; Real signals are saved
+rounded to float32 (relative error <= 2**-24) unless the scenario's
+``record.precision`` or ``--exact-signals`` asks for float64 (every bit); time, integer,
+Boolean and constant signals are always exact (:mod:`harness.cosim.results`).
+``verify`` runs the scenarios, evaluates their ``[[expect]]`` tables on the runs at full
+precision and writes a JUnit XML and an HTML report (default ``<out>/junit.xml``,
+``<out>/report.html``).  ``report`` does the same from runs saved earlier in ``<out>``
+(the saved values) without running anything.  ``isolability`` prints
 which sensor faults of the seed aircraft are detectable and isolable
 (:mod:`harness.verification.isolability`, analysis only).  ``learn-signatures`` runs DTG
 training scenarios and writes the fault-signature library that verification scenarios
@@ -66,11 +72,13 @@ from harness.cli.common import (
     EXIT_INTERRUPTED,
     EXIT_OK,
     EXIT_USAGE,
+    add_exact_signals,
     add_verbosity,
     add_workers,
     configure_logging,
     latest_results_folder,
     new_results_folder,
+    signals_precision,
     verify_and_report,
 )
 from harness.cosim.batch import load_all, preflight_all, run_all
@@ -121,6 +129,7 @@ def _parser() -> argparse.ArgumentParser:
                            help="folder of the .fmu files (default: the scenario's fmu_dir, "
                                 "$GYRODIAG_FMU_DIR or build/fmus)")
             add_workers(p)
+            add_exact_signals(p)
             p.add_argument("--no-progress", action="store_true", help="no progress bar")
         else:
             p.add_argument("--out", type=Path, default=None,
@@ -208,7 +217,7 @@ def run_scenarios(scenarios: Sequence[Scenario], out: Path,
     """Run with the command's options; a stop request returns what was saved."""
     try:
         return run_all(scenarios, out, args.fmu_dir, not args.no_progress,
-                       workers=args.workers), None
+                       workers=args.workers, precision=signals_precision(args)), None
     except BatchInterrupted as stop:
         return stop.results, stop
 

@@ -25,11 +25,13 @@ __all__ = [
     "EXIT_OK",
     "EXIT_USAGE",
     "LATEST_LINK",
+    "add_exact_signals",
     "add_verbosity",
     "add_workers",
     "configure_logging",
     "latest_results_folder",
     "new_results_folder",
+    "signals_precision",
     "verify_and_report",
 ]
 
@@ -77,6 +79,19 @@ def add_workers(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=_positive_int, default=None, metavar="N",
                    help="scenarios run at the same time, each in its own process "
                         "(default: the number of CPUs)")
+
+
+def add_exact_signals(p: argparse.ArgumentParser) -> None:
+    """``--exact-signals`` (save every signal bit-exactly, float64)."""
+    p.add_argument("--exact-signals", action="store_true",
+                   help="save every signal with all its bits (float64) instead of "
+                        "rounding Real signals to float32 (each scenario's "
+                        "record.precision; about 3x the disk space)")
+
+
+def signals_precision(args: argparse.Namespace) -> str | None:
+    """The ``precision`` for :func:`harness.cosim.batch.run_all` that ``args`` ask for."""
+    return "float64" if getattr(args, "exact_signals", False) else None
 
 
 def _positive_int(text: str) -> int:

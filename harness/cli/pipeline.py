@@ -1,8 +1,8 @@
 """The main job: build the FMUs, learn the DTG signatures, verify every seed scenario.
 
 ``python -m harness all [--out DIR] [--scenarios scenarios] [--fmu-dir build/fmus]
-[--no-build] [--workers N] [--no-progress]`` does, in order (``OUT`` is ``--out`` or a new
-``results/all-<time>/``, with ``results/latest`` pointing to it):
+[--no-build] [--workers N] [--exact-signals] [--no-progress]`` does, in order (``OUT``
+is ``--out`` or a new ``results/all-<time>/``, with ``results/latest`` pointing to it):
 
 1. ``build_fmu.py --out FMU_DIR`` in a fresh process (skipped with ``--no-build``);
 2. ``learn-signatures`` on ``SCENARIOS/training`` → ``OUT/dtg_signatures.json`` (the
@@ -32,8 +32,10 @@ from harness.cli.common import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
     EXIT_OK,
+    add_exact_signals,
     add_workers,
     new_results_folder,
+    signals_precision,
     verify_and_report,
 )
 from harness.cosim.batch import load_all, run_all
@@ -59,6 +61,7 @@ def add_parser(sub: Any) -> None:
                    help="where the FMUs are built and taken from")
     p.add_argument("--no-build", action="store_true", help="use the FMUs already built")
     add_workers(p)
+    add_exact_signals(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_all)
 
@@ -95,7 +98,8 @@ def cmd_all(args: argparse.Namespace) -> int:
         log.info("== learning the DTG fault signatures from %s", training_dir)
         try:
             runs = run_all(training, out / "training", args.fmu_dir, progress,
-                           workers=args.workers, results_dir=out)
+                           workers=args.workers, results_dir=out,
+                           precision=signals_precision(args))
         except BatchInterrupted as stop:
             log.warning("stopped by %s while learning the signatures; training runs saved "
                         "in %s", stop.reason, out / "training")
@@ -115,7 +119,8 @@ def cmd_all(args: argparse.Namespace) -> int:
     log.info("== verifying the seed scenarios in %s", args.scenarios)
     stop: BatchInterrupted | None = None
     try:
-        results = run_all(scenarios, out, args.fmu_dir, progress, workers=args.workers)
+        results = run_all(scenarios, out, args.fmu_dir, progress, workers=args.workers,
+                          precision=signals_precision(args))
     except BatchInterrupted as exc:
         stop, results = exc, exc.results
         log.warning("stopped by %s: %d run(s) saved, %d not started", stop.reason,

@@ -8,7 +8,10 @@ one stops the batch before anything runs), then runs each scenario in a fresh pr
 (:mod:`harness.cosim.worker`; DESIGN §6.11: pythonfmu FMUs are not loaded twice into
 one process), ``workers`` at a time, the longest first.  Each run saves its files as it
 ends; results come back in scenario order and are the same whatever the number of
-workers (every run is deterministic and alone in its process).
+workers (every run is deterministic and alone in its process).  They are the runs at
+full precision, as the worker held them (handed over through the batch's temporary
+folder), not the saved files, which may hold Real signals rounded to float32
+(``record.precision``, :meth:`RunResult.save`).
 
 Ctrl-C or SIGTERM: no new run starts, the runs in flight get the signal once, stop
 between two steps and save what they recorded (marked interrupted), and
@@ -35,7 +38,7 @@ import numpy as np
 
 from harness.cosim.interrupt import BatchInterrupted, stop_on_signals, stop_requested
 from harness.cosim.master import fault_windows, preflight
-from harness.cosim.results import META_FILE, RunResult
+from harness.cosim.results import META_FILE, PRECISIONS, RunResult
 from harness.cosim.scenario import Scenario, ScenarioError, load_scenario
 from harness.cosim.worker import Job
 
@@ -115,6 +118,7 @@ class _Running:
     process: subprocess.Popen[bytes]
     job_file: Path
     status_file: Path
+    handover_file: Path
     killed: bool = False
 
 
@@ -125,7 +129,8 @@ def _cost(s: Scenario) -> float:
 
 def run_all(scenarios: Sequence[Scenario], out: Path, fmu_dir: Path | None = None,
             progress: bool = True, *, workers: int | None = 1,
-            results_dir: Path | None = None) -> list[RunResult]:
+            results_dir: Path | None = None, precision: str | None = None
+            ) -> list[RunResult]:
     """Run scenarios, each in a process of its own, saving each into ``out/<name>``.
 
     Parameters
@@ -143,11 +148,14 @@ def run_all(scenarios: Sequence[Scenario], out: Path, fmu_dir: Path | None = Non
         Runs at the same time, >= 1; None: :func:`default_workers`.
     results_dir : Path, optional
         What ``${out}/`` stands for in ``files`` parameters (default ``out``).
+    precision : {"float32", "float64"}, optional
+        How the saved files store Real signals (:meth:`RunResult.save`); default each
+        scenario's ``record.precision``.
 
     Returns
     -------
     list of RunResult
-        In scenario order.
+        In scenario order, at full precision whatever ``precision`` saved.
 
     Raises
     ------
@@ -160,6 +168,9 @@ def run_all(scenarios: Sequence[Scenario], out: Path, fmu_dir: Path | None = Non
         workers = default_workers()
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+    if precision is not None and precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {', '.join(map(repr, PRECISIONS))} or "
+                         f"None, got {precision!r}")
     out = Path(out)
     results_dir = out if results_dir is None else Path(results_dir)
     preflight_all(scenarios, fmu_dir, results_dir)
@@ -193,7 +204,7 @@ def run_all(scenarios: Sequence[Scenario], out: Path, fmu_dir: Path | None = Non
             while pending and len(running) < workers:
                 i = pending.pop(0)
                 running[i] = _start(scenarios[i], i, out, fmu_dir, results_dir, Path(tmp),
-                                    progress and workers == 1)
+                                    progress and workers == 1, precision)
             for i, r in list(running.items()):
                 if r.process.poll() is None:
                     continue
@@ -226,21 +237,23 @@ def preflight_all(scenarios: Sequence[Scenario], fmu_dir: Path | None,
 
 
 def _start(scenario: Scenario, index: int, out: Path, fmu_dir: Path | None,
-           results_dir: Path, tmp: Path, progress: bool) -> _Running:
+           results_dir: Path, tmp: Path, progress: bool, precision: str | None) -> _Running:
     job_file = tmp / f"job-{index}.pickle"
     status_file = tmp / f"status-{index}.json"
+    handover_file = tmp / f"run-{index}.pickle"
     job = Job(scenario=scenario, out_dir=str(out / scenario.name),
               fmu_dir=None if fmu_dir is None else str(fmu_dir),
               results_dir=str(results_dir), status_file=str(status_file), progress=progress,
               log_level=logging.getLogger("harness").getEffectiveLevel(),
-              parent_pid=os.getpid())
+              parent_pid=os.getpid(), precision=precision,
+              handover_file=str(handover_file))
     job_file.write_bytes(pickle.dumps(job))
     log.debug("%s: starting", scenario.name)
     # a session of its own: the terminal's Ctrl-C reaches the batch only, which forwards
     # it exactly once (a second one would be "stop now" inside the run)
     process = subprocess.Popen([sys.executable, "-m", "harness.cosim.worker", str(job_file)],
                                stdin=subprocess.DEVNULL, start_new_session=True)
-    return _Running(index, process, job_file, status_file)
+    return _Running(index, process, job_file, status_file, handover_file)
 
 
 def _signal(process: subprocess.Popen[bytes], signum: int) -> None:
@@ -257,7 +270,7 @@ def _collect(scenario: Scenario, target: Path, run: _Running) -> RunResult:
         data = json.loads(run.status_file.read_text(encoding="utf-8"))
         status, message = str(data.get("status", "")), str(data.get("message", ""))
     if status in ("ok", "failed", "interrupted") and (target / META_FILE).is_file():
-        return RunResult.load(target)
+        return _handed_over(run.handover_file) or RunResult.load(target)
     if status == "crashed":
         error = f"the harness failed in the run process:\n{message}"
     else:
@@ -273,6 +286,22 @@ def _collect(scenario: Scenario, target: Path, run: _Running) -> RunResult:
                        interrupted=run.killed or stop_requested() is not None)
     result.save(target)
     return result
+
+
+def _handed_over(path: Path) -> RunResult | None:
+    # the worker's full-precision run; written by this batch's own child into the
+    # batch's private temporary folder, never by a user
+    if not path.is_file():
+        return None
+    try:
+        with open(path, "rb") as fh:
+            result = pickle.load(fh)
+    except Exception as exc:  # the saved files are still there
+        log.warning("%s: unreadable full-precision run (%s); using the saved files", path,
+                    exc)
+        return None
+    path.unlink(missing_ok=True)
+    return result if isinstance(result, RunResult) else None
 
 
 def _log_result(result: RunResult, target: Path) -> None:

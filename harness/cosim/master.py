@@ -66,7 +66,7 @@ from typing import Any
 import numpy as np
 
 from harness.cosim.interrupt import RunInterrupted, stop_on_signals, stop_requested
-from harness.cosim.results import FaultWindow, RunResult
+from harness.cosim.results import PRECISIONS, FaultWindow, RunResult
 from harness.cosim.scenario import (
     Connection,
     InjectorFault,
@@ -410,7 +410,8 @@ class _Instance:
 # --------------------------------------------------------------------------- the run
 def run_scenario(scenario: Scenario | Path | str, fmu_dir: Path | str | None = None,
                  progress: bool = True, out_dir: Path | str | None = None,
-                 results_dir: Path | str | None = None) -> RunResult:
+                 results_dir: Path | str | None = None,
+                 precision: str | None = None) -> RunResult:
     """Run one scenario and return what was recorded.
 
     Parameters
@@ -423,16 +424,20 @@ def run_scenario(scenario: Scenario | Path | str, fmu_dir: Path | str | None = N
     progress : bool
         Show a tqdm progress bar (only when stderr is a terminal).
     out_dir : path, optional
-        If given, ``signals.csv`` and ``run.json`` are written into this folder (also
+        If given, ``signals.npz`` and ``run.json`` are written into this folder (also
         when the run stops on an FMU error).
     results_dir : path, optional
         Results folder of the command: what ``${out}/`` stands for in the instances'
         ``files`` (:func:`harness.cosim.scenario.resolve_file_parameters`).
+    precision : {"float32", "float64"}, optional
+        How the saved file stores Real signals (:meth:`RunResult.save`); default the
+        scenario's ``record.precision``.  The returned run keeps full precision.
 
     Returns
     -------
     RunResult
-        ``error`` is None for a completed run, else the failing call and the FMU's log.
+        ``error`` is None for a completed run, else the failing call and the FMU's log;
+        the signals at full precision whatever ``precision`` saved.
 
     Raises
     ------
@@ -450,12 +455,17 @@ def run_scenario(scenario: Scenario | Path | str, fmu_dir: Path | str | None = N
     """
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
+    if precision is None:
+        precision = scenario.record.precision
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {', '.join(map(repr, PRECISIONS))} or "
+                         f"None, got {precision!r}")
     files = resolve_file_parameters(scenario, results_dir)
     with stop_on_signals():
         run = _Run(scenario, resolve_fmu_dir(scenario, fmu_dir), files)
         result = run.execute(progress)
         if out_dir is not None:
-            result.save(Path(out_dir))
+            result.save(Path(out_dir), precision)
     if result.interrupted:
         raise RunInterrupted(stop_requested() or "interrupted", result)
     return result

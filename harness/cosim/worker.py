@@ -12,6 +12,11 @@ run ended::
 ``failed`` is a run that stopped on an FMU error (its files are saved); ``crashed`` an
 exception of the harness itself (the message holds the traceback).
 
+The saved ``signals.npz`` may hold Real signals rounded to float32 (the scenario's
+``record.precision``); the batch must judge the run at full precision, so the worker
+also hands the run over as it is in memory: a pickle at ``Job.handover_file`` in the
+batch's private temporary folder, read once by the batch and deleted with that folder.
+
 The process runs in a session of its own (the batch forwards Ctrl-C and SIGTERM to it
 exactly once) and stops its run, keeping what it recorded, when its parent goes away.
 """
@@ -49,6 +54,8 @@ class Job:
     progress: bool
     log_level: int
     parent_pid: int
+    precision: str | None = None      # how to save (None: the scenario's record.precision)
+    handover_file: str | None = None  # where to pickle the full-precision RunResult
 
 
 def _watch_parent(parent_pid: int) -> None:
@@ -71,17 +78,35 @@ def run_job(job: Job) -> str:
     """Run one job; returns the status written."""
     from harness.cosim.master import run_scenario
 
+    result = None
     try:
         result = run_scenario(job.scenario, fmu_dir=job.fmu_dir, progress=job.progress,
-                              out_dir=job.out_dir, results_dir=job.results_dir)
+                              out_dir=job.out_dir, results_dir=job.results_dir,
+                              precision=job.precision)
     except RunInterrupted as exc:
         status, message = "interrupted", exc.reason
+        result = exc.result
     except Exception:
         status, message = "crashed", traceback.format_exc()
     else:
         status, message = ("ok", "") if result.error is None else ("failed", result.error)
+    if result is not None and job.handover_file is not None:
+        _hand_over(job.handover_file, result)
     _write_status(job.status_file, status, message)
     return status
+
+
+def _hand_over(path: str, result: Any) -> None:
+    # written before the status file, which the batch reads first: a status without
+    # its handover means the saved files are all there is
+    tmp = f"{path}.part"
+    try:
+        with open(tmp, "wb") as fh:
+            pickle.dump(result, fh, protocol=pickle.HIGHEST_PROTOCOL)
+        os.replace(tmp, path)
+    except OSError as exc:  # the saved run is still there, at the stored precision
+        log.warning("could not hand the full-precision run over (%s); the batch reads "
+                    "the saved files", exc)
 
 
 def main(argv: list[str]) -> int:

@@ -6,6 +6,10 @@ results folder: under a file lock per scenario, the first asker runs it (in a wo
 process of its own, :func:`harness.cosim.batch.run_all`) and writes a marker with the
 scenario's fingerprint; later askers, in this process or another, load the saved run.
 A scenario edited since (other fingerprint) runs again.
+
+The cache saves every signal bit-exactly (``precision="float64"``, whatever the
+scenario's ``record.precision``): a test in another process that loads the run must see
+the same values as the process that ran it.
 """
 
 from __future__ import annotations
@@ -24,12 +28,14 @@ from harness.cosim.scenario import Scenario
 __all__ = ["RunCache"]
 
 _MARKER = ".gyrodiag-run.json"
+_PRECISION = "float64"
 
 
 def fingerprint(scenario: Scenario, fmu_dir: Path | None) -> str:
     """What decides a run's outcome: the validated scenario, its file, the FMU folder."""
     payload = json.dumps({"scenario": scenario.model_dump(mode="json", by_alias=True),
-                          "path": str(scenario.path), "fmu_dir": str(fmu_dir)},
+                          "path": str(scenario.path), "fmu_dir": str(fmu_dir),
+                          "precision": _PRECISION},
                          sort_keys=True, default=str)
     return hashlib.sha256(payload.encode()).hexdigest()[:20]
 
@@ -70,7 +76,7 @@ class RunCache:
             if result is None:
                 (folder / _MARKER).unlink(missing_ok=True)
                 (result,) = run_all([scenario], self.results, self.fmu_dir, progress=False,
-                                    workers=1)
+                                    workers=1, precision=_PRECISION)
                 self._mark(folder, key)
         self._memory[scenario.name] = (key, result)
         return result
@@ -106,7 +112,7 @@ class RunCache:
                 todo.append((s, key, lock))
             if todo:
                 runs = run_all([s for s, _, _ in todo], self.results, self.fmu_dir,
-                               progress=False, workers=workers)
+                               progress=False, workers=workers, precision=_PRECISION)
                 for (s, key, _), result in zip(todo, runs, strict=True):
                     self._mark(self.results / s.name, key)
                     self._memory[s.name] = (key, result)
