@@ -138,6 +138,17 @@ def test_float64_precision_keeps_every_bit_and_resaving_keeps_the_rounded_list(t
         r.save(tmp_path / "bad", precision="half")
 
 
+def test_saved_files_get_the_permissions_of_ordinary_new_files(tmp_path):
+    # not mkstemp's private 0600: colleagues sharing a results folder can read them
+    import os
+
+    mask = os.umask(0)
+    os.umask(mask)
+    _run({"a.x": np.ones(3)}).save(tmp_path / "run")
+    for name in (SIGNALS_FILE, META_FILE):
+        assert (tmp_path / "run" / name).stat().st_mode & 0o777 == 0o666 & ~mask, name
+
+
 def test_an_empty_run_saves_and_loads(tmp_path):
     r = _run({"a.x": np.zeros(0)}, n=0)
     r.error = "the run process exited with status 1 before saving its run"

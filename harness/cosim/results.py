@@ -399,9 +399,21 @@ def _decode(entry: np.ndarray, kind: str, n_rows: int | None, path: Path,
                      f"constant)")
 
 
+def _file_mode() -> int:
+    # what open() would give a new file: mkstemp makes it private (0600), which would
+    # keep results from the colleagues who share the folder
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+_FILE_MODE = _file_mode()
+
+
 def _atomic_write(path: Path, write: Any) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
     try:
+        os.fchmod(fd, _FILE_MODE)
         with os.fdopen(fd, "wb") as fh:
             write(fh)
         os.replace(tmp, path)
