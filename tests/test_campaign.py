@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.campaign import (
+from harness.campaigns.campaign import (
     CampaignSpec,
     _kth_largest_window,
     build_scenario,
@@ -28,13 +28,13 @@ from harness.campaign import (
     load_campaign,
     run_campaign,
 )
-from harness.campaign_report import (
+from harness.campaigns.campaign_report import (
     clopper_pearson,
     garwood_interval,
     markdown_summary,
     summarize,
 )
-from harness.scenario import InjectorFault
+from harness.cosim.scenario import InjectorFault
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "campaigns" / "smoke.toml"
@@ -223,7 +223,7 @@ def _wait_for(predicate, timeout_s: float) -> bool:
 DRIVER = """
 import json, sys
 sys.path.insert(0, {tests!r})
-from harness.campaign import CampaignInterrupted, CampaignSpec, run_campaign
+from harness.campaigns.campaign import CampaignInterrupted, CampaignSpec, run_campaign
 from pathlib import Path
 spec = CampaignSpec.model_validate(json.loads({spec!r}))
 try:

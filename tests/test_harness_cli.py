@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.results import RunResult
+from harness.cosim.results import RunResult
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).resolve().parent / "data" / "scenarios"
@@ -89,7 +89,7 @@ start_s = 0.1
 
 
 def test_verify_runs_checks_expectations_and_writes_reports(tmp_path, fmu_dir):
-    pytest.importorskip("harness.report")
+    pytest.importorskip("harness.reporting.report")
     scenario = tmp_path / "verify_me.toml"
     scenario.write_text((DATA / "closed_loop.toml").read_text() + """
 [[expect]]

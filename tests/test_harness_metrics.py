@@ -9,8 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from harness import metrics
-from harness.results import FaultWindow, RunResult
+from harness.cosim.results import FaultWindow, RunResult
+from harness.verification import metrics
 
 STEP_S = 0.01
 

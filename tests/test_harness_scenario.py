@@ -1,4 +1,4 @@
-"""Scenario files (harness.scenario): validation messages with file and key path, fault
+"""Scenario files (harness.cosim.scenario): validation messages with file and key path, fault
 schedule → FaultInjector parameters, names checked against the FMUs' modelDescriptions.
 
 Only modelDescriptions are read here (fmpy.read_model_description on the built FMUs);
@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.master import fault_windows, model_info, plan_coupling
-from harness.results import FaultWindow, RunResult
-from harness.scenario import (
+from harness.cosim.master import fault_windows, model_info, plan_coupling
+from harness.cosim.results import FaultWindow, RunResult
+from harness.cosim.scenario import (
     FAULT_TYPE_CODES,
     InjectorFault,
     ScenarioError,

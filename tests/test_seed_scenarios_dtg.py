@@ -29,10 +29,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.metrics import detection_delay_s
-from harness.results import RunResult
-from harness.scenario import ScenarioError, load_scenario, parse_scenario
-from harness.signatures import check_training_scenarios
+from harness.campaigns.signatures import check_training_scenarios
+from harness.cosim.results import RunResult
+from harness.cosim.scenario import ScenarioError, load_scenario, parse_scenario
+from harness.verification.metrics import detection_delay_s
 
 ROOT = Path(__file__).resolve().parents[1]
 SCEN = ROOT / "scenarios"
@@ -304,7 +304,7 @@ def test_training_set_codes_are_one_to_n():
 
 
 def test_file_parameter_errors_name_the_key(tmp_path):
-    from harness.scenario import resolve_file_parameters
+    from harness.cosim.scenario import resolve_file_parameters
 
     data = _minimal()
     data["fmus"]["diag"]["files"] = {"dtg.signature_file": "${out}/lib.json"}

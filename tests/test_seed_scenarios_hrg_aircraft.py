@@ -22,8 +22,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.metrics import detection_delay_s, detection_time_s, prediction_errors_percent
-from harness.results import RunResult
+from harness.cosim.results import RunResult
+from harness.verification.metrics import (
+    detection_delay_s,
+    detection_time_s,
+    prediction_errors_percent,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = ROOT / "scenarios"

@@ -251,7 +251,7 @@ class DTGChannel:
         )
         self._decisions = None if self.theta0 is None else self._make_decisions(self.theta0)
         self._first_alarm_time = float("nan")
-        # both ends of the window, as the training window of harness.signatures
+        # both ends of the window, as the training window of harness.campaigns.signatures
         self._features = WindowedMedianFeature(N_THETA, round(c.classify_window_s / self.T) + 1)
         self._last = self._initial_output()
 

@@ -32,7 +32,7 @@ from matplotlib.figure import Figure
 from numpy.typing import ArrayLike, NDArray
 
 if TYPE_CHECKING:
-    from harness.results import FaultWindow, RunResult
+    from harness.cosim.results import FaultWindow, RunResult
 
 __all__ = [
     "FLAG_PATTERN",

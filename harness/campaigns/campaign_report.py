@@ -1,6 +1,6 @@
 """Summary figures, plots and HTML/JSON report of a fault-injection campaign.
 
-:func:`summarize` turns the run records of :mod:`harness.campaign` into figures:
+:func:`summarize` turns the run records of :mod:`harness.campaigns.campaign` into figures:
 
 * detection rate per class, fault type and magnitude, with a 95 % Clopper-Pearson
   interval, and in the same rows how many runs were isolated right (diagnosed class =
@@ -13,7 +13,7 @@
 * isolation confusion matrix per channel (injected vs diagnosed at the end of the run);
 * threshold sweep per channel: detection rate vs false alarms per hour at every
   threshold of the grid (recomputed offline from the alarm statistic, see
-  :mod:`harness.campaign`).
+  :mod:`harness.campaigns.campaign`).
 
 Only runs with status ``ok`` count; the others are listed with their error.  Nothing in
 the summary depends on wall times or on the order in which runs finished, so the same

@@ -20,16 +20,18 @@ line per scenario.  ``verify`` runs the scenarios, evaluates their ``[[expect]]`
 and writes a JUnit XML and an HTML report (default ``<out>/junit.xml``,
 ``<out>/report.html``).  ``report`` does the same from runs saved earlier in ``<out>``
 without running anything.  ``isolability`` prints which sensor faults of the seed aircraft
-are detectable and isolable (:mod:`harness.isolability`, analysis only).
+are detectable and isolable (:mod:`harness.verification.isolability`, analysis only).
 ``learn-signatures`` runs DTG training scenarios and writes the fault-signature library
-that verification scenarios load through a ``files`` parameter (:mod:`harness.signatures`).
+that verification scenarios load through a ``files`` parameter
+(:mod:`harness.campaigns.signatures`).
 
 Exit status: 0 all good; 1 a run stopped on an FMU error or an expectation failed;
 2 invalid scenario files or command line.
 
-Every command mirrors the Python API: :func:`harness.scenario.load_scenario`,
-:func:`harness.master.run_scenario`, ``harness.expectations.verify_results`` and
-``harness.report.write_report``.
+Every command mirrors the Python API: :func:`harness.cosim.scenario.load_scenario`,
+:func:`harness.cosim.master.run_scenario`,
+``harness.verification.expectations.verify_results`` and
+``harness.reporting.report.write_report``.
 """
 
 from __future__ import annotations
@@ -39,13 +41,12 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from harness import campaign, pipeline, signatures
-from harness.results import RunResult
-from harness.scenario import Scenario, ScenarioError, load_scenario
+from harness.cli import campaign, learn_signatures, pipeline
+from harness.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, verify_and_report
+from harness.cosim.batch import load_all, run_all
+from harness.cosim.results import RunResult
+from harness.cosim.scenario import ScenarioError, load_scenario
 
-EXIT_OK = 0
-EXIT_FAILED = 1
-EXIT_USAGE = 2
 DEFAULT_OUT = "results"
 DEFAULT_SCENARIO_DIR = "scenarios"
 
@@ -119,113 +120,10 @@ def _parser() -> argparse.ArgumentParser:
                        help="format of FILE (default from its suffix); printing is text")
     p_iso.set_defaults(func=cmd_isolability)
 
-    signatures.add_parser(sub)
+    learn_signatures.add_parser(sub)
     pipeline.add_parser(sub)
     campaign.add_parser(sub)
     return parser
-
-
-# --------------------------------------------------------------------------- helpers
-def scenario_files(paths: Sequence[Path]) -> list[Path]:
-    """Expand folders to their ``*.toml`` files (sorted); files are kept as given."""
-    files: list[Path] = []
-    for p in paths:
-        if p.is_dir():
-            found = sorted(p.glob("*.toml"))
-            if not found:
-                raise FileNotFoundError(f"{p}: no .toml scenario files in this folder")
-            files += found
-        else:
-            files.append(p)
-    return files
-
-
-def load_all(paths: Sequence[Path]) -> list[Scenario]:
-    """Load every scenario, reporting all invalid files at once (ScenarioError)."""
-    scenarios, errors = [], []
-    for f in scenario_files(paths):
-        try:
-            scenarios.append(load_scenario(f))
-        except ScenarioError as exc:
-            errors.append(exc)
-    if errors:
-        raise ScenarioError(errors[0].source, errors[0].problems) if len(errors) == 1 else \
-            _merged(errors)
-    names = [s.name for s in scenarios]
-    for s in scenarios:
-        if names.count(s.name) > 1:
-            others = [o.source for o in scenarios if o.name == s.name and o is not s]
-            raise ScenarioError(s.source, [("name", f"scenario name {s.name!r} is also used by "
-                                                    f"{', '.join(others)}: results would "
-                                                    "overwrite each other")])
-    return scenarios
-
-
-def _merged(errors: list[ScenarioError]) -> ScenarioError:
-    merged = ScenarioError(errors[0].source, errors[0].problems)
-    merged.args = ("\n".join(str(e) for e in errors),)
-    return merged
-
-
-def summary_line(result: RunResult, out_dir: Path | None) -> str:
-    """One line per run: outcome, samples, simulated and wall time, where it was saved."""
-    n = len(result.time)
-    where = f" -> {out_dir}" if out_dir is not None else ""
-    if result.error is None:
-        return (f"{result.scenario}: ok, {n} samples of {len(result.signals)} signals, "
-                f"{result.stop_time_s:g} s simulated in {result.wall_time_s:.1f} s{where}")
-    first = result.error.strip().splitlines()[0] if result.error.strip() else "error"
-    t_end = f"{result.time[-1]:g} s" if n else "nothing"
-    return (f"{result.scenario}: ERROR ({t_end} recorded of {result.stop_time_s:g} s): "
-            f"{first}{where}")
-
-
-def run_all(scenarios: Sequence[Scenario], out: Path, fmu_dir: Path | None,
-            progress: bool) -> list[RunResult]:
-    """Run scenarios one after the other, saving each into ``out/<name>``."""
-    from harness.master import run_scenario
-
-    results = []
-    for s in scenarios:
-        target = out / s.name
-        result = run_scenario(s, fmu_dir=fmu_dir, progress=progress, out_dir=target,
-                              results_dir=out)
-        print(summary_line(result, target), flush=True)
-        if result.error is not None and "\n" in result.error.strip():
-            print(_indent(result.error), file=sys.stderr, flush=True)
-        results.append(result)
-    return results
-
-
-def _indent(text: str) -> str:
-    return "\n".join("    " + line for line in text.strip().splitlines())
-
-
-def verify_and_report(results: Sequence[RunResult], scenarios: Sequence[Scenario],
-                      out: Path, junit: Path | None, html: Path | None) -> int:
-    """Evaluate expectations, write JUnit + HTML, print a verdict per scenario."""
-    from harness.expectations import verify_results
-    from harness.report import write_report
-
-    verdicts = verify_results(results, scenarios)
-    paths = write_report(verdicts, results, out_dir=out, junit_path=junit, html_path=html,
-                         scenarios=scenarios)
-    failed = 0
-    for v in verdicts:
-        n = len(v.expectations)
-        if v.passed:
-            print(f"{v.scenario}: PASS ({n} expectations)")
-            continue
-        failed += 1
-        reason = f"run error: {v.error.strip().splitlines()[0]}" if v.error else \
-            f"{v.n_failed} of {n} expectations failed"
-        print(f"{v.scenario}: FAIL ({reason})")
-        for e in v.expectations:
-            if not e.passed:
-                print(f"    {e.name}: {e.message}")
-    print(f"{len(verdicts) - failed} of {len(verdicts)} scenarios passed; JUnit: {paths.junit}; "
-          f"HTML: {paths.html}")
-    return EXIT_FAILED if failed else EXIT_OK
 
 
 # --------------------------------------------------------------------------- commands
@@ -254,7 +152,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_isolability(args: argparse.Namespace) -> int:
-    from harness.isolability import render, seed_isolability_report, write
+    from harness.verification.isolability import render, seed_isolability_report, write
 
     report = seed_isolability_report()
     print(render(report, "text"), end="")

@@ -9,10 +9,10 @@ so that a campaign can be interrupted and resumed.
 
 Execution
 ---------
-Each run is simulated in **its own fresh process** (``python -m harness.campaign
---child``): pythonfmu FMUs must not be loaded twice in one process, a crash (abort,
-segfault) only kills that process, and a hung run can be killed at its timeout.  The
-guard that starts the process, waits for it and writes the run's record
+Each run is simulated in **its own fresh process** (``python -m
+harness.campaigns.campaign --child``): pythonfmu FMUs must not be loaded twice in one
+process, a crash (abort, segfault) only kills that process, and a hung run can be killed
+at its timeout.  The guard that starts the process, waits for it and writes the run's record
 (:func:`execute_run`) is the task that a pool runs:
 
 * default: a ``concurrent.futures.ProcessPoolExecutor`` (``spawn`` context);
@@ -56,7 +56,6 @@ classification are not re-evaluated at other thresholds.
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import importlib
 import json
@@ -80,11 +79,11 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from harness.scenario import FAULT_TYPE_PARAMETERS, ScenarioError
+from harness.cosim.scenario import FAULT_TYPE_PARAMETERS, ScenarioError
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+REPO_ROOT = Path(__file__).resolve().parents[2]
 #: The per-run function used unless the spec or the caller names another.
-DEFAULT_RUNNER = "harness.campaign:simulate_run"
+DEFAULT_RUNNER = "harness.campaigns.campaign:simulate_run"
 #: Sensor names of the seed aircraft (injector channel i feeds sensor i).
 AIRCRAFT_SENSORS = ("v", "alpha", "q", "theta", "gamma", "h")
 DEFAULT_THRESHOLDS = {
@@ -339,8 +338,8 @@ def _signals(run: RunSpec) -> list[str]:
 
 def build_scenario(run: RunSpec) -> Any:
     """The base scenario with the run's fault, seed, duration and recorded signals (in
-    memory, through :func:`harness.scenario.parse_scenario`); expectations dropped."""
-    from harness.scenario import parse_scenario
+    memory, through :func:`harness.cosim.scenario.parse_scenario`); expectations dropped."""
+    from harness.cosim.scenario import parse_scenario
 
     path = Path(run.scenario)
     data = tomllib.loads(path.read_text(encoding="utf-8"))
@@ -467,7 +466,7 @@ def simulate_run(run_dict: dict[str, Any]) -> dict[str, Any]:
     RuntimeError
         If the co-simulation stopped on an FMU error (the message quotes it).
     """
-    from harness.master import run_scenario
+    from harness.cosim.master import run_scenario
 
     run = RunSpec.model_validate(run_dict)
     scenario = build_scenario(run)
@@ -514,7 +513,7 @@ def simulate_run(run_dict: dict[str, Any]) -> dict[str, Any]:
 
 
 def _signature_names(scenario: Any, run: RunSpec) -> list[str]:
-    from harness.scenario import resolve_file_parameters
+    from harness.cosim.scenario import resolve_file_parameters
 
     files = resolve_file_parameters(scenario, run.results_dir, must_exist=False)
     path = files.get(run.diagnoser, {}).get("dtg.signature_file")
@@ -562,7 +561,8 @@ def execute_run(run_dict: dict[str, Any], runner: str, timeout_s: float,
     with tempfile.TemporaryDirectory(prefix="gd-campaign-") as tmp:
         inp, out = Path(tmp) / "run.json", Path(tmp) / "out.json"
         inp.write_text(json.dumps(run_dict), encoding="utf-8")
-        cmd = [sys.executable, "-m", "harness.campaign", "--child", runner, str(inp), str(out)]
+        cmd = [sys.executable, "-m", "harness.campaigns.campaign", "--child", runner, str(inp),
+               str(out)]
         env = {**_child_env(), PARENT_PID_ENV: str(os.getpid())}
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                 env=env, cwd=str(REPO_ROOT), text=True,
@@ -931,79 +931,6 @@ def _bar(total: int, initial: int, enabled: bool) -> Any:
 
     return tqdm(total=total + initial, initial=initial, unit="run", desc="campaign",
                 file=sys.stderr, dynamic_ncols=True, smoothing=0.1)
-
-
-# --------------------------------------------------------------------------- CLI
-def add_parser(sub: Any) -> None:
-    """Register ``campaign`` on the CLI's sub-parsers."""
-    p = sub.add_parser("campaign", help="run (or resume) a Monte Carlo fault-injection "
-                                        "campaign and write its summary")
-    p.add_argument("spec", type=Path, help="campaign .toml (see campaigns/)")
-    p.add_argument("--out", type=Path, default=None,
-                   help="output folder (default build/campaigns/<name>)")
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
-                   help="parallel runs (default: the number of CPUs)")
-    p.add_argument("--dask", default=None, metavar="local|ADDRESS",
-                   help="run on dask.distributed: 'local' (a LocalCluster) or a scheduler "
-                        "address; default: a local process pool")
-    p.add_argument("--timeout", type=float, default=None, help="per-run time limit, s")
-    p.add_argument("--max-runs", type=int, default=None,
-                   help="start at most this many pending runs, then stop")
-    p.add_argument("--fraction", type=float, default=1.0,
-                   help="run a deterministic fraction of the runs (e.g. 0.1)")
-    p.add_argument("--retry-failed", action="store_true", help="re-run failed runs")
-    p.add_argument("--report-only", action="store_true",
-                   help="summarise the records already written, run nothing")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_campaign)
-
-
-def cmd_campaign(args: argparse.Namespace) -> int:
-    from harness.campaign_report import summarize, write_report
-
-    spec, base_dir = load_campaign(args.spec)
-    out = args.out or REPO_ROOT / "build" / "campaigns" / spec.name
-    if args.report_only:
-        runs = select(expand_runs(spec, base_dir, Path(out)), args.fraction)
-        ids = {r.run_id for r in runs}
-        records = [r for rid, r in load_records(Path(out) / "runs").items() if rid in ids]
-        n_total = len(runs)
-    else:
-        try:
-            outcome = run_campaign(spec, base_dir, Path(out), workers=args.workers,
-                                   dask=args.dask, timeout_s=args.timeout,
-                                   max_runs=args.max_runs, retry_failed=args.retry_failed,
-                                   fraction=args.fraction, progress=not args.no_progress)
-        except CampaignInterrupted as exc:
-            print(exc, file=sys.stderr)
-            return 130
-        records, n_total = outcome.records, outcome.n_total
-        print(f"{spec.name}: {outcome.n_executed} runs executed, {outcome.n_skipped} "
-              f"already done, {len(outcome.failed)} failed, in {outcome.wall_s:.0f} s")
-    summary = summarize(records, n_planned=n_total)
-    paths = write_report(summary, records, Path(out), title=spec.name)
-    print(summary_text(summary))
-    print(f"summary: {paths['json']}, {paths['markdown']}; report: {paths['html']}")
-    return 0 if summary["n_finished"] == n_total and not summary["n_failed"] else 1
-
-
-def summary_text(summary: dict[str, Any]) -> str:
-    """A few lines: runs, false alarms per hour, detection per class."""
-    lines = [f"runs: {summary['n_finished']} of {summary['n_planned']} finished, "
-             f"{summary['n_failed']} failed"]
-    for ch, fa in summary["false_alarms"].items():
-        lines.append(f"[{ch}] false alarms: {fa['count']} in {fa['hours']:.3g} h = "
-                     f"{fa['rate_per_h']:.3g}/h (95 % upper bound {fa['upper_95']:.3g}/h)")
-    for row in summary["detection"]:
-        mag = "" if row["magnitude"] is None else f" {row['magnitude']:g}"
-        lines.append(f"  {row['class']} {row['fault_type']}{mag}: "
-                     f"{row['detected']}/{row['n']} detected, "
-                     f"{row.get('isolated', 0)}/{row['n']} isolated right")
-    for key, d in summary["delay"].items():
-        if d["n"]:
-            lines.append(f"  delay {key}: median {d['median_s']:.3g} s, p95 {d['p95_s']:.3g} s, "
-                         f"max {d['max_s']:.3g} s (n={d['n']})")
-    return "\n".join(lines)
 
 
 if __name__ == "__main__":

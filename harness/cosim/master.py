@@ -1,4 +1,4 @@
-"""Co-simulation master: runs a :class:`~harness.scenario.Scenario` through fmpy.
+"""Co-simulation master: runs a :class:`~harness.cosim.scenario.Scenario` through fmpy.
 
 Life of a run
 -------------
@@ -59,8 +59,8 @@ from typing import Any
 
 import numpy as np
 
-from harness.results import FaultWindow, RunResult
-from harness.scenario import (
+from harness.cosim.results import FaultWindow, RunResult
+from harness.cosim.scenario import (
     Connection,
     InjectorFault,
     ModelInfo,
@@ -407,7 +407,7 @@ def run_scenario(scenario: Scenario | Path | str, fmu_dir: Path | str | None = N
         A validated scenario or its TOML file.
     fmu_dir : path, optional
         Folder of the ``<Name>.fmu`` files; default: see
-        :func:`harness.scenario.resolve_fmu_dir`.
+        :func:`harness.cosim.scenario.resolve_fmu_dir`.
     progress : bool
         Show a tqdm progress bar (only when stderr is a terminal).
     out_dir : path, optional
@@ -415,7 +415,7 @@ def run_scenario(scenario: Scenario | Path | str, fmu_dir: Path | str | None = N
         when the run stops on an FMU error).
     results_dir : path, optional
         Results folder of the command: what ``${out}/`` stands for in the instances'
-        ``files`` (:func:`harness.scenario.resolve_file_parameters`).
+        ``files`` (:func:`harness.cosim.scenario.resolve_file_parameters`).
 
     Returns
     -------

@@ -24,7 +24,12 @@ import time
 from pathlib import Path
 from typing import Any
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+from harness.campaigns.signatures import check_training_scenarios, learn_signatures
+from harness.cli.common import EXIT_FAILED, EXIT_OK, verify_and_report
+from harness.cosim.batch import load_all, run_all
+from harness.verification.isolability import render, seed_isolability_report, write
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
 
 
 def add_parser(sub: Any) -> None:
@@ -54,10 +59,6 @@ def build_fmus(fmu_dir: Path) -> int:
 
 
 def cmd_all(args: argparse.Namespace) -> int:
-    from harness.cli import EXIT_FAILED, EXIT_OK, load_all, run_all, verify_and_report
-    from harness.isolability import render, seed_isolability_report, write
-    from harness.signatures import check_training_scenarios, learn_signatures
-
     t0 = time.perf_counter()
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)

@@ -39,6 +39,8 @@ from pydantic import (
     model_validator,
 )
 
+from harness.verification import expectations
+
 #: FaultInjector fault codes (parameter ``fault_type_<channel>``), copied from the
 #: FaultInjector FMU's documentation (``FaultType`` in models/fault_injector); a test
 #: checks that this table matches the built FMU.  The harness never imports models/.
@@ -267,8 +269,9 @@ class Record(_Strict):
 
 
 class Expectation(BaseModel):
-    """One ``[[expect]]`` entry.  Its arguments belong to ``harness.expectations``, which
-    validates them; here only the references (``signal``, ``fault``) are checked."""
+    """One ``[[expect]]`` entry.  Its arguments belong to
+    ``harness.verification.expectations``, which validates them; here only the references
+    (``signal``, ``fault``) are checked."""
 
     model_config = ConfigDict(extra="allow")
 
@@ -285,7 +288,7 @@ class Expectation(BaseModel):
 class Training(_Strict):
     """``[training]``: the run is a training example of one DTG fault class.
 
-    Read by ``python -m harness learn-signatures`` (:mod:`harness.signatures`), ignored by
+    Read by ``python -m harness learn-signatures`` (:mod:`harness.campaigns.signatures`), ignored by
     the other commands.  ``signature`` names the fault class, ``code`` is its fault code
     (1-based position in the learned library, i.e. the ``dtg.fault_code`` the Diagnoser
     reports for it), ``diagnoser`` the Diagnoser instance whose ``dtg.eta_x``/``dtg.eta_y``
@@ -531,17 +534,13 @@ def _cross_reference_problems(s: Scenario) -> list[tuple[str, str]]:
 
 
 def _expectations_module() -> Any:
-    # harness.expectations owns the [[expect]] schema; the loader uses it when present
-    try:
-        from harness import expectations
-    except ImportError:
-        return None
+    # harness.verification.expectations owns the [[expect]] schema (a layer below)
     return expectations
 
 
 def expected_signals(e: Expectation) -> list[str]:
     """Signals an ``[[expect]]`` entry reads (``signal`` and signal arguments of metrics,
-    as reported by ``harness.expectations.referenced_signals`` when available)."""
+    as reported by ``harness.verification.expectations.referenced_signals``)."""
     expectations = _expectations_module()
     if expectations is not None:
         try:

@@ -6,7 +6,7 @@
   its message in ``<system-out>`` so passing cases show what was measured too.
 * :func:`write_html` — summary table, and per scenario: run facts, fault windows,
   expectations (pass/fail, measured value, message), a table of standard metrics
-  (:func:`summary_metrics`) and the plots of :func:`harness.plots.figures_for_result`
+  (:func:`summary_metrics`) and the plots of :func:`harness.reporting.plots.figures_for_result`
   embedded as base64 PNG.
 * :func:`write_report` — both, into one directory.
 """
@@ -26,11 +26,12 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
-from harness import metrics, plots
-from harness.expectations import ScenarioVerdict
+from harness.reporting import plots
+from harness.verification import metrics
+from harness.verification.expectations import ScenarioVerdict
 
 if TYPE_CHECKING:
-    from harness.results import RunResult
+    from harness.cosim.results import RunResult
 
 __all__ = [
     "MetricRow",
@@ -88,7 +89,7 @@ def write_junit(
     Parameters
     ----------
     verdicts : sequence of ScenarioVerdict
-        From :func:`harness.expectations.verify_results`.
+        From :func:`harness.verification.expectations.verify_results`.
     path : path-like
         Output file (parent directories are created).
     results : sequence of RunResult, optional
@@ -172,7 +173,7 @@ def summary_metrics(result: RunResult, scenario: Any = None) -> list[MetricRow]:
       detection delay (s) per fault window, false alarms (count, rate per hour of
       fault-free time);
     * every grey prediction with a known measurement (see
-      :func:`harness.plots.figures_for_result`): prediction error, % of y, before the
+      :func:`harness.reporting.plots.figures_for_result`): prediction error, % of y, before the
       first fault (the whole run without faults);
     * every θ signal: statistics over the second half of the fault-free time before the
       first fault (the first half holds the estimator's convergence transient).
@@ -336,7 +337,7 @@ def write_html(
     Parameters
     ----------
     verdicts : sequence of ScenarioVerdict
-        From :func:`harness.expectations.verify_results`.
+        From :func:`harness.verification.expectations.verify_results`.
     results : sequence of RunResult
         The runs (matched to verdicts by scenario name); plots and metrics come from them.
     path : path-like
@@ -394,7 +395,7 @@ def write_report(
     Parameters
     ----------
     verdicts : sequence of ScenarioVerdict
-        From :func:`harness.expectations.verify_results`.
+        From :func:`harness.verification.expectations.verify_results`.
     results : sequence of RunResult
         The runs.
     out_dir : path-like

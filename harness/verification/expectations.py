@@ -15,7 +15,7 @@ no_alarm_outside_faults    ``signal`` at or below ``level`` outside every fault 
 value_at_end / value_at    the last sample (or the sample held at ``t_s``) equals
                            ``equals`` ± ``tol`` or lies in ``[min, max]``
 value_in_window            every sample in ``[t0_s, t1_s]`` lies in ``[min, max]``
-metric                     a metric of :data:`harness.metrics.METRICS`, called with
+metric                     a metric of :data:`harness.verification.metrics.METRICS`, called with
                            ``args`` (``field`` picks one value), lies in ``[min, max]``
 ========================== ==============================================================
 
@@ -27,7 +27,7 @@ for value_at_end / value_at; the sample nearest to (or farthest beyond) a bound 
 value_in_window; the metric's value for metric. None where nothing was measured.
 
 :func:`evaluate` turns one expectation and a
-:class:`harness.results.RunResult` into an :class:`ExpectationResult`;
+:class:`harness.cosim.results.RunResult` into an :class:`ExpectationResult`;
 :func:`verify_results` does it for whole scenarios and returns
 :class:`ScenarioVerdict` objects. Evaluation never raises on a bad run: an unknown
 signal or fault, or a failed run, fails the expectation with the reason as message.
@@ -43,10 +43,10 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal, Protocol, Self
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
 
-from harness import metrics
+from harness.verification import metrics
 
 if TYPE_CHECKING:
-    from harness.results import RunResult
+    from harness.cosim.results import RunResult
 
 __all__ = [
     "DetectedWithin",
@@ -268,7 +268,7 @@ class ValueInWindow(_Bounds):
 
 
 class MetricExpectation(_Bounds):
-    """A registered metric (:data:`harness.metrics.METRICS`) lies in [min, max]."""
+    """A registered metric (:data:`harness.verification.metrics.METRICS`) lies in [min, max]."""
 
     kind: Literal["metric"]
     metric: str

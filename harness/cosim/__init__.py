@@ -1,0 +1,1 @@
+"""Co-simulation: the scenario format, the fmpy master, run records, batches of runs."""

@@ -1,0 +1,1 @@
+"""Reporting: JUnit XML, the HTML report and its plots."""

@@ -1,0 +1,194 @@
+"""Layout of harness/: subpackages by role, imported in one direction, no import cycles.
+
+Every import counts, also the ones inside functions (deferred imports hide cycles, they
+do not remove them); only ``if TYPE_CHECKING:`` blocks are left out (never executed).
+"""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+HARNESS = ROOT / "harness"
+
+#: Subpackages, lowest first: a module may import its own subpackage and those before it.
+LAYERS = ("verification", "cosim", "reporting", "campaigns", "cli")
+
+
+def _module_name(path: Path, root: Path) -> str:
+    parts = list(path.relative_to(root.parent).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _is_type_checking(test: ast.expr) -> bool:
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
+
+
+def _imports(tree: ast.AST, module: str, is_package: bool) -> list[tuple[str, list[str]]]:
+    """(imported module, names) of every executed import statement of a module."""
+    found: list[tuple[str, list[str]]] = []
+
+    def visit(node: ast.AST) -> None:
+        if isinstance(node, ast.If) and _is_type_checking(node.test):
+            for child in node.orelse:
+                visit(child)
+            return
+        if isinstance(node, ast.Import):
+            found.extend((a.name, []) for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                package = module if is_package else module.rpartition(".")[0]
+                for _ in range(node.level - 1):
+                    package = package.rpartition(".")[0]
+                base = f"{package}.{base}" if base else package
+            found.append((base, [a.name for a in node.names]))
+        for child in ast.iter_child_nodes(node):
+            visit(child)
+
+    visit(tree)
+    return found
+
+
+def import_graph(root: Path) -> dict[str, set[str]]:
+    """Module → modules of the same top-level package it imports (executed imports)."""
+    files = {_module_name(p, root): p for p in sorted(root.rglob("*.py"))}
+    top = root.name
+    graph: dict[str, set[str]] = {}
+    for name, path in files.items():
+        tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+        edges: set[str] = set()
+        for target, names in _imports(tree, name, path.name == "__init__.py"):
+            if target != top and not target.startswith(top + "."):
+                continue
+            subs = [f"{target}.{n}" for n in names if f"{target}.{n}" in files]
+            edges.update(subs or [target])
+            if len(subs) < len(names):
+                edges.add(target)
+        edges.discard(name)
+        graph[name] = {e for e in edges if e in files}
+    return graph
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One cycle of the graph as a list of nodes (first = last), or None."""
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def dfs(node: str) -> list[str] | None:
+        state[node] = 1
+        stack.append(node)
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == 1:
+                return [*stack[stack.index(nxt):], nxt]
+            if nxt not in state and (cycle := dfs(nxt)) is not None:
+                return cycle
+        stack.pop()
+        state[node] = 2
+        return None
+
+    for node in sorted(graph):
+        if node not in state and (cycle := dfs(node)) is not None:
+            return cycle
+    return None
+
+
+def test_the_checker_finds_a_deferred_import_cycle(tmp_path: Path) -> None:
+    pkg = tmp_path / "pkg"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "sub" / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("from pkg.sub import b\n")
+    (pkg / "sub" / "b.py").write_text(
+        "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from pkg import c\n"
+        "def f():\n    from pkg import a\n")
+    (pkg / "c.py").write_text("from . import a\n")
+    graph = import_graph(pkg)
+    assert graph["pkg.a"] == {"pkg.sub.b"}
+    assert graph["pkg.sub.b"] == {"pkg.a"}          # deferred counted, TYPE_CHECKING not
+    assert graph["pkg.c"] == {"pkg.a"}              # relative import resolved
+    assert find_cycle(graph) == ["pkg.a", "pkg.sub.b", "pkg.a"]
+    (pkg / "sub" / "b.py").write_text("def f():\n    import pkg.c\n")
+    assert find_cycle(import_graph(pkg)) == ["pkg.a", "pkg.sub.b", "pkg.c", "pkg.a"]
+
+
+def test_harness_has_no_import_cycle() -> None:
+    graph = import_graph(HARNESS)
+    assert "harness.cosim.master" in graph and "harness.cli.commands" in graph
+    assert find_cycle(graph) is None
+
+
+def test_every_module_lives_in_a_role_subpackage() -> None:
+    loose = sorted(p.name for p in HARNESS.glob("*.py")
+                   if p.name not in ("__init__.py", "__main__.py"))
+    assert loose == [], f"modules outside the role subpackages: {loose}"
+    subpackages = sorted(p.name for p in HARNESS.iterdir()
+                         if p.is_dir() and (p / "__init__.py").exists())
+    assert subpackages == sorted(LAYERS)
+
+
+def test_subpackages_import_only_their_own_layer_and_lower_ones() -> None:
+    graph = import_graph(HARNESS)
+    wrong = []
+    for module, targets in graph.items():
+        parts = module.split(".")
+        if len(parts) < 3:      # harness, harness.__main__, harness.<sub> (package docs)
+            continue
+        rank = LAYERS.index(parts[1])
+        for t in targets:
+            t_parts = t.split(".")
+            if len(t_parts) < 2 or t_parts[1] == "__main__":
+                wrong.append(f"{module} -> {t} (the package's public API is the top)")
+            elif LAYERS.index(t_parts[1]) > rank:
+                wrong.append(f"{module} -> {t}")
+    assert wrong == []
+
+
+def test_only_the_cli_parses_command_lines() -> None:
+    users = sorted(name for name, path in
+                   ((n, HARNESS.parent / (n.replace(".", "/") + ".py"))
+                    for n in import_graph(HARNESS))
+                   if path.exists() and "import argparse" in path.read_text(encoding="utf-8"))
+    assert users and all(u.startswith("harness.cli.") for u in users), users
+
+
+def test_every_module_imports_first() -> None:
+    # each module imported first into an interpreter without harness modules: an
+    # import-order cycle would show here as an ImportError
+    modules = sorted(m for m in import_graph(HARNESS) if m != "harness.__main__")
+    code = (
+        "import importlib, sys\n"
+        f"for name in {modules!r}:\n"
+        "    for m in [m for m in sys.modules if m == 'harness' or m.startswith('harness.')]:\n"
+        "        del sys.modules[m]\n"
+        "    importlib.import_module(name)\n"
+        f"print('imported', {len(modules)})\n")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == f"imported {len(modules)}"
+
+
+def test_public_api_is_unchanged() -> None:
+    import harness
+    from harness.cosim.master import run_scenario
+    from harness.cosim.scenario import load_scenario
+
+    assert sorted(harness.__all__) == ["FaultWindow", "RunResult", "Scenario",
+                                       "ScenarioError", "load_scenario", "run_scenario"]
+    assert harness.load_scenario is load_scenario and harness.run_scenario is run_scenario
+
+
+def test_command_line_offers_the_same_commands() -> None:
+    proc = subprocess.run([sys.executable, "-m", "harness", "--help"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    for command in ("run", "verify", "report", "list", "isolability", "learn-signatures",
+                    "all", "campaign"):
+        assert f"    {command} " in proc.stdout or f"    {command}\n" in proc.stdout, command
