@@ -610,6 +610,10 @@ class DFChannel:
             "cal_u": self._cal_u.copy(), "cal_y": self._cal_y.copy(),
             "monitor": self._monitor.get_state(),
             "noise_std": None if self._noise_std is None else self._noise_std.copy(),
+            # the variances the engine was built from, exactly (σ² of a saved σ may
+            # differ in the last bit, and so would every matrix designed from it)
+            "noise_var": (engine.sensor_variances.copy()
+                          if isinstance(engine, SequentialDiagnoser) else None),
             "engine": None if engine is None else engine.get_state(),
             "thresholds": None if self._thresholds is None else [
                 t.copy() for t in self._thresholds],
@@ -641,11 +645,11 @@ class DFChannel:
             if c.decision == "paper":
                 self._install(None, None) if self._n_cal == 0 else self._rebuild_paper(state)
             else:
-                variances = np.asarray(noise, dtype=float) ** 2
+                variances = np.asarray(state["noise_var"], dtype=float)
                 self._engine = SequentialDiagnoser(
                     self.A, self.B, self.C, self.K, self.T, variances, c.settings(),
                     x0=self._x0)
-                self._noise_std = np.sqrt(variances)
+                self._noise_std = np.asarray(noise, dtype=float).copy()
                 self._thresholds = None
             assert self._engine is not None
             self._engine.set_state(state["engine"])

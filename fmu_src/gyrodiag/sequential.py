@@ -62,12 +62,16 @@ __all__ = [
 _FloatArray = NDArray[np.float64]
 _ONE = np.ones(1)
 
-#: Markov-chain states of a mean-CUSUM ARL (and twice as many for the extrapolation):
-#: relative ARL error below 1e-5 at h = 4 and h = 20 (k = 0.5) against 960/1920 states.
+#: Markov-chain states of a mean-CUSUM ARL, at least (and twice as many for the
+#: extrapolation; more for large h, ~3 per σ of threshold): relative ARL error below
+#: 1e-5 at h = 4 and h = 20 (k = 0.5) against 960/1920 states.
 MEAN_ARL_STATES = 120
-#: States of a variance-CUSUM ARL. The χ² density is infinite at 0, the error does not
+#: States of a variance-CUSUM ARL, at least (more for large h, ~5 per standard
+#: deviation of the increment). The χ² density is infinite at 0, the error does not
 #: fall smoothly with N (no extrapolation): within 3 % of 960 states at h = 4 and 20.
 VARIANCE_ARL_STATES = 400
+#: Upper bound on the states of one chain (memory: N² doubles).
+MAX_ARL_STATES = 2000
 
 
 # ------------------------------------------------------------------- average run length
@@ -88,7 +92,7 @@ def _chain_arl(h: float, cdf: Any, n_states: int) -> float:
     trans = upper - lower
     trans[:, 0] = upper[:, 0]  # state 0 collects every S + X ≤ w/2 (the max(0, ·))
     arl = np.linalg.solve(np.eye(n) - trans, np.ones(n))
-    return float(arl[0])
+    return max(float(arl[0]), 1.0)  # at least the sample that alarms
 
 
 def _extrapolated_arl(h: float, cdf: Any, n_states: int) -> float:
@@ -114,7 +118,8 @@ def mean_cusum_arl(h: float, k: float, shift: float = 0.0) -> float:
     h = check_positive("h", h)
     k = float(check_in_range("k", k, 0.0, 10.0))
     shift = float(shift)
-    return _extrapolated_arl(h, lambda x: scipy.special.ndtr(x + k - shift), MEAN_ARL_STATES)
+    n_states = min(max(MEAN_ARL_STATES, math.ceil(3.0 * h) + 60), MAX_ARL_STATES)
+    return _extrapolated_arl(h, lambda x: scipy.special.ndtr(x + k - shift), n_states)
 
 
 def variance_cusum_increment(ratio: float) -> tuple[float, float]:
@@ -129,19 +134,25 @@ def variance_cusum_arl(h: float, ratio: float, true_variance: float = 1.0) -> fl
     h = check_positive("h", h)
     a, c = variance_cusum_increment(ratio)
     var = check_positive("true_variance", true_variance)
+    n_states = min(max(VARIANCE_ARL_STATES, math.ceil(5.0 * h / (a * var * math.sqrt(2.0)))),
+                   MAX_ARL_STATES)
     # P(z² ≤ q) for z ~ N(0, 1) is the regularised lower gamma function P(½, q/2)
     return _chain_arl(
         h, lambda x: scipy.special.gammainc(0.5, np.maximum((x + c) / (a * var), 0.0) / 2.0),
-        VARIANCE_ARL_STATES,
+        n_states,
     )
 
 
 def _solve_threshold(arl_of_h: Any, target: float, h0: float) -> float:
-    # log ARL is nearly linear in h: secant iterations on it, bracketed.
+    """h with ARL(h) = target, from a first guess ``h0``: bracketed by steps of 25 %
+    (the chain's size grows with h), then secant iterations on log ARL, which is nearly
+    linear in h."""
     log_target = math.log(target)
-    lo, hi = 1e-3, h0
+    lo, hi = 0.8 * h0, h0
     while math.log(arl_of_h(hi)) < log_target:
-        lo, hi = hi, 2.0 * hi
+        lo, hi = hi, 1.25 * hi
+    while lo > 1e-3 and math.log(arl_of_h(lo)) > log_target:
+        hi, lo = lo, 0.8 * lo
     f_lo = math.log(arl_of_h(lo)) - log_target
     f_hi = math.log(arl_of_h(hi)) - log_target
     h = hi
@@ -159,30 +170,143 @@ def _solve_threshold(arl_of_h: Any, target: float, h0: float) -> float:
     return h
 
 
+def _brownian_guess(arl: float, drift: float, variance: float) -> float:
+    """Threshold of a CUSUM whose increments have mean ``drift`` < 0 and ``variance``,
+    from the Brownian-motion approximation ARL ≈ σ²/(2μ²)·exp(2|μ|h/σ²) (a start for
+    the exact solution, not a result)."""
+    mu = abs(drift)
+    return max(variance * math.log(max(2.0 * mu * mu * arl / variance, 2.0)) / (2.0 * mu),
+               0.1)
+
+
+#: Grids of the shipped threshold table (:mod:`gyrodiag.cusum_table`): log10 ARL, the
+#: mean-CUSUM reference k and the variance ratio r. h is linear in log ARL to 1e-7 at
+#: 0.25 decades, and h·k linear in k to 2e-3 at 0.05 (ARL within 0.3 %).
+TABLE_LOG10_ARL = tuple(2.0 + 0.25 * i for i in range(45))  # 1e2 … 1e13
+TABLE_K = tuple(round(0.1 + 0.05 * i, 2) for i in range(39))  # 0.1 … 2.0
+TABLE_RATIO = (1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 15.0, 20.0, 30.0, 50.0, 100.0)
+
+
 @lru_cache(maxsize=64)
 def _mean_threshold(arl: float, k: float) -> float:
-    return _solve_threshold(lambda h: mean_cusum_arl(h, k), arl, 5.0)
+    return _solve_threshold(lambda h: mean_cusum_arl(h, k), arl,
+                            _brownian_guess(arl, -k, 1.0))
 
 
 @lru_cache(maxsize=64)
 def _variance_threshold(arl: float, ratio: float) -> float:
-    return _solve_threshold(lambda h: variance_cusum_arl(h, ratio), arl, 5.0)
+    a, c = variance_cusum_increment(ratio)
+    return _solve_threshold(lambda h: variance_cusum_arl(h, ratio), arl,
+                            _brownian_guess(arl, a - c, 2.0 * a * a))
 
 
-def mean_cusum_threshold(arl: float, k: float) -> float:
+def _shipped_table(name: str) -> Any:
+    """A table of :mod:`gyrodiag.cusum_table`; None while it is being regenerated
+    (the chain then gives the same thresholds, slower)."""
+    try:
+        from . import cusum_table
+    except ImportError:
+        return None
+    return getattr(cusum_table, name)
+
+
+def _from_table(table: Any, grid: tuple[float, ...], value: float, log_arl: float,
+                scale_by_value: bool) -> float | None:
+    """Threshold interpolated from a shipped table (None outside it): linear in log10
+    ARL, and linear in ``value`` of h·value (mean CUSUM: h·k is nearly constant) or of
+    h (variance CUSUM)."""
+    lg = TABLE_LOG10_ARL
+    if not (lg[0] <= log_arl <= lg[-1] and grid[0] <= value <= grid[-1]):
+        return None
+    arr = np.asarray(table, dtype=float)
+    col = np.array([np.interp(log_arl, lg, row) for row in arr])
+    if scale_by_value:
+        return float(np.interp(value, grid, col * np.asarray(grid)) / value)
+    return float(np.interp(value, grid, col))
+
+
+def mean_cusum_threshold(arl: float, k: float, *, exact: bool = False) -> float:
     """Threshold ``h`` (σ) of one side of a mean CUSUM with in-control ARL ``arl``
-    samples on white N(0, 1) input (ARL relative accuracy about 1e-5)."""
+    samples on white N(0, 1) input.
+
+    From the shipped table (:mod:`gyrodiag.cusum_table`, ARL within 0.3 %) inside it,
+    else (or with ``exact``) by solving the Markov chain (ARL within 1e-5; seconds).
+    """
     arl = check_in_range("arl", arl, 2.0, 1e15)
     k = check_in_range("k", k, 0.05, 5.0)
+    table = None if exact else _shipped_table("MEAN_H")
+    if table is not None:
+        h = _from_table(table, TABLE_K, k, math.log10(arl), True)
+        if h is not None:
+            return h
     return _mean_threshold(float(arl), float(k))
 
 
-def variance_cusum_threshold(arl: float, ratio: float) -> float:
+def variance_cusum_threshold(arl: float, ratio: float, *, exact: bool = False) -> float:
     """Threshold ``h`` (log-likelihood units) of the variance CUSUM with in-control ARL
-    ``arl`` samples on white N(0, 1) input (ARL within about 3 %)."""
+    ``arl`` samples on white N(0, 1) input; from the shipped table inside it, else (or
+    with ``exact``) by the Markov chain (ARL within about 3 %)."""
     arl = check_in_range("arl", arl, 2.0, 1e15)
     ratio = check_in_range("ratio", ratio, 1.0, 1e6, low_open=True)
+    table = None if exact else _shipped_table("VARIANCE_H")
+    if table is not None:
+        h = _from_table(table, TABLE_RATIO, ratio, math.log10(arl), False)
+        if h is not None:
+            return h
     return _variance_threshold(float(arl), float(ratio))
+
+
+def build_threshold_tables() -> dict[str, list[list[float]]]:
+    """Thresholds on the table grids by the Markov chain (minutes): per k (per ratio),
+    ARL on a ladder of thresholds, inverted by interpolation in log ARL, which is
+    smooth and nearly linear in h."""
+    lg = np.asarray(TABLE_LOG10_ARL)
+    out: dict[str, list[list[float]]] = {"mean": [], "variance": []}
+    for kind, grid in (("mean", TABLE_K), ("variance", TABLE_RATIO)):
+        for value in grid:
+            def arl(h: float, value: float = value, kind: str = kind) -> float:
+                return (mean_cusum_arl(h, value) if kind == "mean"
+                        else variance_cusum_arl(h, value))
+
+            lo = (_mean_threshold if kind == "mean" else _variance_threshold)(
+                10.0 ** (lg[0] - 0.3), value)
+            hi = (_mean_threshold if kind == "mean" else _variance_threshold)(
+                10.0 ** (lg[-1] + 0.3), value)
+            ladder = np.linspace(lo, hi, 40)
+            logs = np.log10([arl(h) for h in ladder])
+            out[kind].append([float(x) for x in np.interp(lg, logs, ladder)])
+    return out
+
+
+def write_threshold_table(path: str,
+                          tables: dict[str, list[list[float]]] | None = None) -> None:
+    """Write :mod:`gyrodiag.cusum_table` (``python -m gyrodiag.sequential PATH``), from
+    ``tables`` or freshly built."""
+    tables = build_threshold_tables() if tables is None else tables
+
+    def rows(name: str, data: list[list[float]]) -> str:
+        lines = [f"{name} = ("]
+        for row in data:
+            numbers = [f"{x:.10g}," for x in row]
+            line = "    ("
+            for num in numbers:
+                if len(line) + len(num) + 1 > 99:
+                    lines.append(line.rstrip())
+                    line = "     "
+                line += num + " "
+            lines.append(line.rstrip() + "),")
+        lines.append(")")
+        return "\n".join(lines) + "\n"
+
+    text = (
+        '"""CUSUM thresholds for white N(0, 1) input, by the Markov chain of\n'
+        "gyrodiag.sequential (generated by ``python -m gyrodiag.sequential PATH``; do not\n"
+        'edit). Rows: TABLE_K (MEAN_H) or TABLE_RATIO (VARIANCE_H); columns:\n'
+        'TABLE_LOG10_ARL."""\n\n'
+        + rows("MEAN_H", tables["mean"]) + "\n" + rows("VARIANCE_H", tables["variance"])
+    )
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write(text)
 
 
 def arl_for_rate(false_alarms_per_h: float, sample_period_s: float, n_charts: int) -> float:
@@ -358,3 +482,9 @@ class CusumBank:
         self._chart_alarm, self._raised, self._count = chart, raised, count
         self._alarm = chart[:n] | chart[n:2 * n] | chart[2 * n:]
         self._any = bool(self._alarm.any())
+
+
+if __name__ == "__main__":  # pragma: no cover - table generation
+    import sys
+
+    write_threshold_table(sys.argv[1])
