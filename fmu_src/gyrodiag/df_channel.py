@@ -505,11 +505,37 @@ class DFChannel:
             return u[-d:], y[:d]
         return u, y
 
-    def _residuals(self, u: NDArray[np.float64], y: NDArray[np.float64]
-                   ) -> NDArray[np.float64]:
+    def _residuals(self, u: NDArray[np.float64], y: NDArray[np.float64],
+                   x_start: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
         f = DetectionFilter(self.A, self.B, self.C, self.K, self.T)
-        f.reset(self._x0)
+        f.reset(self._x0 if x_start is None else x_start)
         return np.array([f.update(u[j], y[j]) for j in range(u.shape[0])])
+
+    def _initial_state(self, u: NDArray[np.float64], y: NDArray[np.float64]
+                       ) -> NDArray[np.float64]:
+        """The state at the window's first sample that best explains it.
+
+        A host seldom starts the plant and the Diagnoser on the same sample from the
+        same state (with Gauss-Seidel the plant has already moved one step, at the
+        elevator's first value, when the Diagnoser sees its first sample: 0.26 rad/s of
+        q error on the seed loop); the observers' transient (slowest pole 1/s, and the
+        whitening filters' 10 s) would count as noise. The residual is linear in the
+        initial error: γ_k = γ_k(x0) − C Fᵏ Δx0; Δx0 by weighted least squares over the
+        window (weights: each channel's residual spread after the burn-in)."""
+        res = self._residuals(u, y)
+        f = self._monitor
+        closed = f.closed_loop_matrix
+        n_rows = res.shape[0]
+        weight = 1.0 / np.maximum(res[self._n_burn:].std(axis=0), 1e-300)
+        blocks = np.empty((n_rows, self.m, self.n))
+        power = np.eye(self.n)
+        for k in range(n_rows):
+            blocks[k] = self.C @ power
+            power = closed @ power
+        lhs = (blocks * weight[None, :, None]).reshape(-1, self.n)
+        rhs = (res * weight[None, :]).reshape(-1)
+        delta = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+        return self._x0 + delta
 
     def _choose_alignment(self) -> int:
         c = self.config
@@ -576,13 +602,15 @@ class DFChannel:
             self._engine = iso
             self._calibrated = True
             return
+        x_start = self._x0 if u is None or y is None else self._initial_state(u, y)
         if c.noise_std is not None:
             variances = np.asarray(c.noise_std, dtype=float) ** 2
         else:
             assert u is not None and y is not None
             f = DetectionFilter(self.A, self.B, self.C, self.K, self.T)
             model = ResidualModel(f.closed_loop_matrix, f.discrete_gain, self.C)
-            variances = estimate_sensor_variances(self._residuals(u, y)[burn:], model)
+            variances = estimate_sensor_variances(
+                self._residuals(u, y, x_start)[burn:], model)
             # A noise-free sensor would make rounding look like faults: floor at 1e−7
             # of the signal's RMS (plus 1e−12 absolute).
             rms = np.sqrt(np.mean(y**2, axis=0))
@@ -591,7 +619,7 @@ class DFChannel:
         engine = SequentialDiagnoser(self.A, self.B, self.C, self.K, self.T, variances,
                                      c.settings(), x0=self._x0)
         if u is not None and y is not None:
-            engine.calibrate_scales(np.hstack([u, y]), burn)
+            engine.calibrate_scales(np.hstack([u, y]), burn, x_start=x_start)
         self._engine = engine
         self._thresholds = None
         self._calibrated = True

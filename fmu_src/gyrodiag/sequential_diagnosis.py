@@ -638,8 +638,8 @@ class SequentialDiagnoser:
         """(mean-CUSUM threshold σ, variance-CUSUM threshold) of every chart."""
         return self.h_mean, self.h_variance
 
-    def calibrate_scales(self, w: ArrayLike, burn_in: int, confidence: float = 0.95
-                         ) -> list[_FloatArray]:
+    def calibrate_scales(self, w: ArrayLike, burn_in: int, confidence: float = 0.95,
+                         x_start: ArrayLike | None = None) -> list[_FloatArray]:
         """Check the whitened variance of every generator on fault-free data and widen
         the channels where it is larger than the model's.
 
@@ -648,7 +648,8 @@ class SequentialDiagnoser:
         ``confidence`` factor (χ², N − burn_in samples) and a Bartlett long-run variance
         estimate, and divides z by its square root where it exceeds 1 (never narrows:
         the model is the floor). Leaves the main filter at the end of the data (ready to
-        monitor) and returns the factors, main generator first.
+        monitor) and returns the factors, main generator first. ``x_start``: the state
+        estimate every observer starts the data from (default ``x0``).
         """
         data = check_finite_array("w", w, shape=(None, self.p + self.m))
         burn = check_int("burn_in", burn_in)
@@ -657,8 +658,10 @@ class SequentialDiagnoser:
             raise ValueError(f"w must have at least 10 samples after burn_in={burn}")
         conf = check_in_range("confidence", confidence, 0.5, 1.0, high_open=True)
         both = ObserverStack([self.main_generator, *self.bank_generators], self.p, self.m)
+        start = self.x0 if x_start is None else check_finite_array(
+            "x_start", x_start, shape=(self.n,))
         for k in range(len(both.generators)):
-            both.set_observer_state(k, self.x0)
+            both.set_observer_state(k, start)
         zs = np.empty((data.shape[0], both.n_out))
         for j in range(data.shape[0]):
             zs[j] = both.update(data[j])[0]
