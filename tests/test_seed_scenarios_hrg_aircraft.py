@@ -39,7 +39,13 @@ AIRCRAFT_FAULTS = {  # scenario -> (fault name, df.fault_type code, magnitude, t
     "aircraft_q_failure": ("q_failure", 4, 0.0, 0.0),
 }
 FAULT_FREE = "aircraft_fault_free"
-ALL = [HRG, *AIRCRAFT_FAULTS, FAULT_FREE]
+#: Scenarios of the sequential detection-filter decision and the calibrated grey detector
+#: (issue 11): small bias, two faulty sensors under Jacobi coupling, noise, ramp,
+#: intermittent faults, noisy HRG output.
+SEQUENTIAL = ["aircraft_alpha_small_bias", "aircraft_dual_bias_jacobi", "aircraft_q_noise",
+              "aircraft_q_ramp", "aircraft_q_intermittent", "hrg_seed001_noise10mv",
+              "hrg_seed001_noise20mv"]
+ALL = [HRG, *AIRCRAFT_FAULTS, FAULT_FREE, *SEQUENTIAL]
 Q_SENSOR = 3  # 1-based index of the pitch-rate sensor in df.y / df.isolated_sensor
 
 #: The fault-free part of the HRG run (see the scenario file): no fault active and
