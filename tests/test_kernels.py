@@ -282,3 +282,45 @@ def test_compiled_kernels_reject_wrong_lengths() -> None:
     sos = ck.SosCascade([1.0, 0.0, 0.0, 0.0, 0.0], 1, 2)
     with pytest.raises(TypeError):
         sos.step(["a", 1.0])
+
+
+# ------------------------------------------------------------------ observer
+def test_linear_observer_kernel_equals_the_matrix_products(backend: str) -> None:
+    rng = np.random.default_rng(8)
+    n, p, m = 5, 2, 6
+    phi = 0.3 * rng.standard_normal((n, n))
+    phi[0, 3] = 0.0  # zero terms are left out of the generated code: still equal
+    gamma = rng.standard_normal((n, p))
+    c = rng.standard_normal((m, n))
+    c[2] = 0.0
+    gain = 0.05 * rng.standard_normal((n, m))
+    kernel = _accel.kernels.LinearObserver(
+        *(a.ravel().tolist() for a in (phi, gamma, c, gain)), n, p, m)
+    z = np.zeros(n)
+    for _ in range(3000):
+        u, y = rng.standard_normal(p), rng.standard_normal(m)
+        r = y - c @ z
+        z = phi @ z + gamma @ u + gain @ r
+        got = kernel.step(u.tolist(), y.tolist())
+        np.testing.assert_allclose(got, r, rtol=0, atol=1e-12 * max(1.0, np.max(np.abs(r))))
+    np.testing.assert_allclose(kernel.get_z(), z, rtol=0, atol=1e-12 * np.max(np.abs(z)))
+    kernel.set_z([1.0] * n)
+    assert kernel.get_z() == [1.0] * n
+    with pytest.raises(ValueError, match="z must hold 5 values"):
+        kernel.set_z([1.0] * 4)
+
+
+def test_compiled_observer_equals_the_fallback_exactly() -> None:
+    if not _has_compiled():
+        pytest.skip(f"compiled kernels not built: {_accel.IMPORT_ERROR}")
+    from gyrodiag import _ckernels as ck
+
+    rng = np.random.default_rng(9)
+    n, p, m = 4, 1, 3
+    mats = [rng.standard_normal(s) * 0.2 for s in ((n, n), (n, p), (m, n), (n, m))]
+    mats[2][1, 2] = 0.0
+    args = [*(a.ravel().tolist() for a in mats), n, p, m]
+    a, b = _pykernels.LinearObserver(*args), ck.LinearObserver(*args)
+    for row in rng.standard_normal((2000, p + m)).tolist():
+        assert list(a.step(row[:p], row[p:])) == list(b.step(row[:p], row[p:]))
+    assert a.get_z() == b.get_z()

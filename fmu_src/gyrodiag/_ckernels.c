@@ -332,6 +332,121 @@ static PyType_Spec Rls_spec = {
     "gyrodiag._ckernels.PotterRLS", sizeof(RlsObject), 0, Py_TPFLAGS_DEFAULT, Rls_slots,
 };
 
+/* ------------------------------------------------------------------ LinearObserver */
+typedef struct {
+    PyObject_HEAD
+    Py_ssize_t n, p, m;
+    double *phi, *gamma, *c, *l; /* row-major: n*n, n*p, m*n, n*m */
+    double *z, *u, *y, *r, *nz;
+} ObsObject;
+
+static int Obs_init(ObsObject *self, PyObject *args, PyObject *kwds)
+{
+    PyObject *phi, *gamma, *c, *l;
+    Py_ssize_t n, p, m;
+    static char *kwlist[] = {"phi", "gamma", "C", "L", "n", "p", "m", NULL};
+    if (!PyArg_ParseTupleAndKeywords(args, kwds, "OOOOnnn", kwlist, &phi, &gamma, &c, &l,
+                                     &n, &p, &m))
+        return -1;
+    if (n < 1 || p < 0 || m < 1) {
+        PyErr_SetString(PyExc_ValueError, "need n >= 1, p >= 0, m >= 1");
+        return -1;
+    }
+    free(self->phi);
+    Py_ssize_t total = n * n + n * p + m * n + n * m + n + p + m + m + n;
+    self->phi = calloc(total + 1, sizeof(double));
+    if (!self->phi) { PyErr_NoMemory(); return -1; }
+    self->gamma = self->phi + n * n;
+    self->c = self->gamma + n * p;
+    self->l = self->c + m * n;
+    self->z = self->l + n * m;
+    self->u = self->z + n;
+    self->y = self->u + p;
+    self->r = self->y + m;
+    self->nz = self->r + m;
+    self->n = n; self->p = p; self->m = m;
+    if (read_doubles(phi, self->phi, n * n, "phi") < 0 || read_doubles(gamma, self->gamma, n * p, "gamma") < 0
+        || read_doubles(c, self->c, m * n, "C") < 0 || read_doubles(l, self->l, n * m, "L") < 0)
+        return -1;
+    return 0;
+}
+
+static void Obs_dealloc(ObsObject *self)
+{
+    free(self->phi);
+    PyTypeObject *tp = Py_TYPE((PyObject *)self);
+    freefunc tp_free = PyType_GetSlot(tp, Py_tp_free);
+    tp_free((void *)self);
+    Py_DECREF(tp);
+}
+
+static PyObject *Obs_step(ObsObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 2) {
+        PyErr_SetString(PyExc_TypeError, "step(u, y) takes 2 arguments");
+        return NULL;
+    }
+    Py_ssize_t n = self->n, p = self->p, m = self->m;
+    if (read_doubles(args[0], self->u, p, "u") < 0 || read_doubles(args[1], self->y, m, "y") < 0)
+        return NULL;
+    const double *z = self->z;
+    for (Py_ssize_t i = 0; i < m; i++) {
+        const double *row = self->c + i * n;
+        double acc = row[0] * z[0];
+        for (Py_ssize_t j = 1; j < n; j++) acc = acc + row[j] * z[j];
+        self->r[i] = self->y[i] - acc;
+    }
+    for (Py_ssize_t k = 0; k < n; k++) {
+        const double *row = self->phi + k * n;
+        double a = row[0] * z[0];
+        for (Py_ssize_t j = 1; j < n; j++) a = a + row[j] * z[j];
+        if (p > 0) {
+            const double *g = self->gamma + k * p;
+            double b = g[0] * self->u[0];
+            for (Py_ssize_t j = 1; j < p; j++) b = b + g[j] * self->u[j];
+            a = a + b;
+        }
+        const double *lr = self->l + k * m;
+        double e = lr[0] * self->r[0];
+        for (Py_ssize_t i = 1; i < m; i++) e = e + lr[i] * self->r[i];
+        self->nz[k] = a + e;
+    }
+    memcpy(self->z, self->nz, sizeof(double) * n);
+    return tuple_of(self->r, m);
+}
+
+static PyObject *Obs_get_z(ObsObject *self, PyObject *unused)
+{
+    return list_of(self->z, self->n);
+}
+
+static PyObject *Obs_set_z(ObsObject *self, PyObject *seq)
+{
+    if (read_doubles(seq, self->z, self->n, "z") < 0) return NULL;
+    Py_RETURN_NONE;
+}
+
+static PyMethodDef Obs_methods[] = {
+    {"step", (PyCFunction)(void (*)(void))Obs_step, METH_FASTCALL,
+     "One sample: returns the residual y - Cz and advances z."},
+    {"get_z", (PyCFunction)Obs_get_z, METH_NOARGS, "Observer state z."},
+    {"set_z", (PyCFunction)Obs_set_z, METH_O, "Set the observer state z."},
+    {NULL, NULL, 0, NULL},
+};
+
+static PyType_Slot Obs_slots[] = {
+    {Py_tp_doc, "Discrete observer step z <- Phi z + Gamma u + L (y - C z)."},
+    {Py_tp_init, Obs_init},
+    {Py_tp_dealloc, Obs_dealloc},
+    {Py_tp_methods, Obs_methods},
+    {Py_tp_new, PyType_GenericNew},
+    {0, NULL},
+};
+
+static PyType_Spec Obs_spec = {
+    "gyrodiag._ckernels.LinearObserver", sizeof(ObsObject), 0, Py_TPFLAGS_DEFAULT, Obs_slots,
+};
+
 /* ------------------------------------------------------------------ grey */
 #define GREY_STACK 64
 
@@ -434,6 +549,11 @@ static int module_exec(PyObject *module)
     PyObject *rls = PyType_FromSpec(&Rls_spec);
     if (rls == NULL || PyModule_AddObject(module, "PotterRLS", rls) < 0) {
         Py_XDECREF(rls);
+        return -1;
+    }
+    PyObject *obs = PyType_FromSpec(&Obs_spec);
+    if (obs == NULL || PyModule_AddObject(module, "LinearObserver", obs) < 0) {
+        Py_XDECREF(obs);
         return -1;
     }
     return 0;

@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-__all__ = ["PotterRLS", "SosCascade", "improved_grey_predict"]
+__all__ = ["LinearObserver", "PotterRLS", "SosCascade", "improved_grey_predict"]
 
 
 _STEP_CACHE: dict[tuple, object] = {}
@@ -357,3 +357,87 @@ def _improved_grey_loop(
         e *= q
     pred = e + corr  # e = amp·e^{−a(m−1)} = x̂⁰(m+1)
     return (pred - level) + lo, a, False
+
+
+def _observer_source(phi: list[list[float]], gamma: list[list[float]], c: list[list[float]],
+                     gain: list[list[float]]) -> str:
+    """Straight-line observer step with the matrices as literals (zero terms left out).
+
+    ``repr`` of a float round-trips exactly; leaving out a zero coefficient leaves every
+    sum of finite terms unchanged, so the result equals the full matrix products
+    computed in the same order (the C kernel's).
+    """
+    n, p, m = len(phi), len(gamma[0]) if gamma else 0, len(c)
+    ind = "    "
+
+    def dot(row: list[float], names: list[str]) -> str:
+        terms = [f"{v!r} * {name}" for v, name in zip(row, names, strict=True) if v != 0.0]
+        return " + ".join(terms) if terms else "0.0"
+
+    zs = [f"z{j}" for j in range(n)]
+    us = [f"u{j}" for j in range(p)]
+    rs = [f"r{i}" for i in range(m)]
+    L = ["def observer_step(st, u, y):"]
+    L.append(ind + "".join(f"{z}, " for z in zs) + "= st[0]")
+    if p:
+        L.append(ind + "".join(f"{v}, " for v in us) + "= u")
+    L.append(ind + "".join(f"y{i}, " for i in range(m)) + "= y")
+    for i in range(m):
+        L.append(ind + f"r{i} = y{i} - ({dot(c[i], zs)})")
+    for k in range(n):
+        parts = [f"({dot(phi[k], zs)})"]
+        if p:
+            parts.append(f"({dot(gamma[k], us)})")
+        parts.append(f"({dot(gain[k], rs)})")
+        L.append(ind + f"n{k} = " + " + ".join(parts))
+    L.append(ind + "st[0] = [" + ", ".join(f"n{k}" for k in range(n)) + "]")
+    L.append(ind + "return [" + ", ".join(rs) + "]")
+    return "\n".join(L) + "\n"
+
+
+class LinearObserver:
+    """Discrete observer step z ← Φz + Γu + L(y − Cz), returning the residual y − Cz.
+
+    Parameters
+    ----------
+    phi, gamma, C, L : sequence of float
+        Matrices row-major: Φ (n×n), Γ (n×p), C (m×n), L (n×m).
+    n, p, m : int
+        States, inputs, outputs.
+
+    Notes
+    -----
+    Sums left to right in index order; the new state is ((Φz) + (Γu)) + (L·r).
+    """
+
+    def __init__(self, phi: Sequence[float], gamma: Sequence[float], C: Sequence[float],
+                 L: Sequence[float], n: int, p: int, m: int) -> None:
+        self.n, self.p, self.m = int(n), int(p), int(m)
+
+        def rows(flat: Sequence[float], r: int, k: int, name: str) -> list[list[float]]:
+            vals = [float(v) for v in flat]
+            if len(vals) != r * k:
+                raise ValueError(f"{name} must hold {r * k} values, got {len(vals)}")
+            return [vals[i * k:(i + 1) * k] for i in range(r)]
+
+        source = _observer_source(rows(phi, n, n, "phi"), rows(gamma, n, p, "gamma"),
+                                  rows(C, m, n, "C"), rows(L, n, m, "L"))
+        namespace: dict[str, object] = {}
+        exec(compile(source, "<gyrodiag kernel observer>", "exec"), namespace)
+        self._fn = namespace["observer_step"]
+        self._st: list = [[0.0] * self.n]
+
+    def get_z(self) -> list[float]:
+        """Observer state z."""
+        return list(self._st[0])
+
+    def set_z(self, z: Sequence[float]) -> None:
+        """Set the observer state z (n values)."""
+        vals = [float(v) for v in z]
+        if len(vals) != self.n:
+            raise ValueError(f"z must hold {self.n} values, got {len(vals)}")
+        self._st[0] = vals
+
+    def step(self, u: Sequence[float], y: Sequence[float]) -> list[float]:
+        """One sample: returns the a-priori residual y − Cz and advances z."""
+        return self._fn(self._st, u, y)  # type: ignore[operator]
