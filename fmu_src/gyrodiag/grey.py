@@ -1008,6 +1008,7 @@ class GreyFaultDetector:
         self._envelope_max = -math.inf
         self._hold = math.nan
         self._cal_errors: list[float] = []
+        self._statistic = 0.0  # of the last valid sample (held over skipped ones)
         self._sigma = math.nan
         self._sq_sum = 0.0  # squared errors judged fault-free (σ_e refinement)
         self._sq_n = 0
@@ -1086,10 +1087,13 @@ class GreyFaultDetector:
         if not math.isfinite(value):
             return GreyDetectorOutput(
                 t, value, predicted, math.nan, self._in_alarm, self._onset, False, False,
-                self.calibrated and math.isnan(self._sigma), 0.0,
+                self.calibrated and (math.isnan(self._sigma) or not self.predictor.ready),
+                self._statistic,
             )
         if self.calibrated:
-            return self._update_calibrated(value, t, predicted)
+            out = self._update_calibrated(value, t, predicted)
+            self._statistic = out.statistic
+            return out
 
         was_ready = self.predictor.ready
         self._n_accepted += 1
@@ -1123,6 +1127,7 @@ class GreyFaultDetector:
             self._onset = math.nan
             self._hold = math.nan
         stat = abs(error) / self.threshold if was_ready and math.isfinite(error) else 0.0
+        self._statistic = stat
         return GreyDetectorOutput(
             t, value, predicted, error, alarm, self._onset, True, False, False, stat
         )
@@ -1384,6 +1389,7 @@ class GreyFaultDetector:
             hold=float(self._hold),
             cal_errors=np.asarray(self._cal_errors, dtype=float),
             sigma=float(self._sigma),
+            statistic=float(self._statistic),
             sq_sum=float(self._sq_sum),
             sq_n=int(self._sq_n),
             cusum=np.asarray(self._cusum, dtype=float),
@@ -1412,7 +1418,8 @@ class GreyFaultDetector:
         """
         own = {
             "pending_prediction", "in_alarm", "onset_time_s", "recent", "n_accepted",
-            "envelope_min", "envelope_max", "hold", "cal_errors", "sigma", "sq_sum", "sq_n",
+            "envelope_min", "envelope_max", "hold", "cal_errors", "sigma", "statistic",
+            "sq_sum", "sq_n",
             "cusum", "clean",
             "n_clean", "substituting", "run", "settle", "held", "chosen", "cand_pending",
             "cand_sq",
@@ -1455,6 +1462,7 @@ class GreyFaultDetector:
         self._hold = float(state["hold"])
         self._cal_errors = [float(x) for x in np.asarray(state["cal_errors"]).reshape(-1)]
         self._sigma = float(state["sigma"])
+        self._statistic = float(state["statistic"])
         self._sq_sum = float(state["sq_sum"])
         self._sq_n = int(state["sq_n"])
         self._cusum = [float(cusum[0]), float(cusum[1])]
