@@ -289,7 +289,7 @@ class Diagnoser(FacadeBase):
         p("grey.false_alarm_rate", "Real", "parameter", 1e-3,
           "Calibrated, sequential: design false-alarm rate (per hour)")
         _meta("grey.false_alarm_rate", "1/h", 1e-9, 3600.0)
-        p("grey.cusum_k", "Real", "parameter", 1.0,
+        p("grey.cusum_k", "Real", "parameter", 1.5,
           "Calibrated, sequential: CUSUM reference in sigma_e")
         _meta("grey.cusum_k", "1", 0.05, 5.0)
         p("grey.suspicion_sigma", "Real", "parameter", 3.0,
