@@ -290,8 +290,9 @@ class DTGChannel:
             self._learn(t, theta)
         if self.theta0 is None or self._decisions is None:
             self._last = DTGChannelOutput(
-                True, True, theta, np.ones((2, N_THETA)), _physical(theta, self.T), False, 0,
-                np.zeros(N_THETA, dtype=np.int64), self._first_alarm_time,
+                True, not self.reference_failed, theta, np.ones((2, N_THETA)),
+                _physical(theta, self.T), False, 0, np.zeros(N_THETA, dtype=np.int64),
+                self._first_alarm_time,
             )
             return self._last
 
@@ -328,13 +329,21 @@ class DTGChannel:
             self._learn_count += 1
         elif t >= c.learn_end_s and self._learn_count > 0:
             theta0 = self._learn_sum / self._learn_count
+            self._learn_count = 0
             if np.any(theta0 == 0.0):
-                raise ValueError(
-                    "learned theta0 has a zero entry (no excitation in the learning window?)"
-                    f": {list(theta0)}"
-                )
+                # No excitation in the learning window (e.g. a host's default zero
+                # inputs): no reference, so no ratios and no alarm, rather than a failure
+                # of every later sample. See reference_failed.
+                return
             self.theta0 = theta0
             self._decisions = self._make_decisions(theta0)
+
+    @property
+    def reference_failed(self) -> bool:
+        """True once the learning window has ended without a usable θ0 (a zero entry:
+        no excitation); the channel then never alarms."""
+        return (self.theta0 is None and self._learn_count == 0
+                and self._n_samples * self.T > self.config.learn_end_s)
 
     # -- state ----------------------------------------------------------------
     def get_state(self) -> dict[str, Any]:
