@@ -316,7 +316,7 @@ class Diagnoser(FacadeBase):
         _meta("grey.calibrate_s", "s", 0.0)
         p("grey.k_sigma", "Real", "parameter", 5.0,
           "Calibrated: alarm when |y - prediction| > k_sigma * sigma_e")
-        _meta("grey.k_sigma", "1", 0.0)
+        _meta("grey.k_sigma", "1", POSITIVE)
         p("grey.sequential", "Boolean", "parameter", False,
           "Calibrated: alarm by a two-sided CUSUM on the error / sigma_e (threshold for "
           "grey.false_alarm_rate) instead of the k-sigma test")
@@ -329,7 +329,7 @@ class Diagnoser(FacadeBase):
         p("grey.suspicion_sigma", "Real", "parameter", 3.0,
           "Calibrated: a sample off its prediction by more than this many sigma_e is "
           "not fed to the predictor until the test decides")
-        _meta("grey.suspicion_sigma", "1", 0.0)
+        _meta("grey.suspicion_sigma", "1", POSITIVE)
         p("grey.auto_order", "Boolean", "parameter", False,
           "Calibrated, improved model: also run residual orders 1 and 0 during the "
           "calibration and keep the one with the least error (noise favours low orders)")
@@ -408,13 +408,13 @@ class Diagnoser(FacadeBase):
         _meta("df.cusum_k", "1", 0.05, 5.0)
         p("df.variance_ratio", "Real", "parameter", 4.0,
           "Sequential: variance increase the variance CUSUMs are designed for (> 1)")
-        _meta("df.variance_ratio", "1", 1.0, 1e6)
+        _meta("df.variance_ratio", "1", 1.0 + 1e-9, 1e6)
         p("df.max_faults", "Integer", "parameter", 2,
           "Sequential: simultaneously faulty sensors to isolate (1 or 2)")
         _meta("df.max_faults", None, 1, 2)
         p("df.history_s", "Real", "parameter", 4.0,
           "Sequential: samples kept to start the isolation before a change")
-        _meta("df.history_s", "s", 0.0, 600.0)
+        _meta("df.history_s", "s", POSITIVE, 600.0)
         p("df.memory_s", "Real", "parameter", 10.0,
           "Sequential: the isolation keeps running this long after a fault episode")
         _meta("df.memory_s", "s", 0.0)

@@ -153,10 +153,16 @@ class ResidualModel:
         if np.any(np.diag(r) <= 0.0):
             raise ValueError("sensor_variances must be > 0 to whiten the residual")
         rho = check_in_range("regularisation", regularisation, 0.0, 1.0, low_open=True)
-        cross = -self.L @ r  # E[(−L v_k) (v_k)ᵀ]: process and measurement noise share v
-        p = scipy.linalg.solve_discrete_are(
-            self.F.T, self.C.T, self.L @ r @ self.L.T, r * (1.0 + rho), s=cross
+        # The Riccati equation is homogeneous in r: solve it for r scaled to unit size so
+        # that tiny noise (a noise-free sensor's floor, 1e-24) is not lost in its
+        # tolerances, then scale P back (the gain does not change).
+        size = float(np.max(np.diag(r)))
+        r_unit = r / size
+        cross = -self.L @ r_unit  # E[(−L v_k) (v_k)ᵀ]: process and measurement noise share v
+        p = size * scipy.linalg.solve_discrete_are(
+            self.F.T, self.C.T, self.L @ r_unit @ self.L.T, r_unit * (1.0 + rho), s=cross
         )
+        cross = cross * size
         s = self.C @ p @ self.C.T + r * (1.0 + rho)
         s = 0.5 * (s + s.T)
         gain = (self.F @ p @ self.C.T + cross) @ np.linalg.inv(s)
