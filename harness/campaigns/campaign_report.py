@@ -100,9 +100,14 @@ def summarize(records: list[dict[str, Any]], n_planned: int | None = None) -> di
         k = sum(bool(r["detected"]) for r in rs)
         right = sum(r["diagnosed"] == r["run"]["injected"] for r in rs)
         lo, hi = clopper_pearson(k, len(rs))
-        detection.append({"class": cls, "fault_type": ftype, "magnitude": mag, "n": len(rs),
-                          "detected": k, "rate": k / len(rs), "ci_low": lo, "ci_high": hi,
-                          "isolated": right, "isolation_rate": right / len(rs)})
+        row = {"class": cls, "fault_type": ftype, "magnitude": mag, "n": len(rs),
+               "detected": k, "rate": k / len(rs), "ci_low": lo, "ci_high": hi,
+               "isolated": right, "isolation_rate": right / len(rs)}
+        typed = [r for r in rs if r.get("expected_type")]
+        if typed:  # channels that type the fault (sequential detection filter)
+            row["typed"] = sum(r.get("typed") == r["expected_type"] for r in typed)
+            row["n_typed"] = len(typed)
+        detection.append(row)
 
     false_alarms: dict[str, dict[str, Any]] = {}
     for ch in sorted({r["run"]["channel"] for r in ok}):
@@ -318,9 +323,11 @@ def markdown_summary(summary: dict[str, Any], title: str = "campaign") -> str:
                      f"{c.get('correct', 0)} of {c.get('n', 0)}"])
     lines += _md_table(["channel", "false alarms / h (95 % upper)", "detected",
                         "delay median / p95 / max, s", "isolated right"], rows)
-    lines += _md_table(["class", "fault", "magnitude", "detected", "isolated right"],
+    lines += _md_table(["class", "fault", "magnitude", "detected", "isolated right",
+                        "typed right"],
                        [[r["class"], r["fault_type"], r["magnitude"],
-                         f"{r['detected']} of {r['n']}", f"{r.get('isolated', '–')} of {r['n']}"]
+                         f"{r['detected']} of {r['n']}", f"{r.get('isolated', '–')} of {r['n']}",
+                         f"{r['typed']} of {r['n_typed']}" if "typed" in r else "–"]
                         for r in summary["detection"]])
     for key, sw in summary["threshold_sweep"].items():
         lines.append(f"Threshold sweep, {key} (configured {sw['configured_threshold']}):")
