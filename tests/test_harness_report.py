@@ -217,6 +217,26 @@ def test_theta_plot_has_five_panels_like_the_paper(full_run: RunResult) -> None:
     plots.figure_to_png(fig)
 
 
+def test_plots_are_palette_pngs_that_look_the_same_in_a_third_of_the_space(
+        full_run: RunResult) -> None:
+    import io
+
+    from PIL import Image
+
+    fig = plots.plot_theta(full_run, "diag.dtg", sample_period_s=0.001)
+    full, small = plots.figure_to_png(fig, colors=None), plots.figure_to_png(fig)
+    with Image.open(io.BytesIO(full)) as a, Image.open(io.BytesIO(small)) as b:
+        assert (a.mode, b.mode) == ("RGBA", "P") and a.size == b.size
+        diff = np.abs(np.asarray(a.convert("RGB"), float) - np.asarray(b.convert("RGB"),
+                                                                      float))
+    print(f"theta plot: RGBA {len(full)} B, palette {len(small)} B, mean |diff| "
+          f"{diff.mean():.3f} of 255, 99.9 % <= {np.percentile(diff, 99.9):.0f}")
+    assert len(full) / len(small) >= 2.0
+    assert diff.mean() < 0.5 and np.percentile(diff, 99.9) <= 24
+    with pytest.raises(ValueError, match=r"colors must be 2\.\.256 or None, got 1000"):
+        plots.figure_to_png(fig, colors=1000)
+
+
 def test_residual_plot_thresholds_and_fault_shading(full_run: RunResult) -> None:
     fig = plots.plot_signals_with_faults(
         full_run, ["diag.df.residual[1]", "diag.df.residual[2]"],

