@@ -7,9 +7,10 @@
 * with libcosim from the SSP that ``export-ssp`` writes (``ssp``; not for the case with a
   physical fault, which SSP cannot carry),
 
-and saves ``OUT_DIR/<case>-<master>/`` (the harness's run format), the SSP
-``OUT_DIR/<case>.ssp`` with ``OUT_DIR/<case>.export.json`` (what the export reported),
-and ``OUT_DIR/<case>.types.json`` (the FMI type of every recorded signal).
+and saves ``OUT_DIR/<case>-<master>/`` (the harness's run format with every bit, since
+the masters are compared to 1e-10), the SSP ``OUT_DIR/<case>.ssp`` with
+``OUT_DIR/<case>.export.json`` (what the export reported), and
+``OUT_DIR/<case>.types.json`` (the FMI type of every recorded signal).
 """
 
 from __future__ import annotations
@@ -86,7 +87,7 @@ def main(fmu_dir: Path, out_dir: Path) -> None:
                                   path=ROOT / "scenarios" / f"{case}.toml")
         harness = run_scenario(scenario, fmu_dir=fmu_dir, progress=False,
                                results_dir=results)
-        harness.save(out_dir / f"{case}-harness")
+        harness.save(out_dir / f"{case}-harness", precision="float64")
         names = list(harness.signals)
         types = {}
         for inst, spec in scenario.fmus.items():
@@ -95,7 +96,7 @@ def main(fmu_dir: Path, out_dir: Path) -> None:
         (out_dir / f"{case}.types.json").write_text(
             json.dumps({n: types[n] for n in names}), encoding="utf-8")
         lc = run_scenario_libcosim(scenario, fmu_dir=fmu_dir, results_dir=results)
-        lc.save(out_dir / f"{case}-libcosim")
+        lc.save(out_dir / f"{case}-libcosim", precision="float64")
         if scenario.physical_faults:
             continue
         ssp_file = out_dir / f"{case}.ssp"
@@ -103,7 +104,7 @@ def main(fmu_dir: Path, out_dir: Path) -> None:
         (out_dir / f"{case}.export.json").write_text(json.dumps(
             {"components": done.components, "parameters": done.parameters,
              "not_carried": done.not_carried}), encoding="utf-8")
-        run_ssp_libcosim(ssp_file, names).save(out_dir / f"{case}-ssp")
+        run_ssp_libcosim(ssp_file, names).save(out_dir / f"{case}-ssp", precision="float64")
 
 
 if __name__ == "__main__":
