@@ -35,7 +35,7 @@ def _run(ch, rec):
 def test_learns_theta0_then_detects_and_classifies_a_torquer_fault():
     cfg = DTGChannelConfig(
         sample_period_s=T, prefilter_enabled=False, estimator="forgetting", forgetting=0.99,
-        p0=1e8, learn_start_s=0.5, learn_end_s=2.0,
+        p0=1e8, learn_start_s=0.5, learn_end_s=2.0, classifier="paper",
         signatures={"torquer_gain": [0, 0, 0, 0, -1], "pickoff_loss": [-3, -1, 1, 1, 2]},
     )
     ch = DTGChannel(cfg)
@@ -114,6 +114,7 @@ def test_windowed_classification_is_the_median_of_the_per_sample_features():
         ch = DTGChannel(DTGChannelConfig(
             sample_period_s=T, prefilter_enabled=False, p0=1e8, forgetting=0.99,
             theta0=list(theta_from_physical(STABLE_ROTOR, T)), classify_window_s=w,
+            classifier="paper",
             signatures={"torquer_weak": [0, 0, 0, 0, -1], "near_nominal": [0, 0, 0, 0, 0]}))
         outs[w] = _run(ch, rec)
     single, smooth = outs[0.0], outs[window * T]
@@ -131,6 +132,7 @@ def test_windowed_classification_is_the_median_of_the_per_sample_features():
     ch = DTGChannel(DTGChannelConfig(
         sample_period_s=T, prefilter_enabled=False, p0=1e8, forgetting=0.99,
         theta0=list(theta_from_physical(STABLE_ROTOR, T)), classify_window_s=window * T,
+        classifier="paper",
         signatures={"torquer_weak": [0, 0, 0, 0, -1], "near_nominal": [0, 0, 0, 0, 0]}))
     _run(ch, rec[:1500])
     state = ch.get_state()
@@ -143,6 +145,7 @@ def test_windowed_classification_is_the_median_of_the_per_sample_features():
     with pytest.raises(ValueError, match="classify_window_s"):
         DTGChannel(DTGChannelConfig(
             sample_period_s=T, prefilter_enabled=False, p0=1e8, classify_window_s=0.2,
+            classifier="paper",
             theta0=list(theta_from_physical(STABLE_ROTOR, T)))).set_state(state)
 
 
@@ -157,7 +160,12 @@ def test_windowed_classification_is_the_median_of_the_per_sample_features():
         ({"theta0": [1.0, 0.0, 1.0, 1.0, 1.0]}, "theta0"),
         ({"learn_start_s": 2.0, "learn_end_s": 1.0}, "learn_end_s"),
         ({"low": 2.0}, "low"),
-        ({"signatures": {"a": [0, 0, 0]}}, "signatures"),
+        ({"signatures": {"a": [0, 0, 0]}, "classifier": "paper"}, "signatures"),
+        ({"signatures": {"a": [0, 0, 0, 0, 0]}}, "signatures"),
+        ({"classifier": "nearest"}, "classifier"),
+        ({"long_window_s": 0.2}, "long_window_s"),
+        ({"var_threshold": 1.0}, "var_threshold"),
+        ({"learn_start_s": 1.0, "learn_end_s": 1.03}, "learn_end_s"),
         ({"classify_window_s": -0.1}, "classify_window_s"),
     ],
 )
