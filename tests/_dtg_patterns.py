@@ -59,3 +59,46 @@ def pattern_library_dict(sample_period_s: float, *, prior: bool = False) -> dict
         }
     assert math.isfinite(block_s)
     return lib
+
+
+#: Responses of a library learned on the paper plant (offline study, docs/notes.md),
+#: rounded: (name, type, signal, response, base).
+_LEARNED = [
+    ("utx_step", "step", "Utx", [102.6, 0.0, 0.0, 0.0, 213.0, 348.7], None),
+    ("uty_step", "step", "Uty", [0.0, 110.8, 0.0, 0.0, -332.9, 205.5], None),
+    ("ux_step", "step", "Ux", [0.0, 0.0, 5.442, 0.0, -50.49, 0.0], None),
+    ("uy_step", "step", "Uy", [0.0, 0.0, 0.0, 5.344, 0.0, -45.89], None),
+    ("utx_noise", "noise", "Utx", [10730.0, 0.0, 0.0, 0.0, 864800.0, 10340.0], None),
+    ("uty_noise", "noise", "Uty", [0.0, 10480.0, 0.0, 0.0, 10580.0, 812500.0], None),
+    ("ux_noise", "noise", "Ux", [0.0, 0.0, 0.948, 0.0, 10.15, 0.0], None),
+    ("uy_noise", "noise", "Uy", [0.0, 0.0, 0.0, 0.9831, 0.0, 11.21], None),
+    ("utx_loss", "loss", "Utx", [10730.0, 0.0, 0.0, 0.0, 864800.0, 10340.0],
+     [None, 0.0, 0.0, 0.0, 13.03, 1.918]),
+    ("uty_loss", "loss", "Uty", [0.0, 10480.0, 0.0, 0.0, 10580.0, 812500.0],
+     [0.0, None, 0.0, 0.0, 1.758, 13.65]),
+    ("ux_loss", "loss", "Ux", [0.0, 0.0, 0.948, 0.0, 10.15, 0.0],
+     [0.0, 0.0, None, 0.0, 14.71, 0.0]),
+    ("uy_loss", "loss", "Uy", [0.0, 0.0, 0.0, 0.9831, 0.0, 11.21],
+     [0.0, 0.0, 0.0, None, 0.0, 12.55]),
+    ("utx_drift", "drift", "Utx", [110.6, 0.0, 0.0, 0.0, 213.5, 366.4], None),
+    ("uty_drift", "drift", "Uty", [0.0, 111.3, 0.0, 0.0, -339.0, 217.8], None),
+    ("ux_drift", "drift", "Ux", [0.0, 0.0, 5.386, 0.0, -48.64, 0.0], None),
+    ("uy_drift", "drift", "Uy", [0.0, 0.0, 0.0, 5.337, 0.0, -45.69], None),
+    ("spin", "spin", None, [0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0], None),
+    ("torquer", "torquer", None, [0.0, 0.0, 0.0, 0.0, 0.95, 0.0, 0.0, 0.0, 0.0, 1.02], None),
+]
+
+
+def learned_library_dict() -> dict[str, Any]:
+    """The 18 classes of the paper plant at 1 kHz with their learned noise model."""
+    return {
+        "format": FORMAT, "sample_period_s": 1e-3, "block_s": 0.025,
+        "classes": [{"name": n, "type": t, "signal": s, "response": r,
+                     **({} if b is None else {"base": b})} for n, t, s, r, b in _LEARNED],
+        "noise": {"level_std": [0.217, 0.262, 0.109, 0.11, 0.0958, 0.094],
+                  "log_variance_std": [0.164, 0.177, 0.0306, 0.0332, 0.127, 0.111],
+                  "log_eta_std": [0.0003, 0.0007, 0.0152, 0.0161, 0.0084, 0.0003, 0.0007,
+                                  0.0163, 0.0169, 0.007],
+                  "reference_blocks": 20, "exponent": 0.4},
+        "growth_threshold": 0.13, "loss_margin": 2.0, "max_distance": 3.6,
+    }

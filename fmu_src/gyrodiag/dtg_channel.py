@@ -51,7 +51,7 @@ from .dtg_reference import (
     NominalReference,
     ReferenceLearner,
     ResidualMonitor,
-    TestThresholds,
+    ResidualThresholds,
 )
 from .estimators import RLS, ForgettingRLS, SlidingWindowLS
 from .prefilter import ButterworthPrefilter
@@ -141,7 +141,7 @@ class DTGChannelConfig:
         Window of the long variance test and the longest classification window, s.
     level_threshold, var_threshold, long_var_threshold : float
         Raise thresholds of the residual tests (:class:`~gyrodiag.dtg_reference.
-        TestThresholds`): level z, short- and long-window variance ratios.
+        ResidualThresholds`): level z, short- and long-window variance ratios.
     theta_spread_threshold : float
         Learning guard: a segment's θ spread against the segments before it.
     clear_after_s : float
@@ -181,9 +181,9 @@ class DTGChannelConfig:
     clear_after_s: float = 0.5
 
     @property
-    def thresholds(self) -> TestThresholds:
+    def thresholds(self) -> ResidualThresholds:
         """The residual-test thresholds."""
-        return TestThresholds(self.level_threshold, self.var_threshold,
+        return ResidualThresholds(self.level_threshold, self.var_threshold,
                               self.long_var_threshold, self.theta_spread_threshold)
 
     @property
@@ -585,7 +585,10 @@ class DTGChannel:
             if self._pattern is not None:
                 result = self._pattern.classify_physical(stats)
         if stats is None:
-            stats = mon.window_statistics(self._short_blocks)
+            # pending classification: the blocks of the alarm so far (the test window
+            # without alarm), so that the outputs never mix in data from before the alarm
+            k = mon.blocks_in_alarm if mon.alarm else self._short_blocks
+            stats = mon.window_statistics(max(1, min(k, self._short_blocks)))
         alarm = mon.alarm or band_alarm
         if not alarm:
             kind = (0, 0, 0, "")

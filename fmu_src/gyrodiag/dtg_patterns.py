@@ -471,14 +471,25 @@ class PatternClassifier:
             base = np.ones(N_CHANNELS)
         else:
             base = np.where(np.isnan(c.base), 0.0, 1.0 + np.nan_to_num(c.base))
-        pred = base[None, :] + _AMPLITUDE_GRID[:, None] * c.response[None, :]
-        pred_lv = np.clip(np.log10(np.maximum(pred, 1e-300)), LOG_VAR_MIN, LOG_VAR_MAX)
-        chi_v = np.minimum((lv[None, :] - pred_lv) ** 2 / s_lv2[None, :], cap).sum(axis=1)
+        def score(grid: NDArray[np.float64]) -> tuple[NDArray[np.float64],
+                                                       NDArray[np.float64]]:
+            pred = base[None, :] + grid[:, None] * c.response[None, :]
+            lv_pred = np.clip(np.log10(np.maximum(pred, 1e-300)), LOG_VAR_MIN, LOG_VAR_MAX)
+            return (np.minimum((lv[None, :] - lv_pred) ** 2 / s_lv2[None, :], cap).sum(axis=1),
+                    lv_pred)
+
+        chi_v, _ = score(_AMPLITUDE_GRID)
         g = int(np.argmin(chi_v))
+        # refine between the neighbours of the coarse optimum (1 % in amplitude)
+        lo = _AMPLITUDE_GRID[max(g - 1, 0)]
+        hi = _AMPLITUDE_GRID[min(g + 1, _AMPLITUDE_GRID.size - 1)]
+        fine = np.geomspace(lo, hi, 41)
+        chi_f, lv_pred = score(fine)
+        f = int(np.argmin(chi_f))
         # the level of a noisy channel wanders more than nominal: a loose spread (×3)
-        ratio = np.maximum(10.0 ** pred_lv[g], 1.0)
+        ratio = np.maximum(10.0 ** lv_pred[f], 1.0)
         chi_l = np.minimum((level / (3.0 * s_level * np.sqrt(ratio))) ** 2, cap).sum()
-        return float(chi_v[g] + chi_l), float(_AMPLITUDE_GRID[g])
+        return float(chi_f[f] + chi_l), float(fine[f])
 
     def _rate(self, p: NDArray[np.float64], stats: ClassificationStatistics,
               ratio_obs: NDArray[np.float64], s_level: NDArray[np.float64]) -> float:

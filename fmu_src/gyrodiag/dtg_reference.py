@@ -61,7 +61,7 @@ __all__ = [
     "NominalReference",
     "ReferenceLearner",
     "ResidualMonitor",
-    "TestThresholds",
+    "ResidualThresholds",
     "block_moments",
     "regression_residuals",
     "window_moments",
@@ -346,7 +346,7 @@ class NominalReference:
 
 
 @dataclass(frozen=True)
-class TestThresholds:
+class ResidualThresholds:
     """Raise thresholds of the residual tests (hold thresholds are derived).
 
     Attributes
@@ -392,7 +392,7 @@ class ReferenceLearner:
         Samples per block.
     short_blocks, long_blocks : int
         Window lengths of the residual tests, blocks.
-    thresholds : TestThresholds
+    thresholds : ResidualThresholds
         Thresholds of the segment checks (the residual tests' own, plus θ spread).
     block_s : float
         Block duration, s.
@@ -406,7 +406,7 @@ class ReferenceLearner:
     """
 
     def __init__(self, block_samples: int, short_blocks: int, long_blocks: int,
-                 thresholds: TestThresholds, block_s: float) -> None:
+                 thresholds: ResidualThresholds, block_s: float) -> None:
         self.block_samples = check_int("block_samples", block_samples, minimum=1)
         self.block_s = check_positive("block_s", block_s)
         self.short_blocks = check_int("short_blocks", short_blocks, minimum=1)
@@ -692,7 +692,7 @@ class ResidualMonitor:
         Block duration, s.
     short_blocks, long_blocks : int
         Test windows, blocks (long ≥ short).
-    thresholds : TestThresholds
+    thresholds : ResidualThresholds
         Raise thresholds.
     clear_blocks : int
         Blocks without any test above its hold threshold after which an alarm clears.
@@ -703,7 +703,7 @@ class ResidualMonitor:
     SKIP_BLOCKS = 2
 
     def __init__(self, reference: NominalReference, block_samples: int, block_s: float,
-                 short_blocks: int, long_blocks: int, thresholds: TestThresholds,
+                 short_blocks: int, long_blocks: int, thresholds: ResidualThresholds,
                  clear_blocks: int) -> None:
         self.reference = reference
         self.block_samples = check_int("block_samples", block_samples, minimum=1)

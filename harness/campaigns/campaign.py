@@ -139,6 +139,10 @@ class Sweep(_Strict):
     duration_s: float | None = Field(default=None, gt=0)
     post_onset_s: float | None = Field(default=None, gt=0)
     extra: dict[str, float] = Field(default_factory=dict)
+    #: Other diagnoses that count as right, for classes that cannot be told apart at
+    #: these magnitudes (e.g. a DTG signal loss that leaves more noise than the signal
+    #: had is a noise fault for every statistic: ``accept = ["utx_noise"]``).
+    accept: list[str] = Field(default_factory=list)
 
     model_config = ConfigDict(extra="forbid", populate_by_name=True)
 
@@ -239,6 +243,7 @@ class RunSpec(_Strict):
     onset_s: float | None = None
     target: int | None = None          # injector channel
     injected: str | None = None        # diagnosis that counts as right
+    accepted: list[str] = Field(default_factory=list)  # also right (merged classes)
     thresholds: list[float]
     fmu_dir: str | None = None
     results_dir: str | None = None
@@ -309,7 +314,8 @@ def expand_runs(spec: CampaignSpec, base_dir: Path, out_dir: Path | None = None)
                         runs.append(make(sw.cls, "fault", duration, str(r), fault,
                                          fault_type=sw.label or sw.type,
                                          magnitude=None if math.isnan(mag) else mag,
-                                         onset_s=onset, target=ch, injected=injected))
+                                         onset_s=onset, target=ch, injected=injected,
+                                         accepted=list(sw.accept)))
     for nom in spec.nominal:
         for r in range(nom.runs):
             runs.append(make(nom.cls, "nominal", nom.duration_s, str(r), None))
@@ -333,7 +339,10 @@ def _signals(run: RunSpec) -> list[str]:
                 + [f"{d}.df.alarm[{i}]" for i in range(1, 7)]
                 + [f"{d}.df.detected", f"{d}.df.isolated_sensor", f"{d}.df.calibrating"])
     return ([f"{d}.dtg.eta_{ax}[{i}]" for ax in "xy" for i in range(1, 6)]
-            + [f"{d}.dtg.alarm", f"{d}.dtg.learning", f"{d}.dtg.fault_code"])
+            + [f"{d}.dtg.alarm", f"{d}.dtg.learning", f"{d}.dtg.fault_code",
+               f"{d}.dtg.fault_axis", f"{d}.dtg.reference_status"]
+            + [f"{d}.dtg.residual_{name}[{a}]" for name in
+               ("level_z", "var_ratio", "long_var_ratio") for a in (1, 2)])
 
 
 def build_scenario(run: RunSpec) -> Any:
@@ -408,13 +417,41 @@ def alarm_statistic(run: RunSpec, scenario: Any, t: np.ndarray,
     learning = sig[f"{d}.dtg.learning"] > 0.5
     dev = np.abs(eta - 1.0)
     dev = np.where(np.isfinite(dev), dev, np.inf)
-    s = np.where(learning, 0.0, dev.max(axis=1))
-    ready = np.flatnonzero(~learning & (t > 0))
-    t_ready = float(t[ready[0]]) if ready.size else float(t[-1])
     if not math.isclose(1.0 - low, high - 1.0, rel_tol=1e-9):
         raise ValueError(f"{d}: dtg.low/dtg.high ({low}, {high}) are not symmetric about 1: "
                          "the threshold sweep needs a symmetric band")
+    if str(_param(scenario, d, "dtg.classifier", "pattern")) == "pattern":
+        return _pattern_statistic(scenario, d, t, sig, dev.max(axis=1) / (high - 1.0))
+    s = np.where(learning, 0.0, dev.max(axis=1))
+    ready = np.flatnonzero(~learning & (t > 0))
+    t_ready = float(t[ready[0]]) if ready.size else float(t[-1])
     return s, t_ready, high - 1.0
+
+
+def _pattern_statistic(scenario: Any, d: str, t: np.ndarray, sig: dict[str, np.ndarray],
+                       band: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """Pattern classifier: the largest raise statistic in units of its threshold —
+    residual level z / dtg.level_threshold, log variance ratios / log of their
+    thresholds, and the ratio band's |η − 1| / (high − 1). ``T = 1`` is the configured
+    setting; the FMU's alarm also holds below the raise thresholds (hold thresholds,
+    ``dtg.clear_after_s``), which ``sweep_mismatch`` shows."""
+    z_thr = float(_param(scenario, d, "dtg.level_threshold", 6.0))
+    v_thr = float(_param(scenario, d, "dtg.var_threshold", 4.0))
+    vl_thr = float(_param(scenario, d, "dtg.long_var_threshold", 2.0))
+    parts = [band]
+    for a in (1, 2):
+        parts.append(sig[f"{d}.dtg.residual_level_z[{a}]"] / z_thr)
+        parts.append(np.log10(np.maximum(sig[f"{d}.dtg.residual_var_ratio[{a}]"], 1e-12))
+                     / math.log10(v_thr))
+        parts.append(np.log10(np.maximum(sig[f"{d}.dtg.residual_long_var_ratio[{a}]"],
+                                         1e-12)) / math.log10(vl_thr))
+    s = np.max(np.column_stack(parts), axis=1)
+    # judged from the first sample with a reference (status >= 1), as the channel
+    ready_mask = (sig[f"{d}.dtg.reference_status"] > 0.5) & (t > 0)
+    s = np.where(ready_mask, s, 0.0)
+    ready = np.flatnonzero(ready_mask)
+    t_ready = float(t[ready[0]]) if ready.size else float(t[-1])
+    return s, t_ready, 1.0
 
 
 def _rising_edges(on: np.ndarray) -> np.ndarray:
@@ -469,6 +506,7 @@ def simulate_run(run_dict: dict[str, Any]) -> dict[str, Any]:
     from harness.cosim.master import run_scenario
 
     run = RunSpec.model_validate(run_dict)
+    extra: dict[str, Any] = {}
     scenario = build_scenario(run)
     result = run_scenario(scenario, fmu_dir=run.fmu_dir, progress=False,
                           results_dir=run.results_dir)
@@ -489,6 +527,8 @@ def simulate_run(run_dict: dict[str, Any]) -> dict[str, Any]:
         names = _signature_names(scenario, run)
         diagnosed = (names[code - 1] if 1 <= code <= len(names)
                      else {0: "none", -1: "unknown"}.get(code, f"code {code}"))
+        axis = f"{d}.dtg.fault_axis"
+        extra["diagnosed_axis"] = int(np.rint(sig[axis][-1])) if axis in sig else None
     stat, t_ready, t_config = alarm_statistic(run, scenario, t, sig)
     detected, delay, n_false, free = judge(t, alarm, t_ready, run.onset_s)
     judged = t >= t_ready
@@ -508,18 +548,22 @@ def simulate_run(run_dict: dict[str, Any]) -> dict[str, Any]:
         "threshold_config": t_config, "sweep": sweep, "sweep_mismatch": mismatch,
         "peak_before": float(before.max()) if before.size else None,
         "peak_after": float(after.max()) if after.size else None,
-        "sim_wall_s": result.wall_time_s,
+        "sim_wall_s": result.wall_time_s, **extra,
     }
 
 
 def _signature_names(scenario: Any, run: RunSpec) -> list[str]:
+    """Class names in code order: of the decade signatures, or of a pattern library."""
     from harness.cosim.scenario import resolve_file_parameters
 
     files = resolve_file_parameters(scenario, run.results_dir, must_exist=False)
     path = files.get(run.diagnoser, {}).get("dtg.signature_file")
     if path is None or not Path(path).is_file():
         return []
-    return list(json.loads(Path(path).read_text(encoding="utf-8"))["signatures"])
+    data = json.loads(Path(path).read_text(encoding="utf-8"))
+    if "patterns" in data:
+        return [c["name"] for c in data["patterns"]["classes"]]
+    return list(data["signatures"])
 
 
 # --------------------------------------------------------------------------- guard

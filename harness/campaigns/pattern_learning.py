@@ -377,9 +377,14 @@ def learn_patterns(runs: Sequence[PatternRun], codes: dict[str, int], *,
     gs, gd = [], []
     for rs in by_class.values():
         for r in rs:
+            # the classification windows: a short window (and the two skipped blocks)
+            # after the alarm rose, as the channel classifies
             sel = r.residual_alarm & (r.window_s >= short_window_s * 0.95)
             if r.onset_s is not None:
                 sel &= r.time >= r.onset_s
+            rose = np.flatnonzero(sel)
+            if rose.size:
+                sel &= r.time >= r.time[rose[0]] + short_window_s + 2.0 * block_s
             if r.type == "step":
                 gs.append(r.growth[sel])
             elif r.type == "drift":

@@ -15,6 +15,8 @@ from harness.campaigns.signatures import (
     DEFAULT_WINDOW_S,
     SignatureLibrary,
     check_training_scenarios,
+    is_pattern_training,
+    learn_pattern_library,
     learn_signatures,
 )
 from harness.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE
@@ -55,6 +57,8 @@ def cmd_learn_signatures(args: argparse.Namespace) -> int:
         results = [RunResult.load(runs_dir / s.name) for s in scenarios]
     else:
         results = run_all(scenarios, runs_dir, args.fmu_dir, not args.no_progress)
+    if is_pattern_training(scenarios):
+        return _write_patterns(scenarios, results, args.out)
     try:
         lib = learn_signatures(scenarios, results, args.window_s)
     except (ValueError, KeyError) as exc:
@@ -63,6 +67,30 @@ def cmd_learn_signatures(args: argparse.Namespace) -> int:
     lib.write(args.out)
     _print_library(lib)
     print(f"signature library: {args.out}")
+    return EXIT_OK
+
+
+def _write_patterns(scenarios: Any, results: Any, out: Path) -> int:
+    """Learn and write a pattern library (pattern training set)."""
+    import json
+
+    try:
+        lib, content = learn_pattern_library(scenarios, results)
+    except (ValueError, KeyError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(content, indent=1) + "\n", encoding="utf-8")
+    for run in content["training"]["runs"]:
+        mark = "" if run["classified"] == run["class"] else f"  <- classified {run['classified']!r}"
+        print(f"  run {run['scenario']}: class {run['class']}, size {run['size']:g}, "
+              f"distance {run['distance']:.2f}{mark}")
+    for i, c in enumerate(lib.classes, start=1):
+        print(f"class {i} {c.name} ({c.type}, {c.signal or 'physical'}): response "
+              + ", ".join(f"{v:.3g}" for v in c.response))
+    print(f"growth threshold {lib.growth_threshold:.3f}, max distance "
+          f"{lib.max_distance if lib.max_distance is None else round(lib.max_distance, 2)}")
+    print(f"pattern library: {out}")
     return EXIT_OK
 
 
