@@ -5,8 +5,10 @@
 
 1. ``build_fmu.py --out FMU_DIR`` in a fresh process (skipped with ``--no-build``);
 2. ``learn-signatures`` on ``SCENARIOS/training`` → ``OUT/dtg_signatures.json`` (the
-   DTG fault scenarios load it through their ``${out}/dtg_signatures.json`` file
-   parameter);
+   DTG fault scenarios of the paper's rule load it through their
+   ``${out}/dtg_signatures.json`` file parameter), and on ``SCENARIOS/training/patterns``
+   → ``OUT/dtg_patterns.json`` (the pattern classifier's library, read by the
+   ``dtg_pattern_*`` scenarios);
 3. ``verify`` of every ``SCENARIOS/*.toml`` → ``OUT/<name>/``, ``OUT/junit.xml``,
    ``OUT/report.html``;
 4. the seed aircraft's isolability report → ``OUT/isolability.html`` and ``.txt``.
@@ -18,13 +20,18 @@ a run, an expectation), 2 on invalid scenario files.
 from __future__ import annotations
 
 import argparse
+import json
 import subprocess
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
-from harness.campaigns.signatures import check_training_scenarios, learn_signatures
+from harness.campaigns.signatures import (
+    check_training_scenarios,
+    learn_pattern_library,
+    learn_signatures,
+)
 from harness.cli.common import EXIT_FAILED, EXIT_OK, verify_and_report
 from harness.cosim.batch import load_all, run_all
 from harness.verification.isolability import render, seed_isolability_report, write
@@ -86,6 +93,24 @@ def cmd_all(args: argparse.Namespace) -> int:
         library.write(out / "dtg_signatures.json")
         for name, sig in library.signatures.items():
             print(f"  signature {library.codes[name]} {name}: C = {sig.tolist()}")
+    patterns_dir = training_dir / "patterns"
+    if patterns_dir.is_dir():
+        print(f"== learning the DTG fault patterns from {patterns_dir}", flush=True)
+        training = load_all([patterns_dir])
+        check_training_scenarios(training)
+        runs = run_all(training, out / "training", args.fmu_dir, progress)
+        if any(r.error is not None for r in runs):
+            print("error: a pattern training run failed", file=sys.stderr)
+            return EXIT_FAILED
+        try:
+            _, content = learn_pattern_library(training, runs)
+        except (ValueError, KeyError) as exc:
+            print(f"error: learning the patterns failed: {exc}", file=sys.stderr)
+            return EXIT_FAILED
+        (out / "dtg_patterns.json").write_text(json.dumps(content, indent=1) + "\n",
+                                               encoding="utf-8")
+        print(f"  {len(content['patterns']['classes'])} classes -> "
+              f"{out / 'dtg_patterns.json'}")
 
     print(f"== verifying the seed scenarios in {args.scenarios}", flush=True)
     scenarios = load_all([args.scenarios])
