@@ -29,6 +29,11 @@ status instead of raising, and the shim returns fmi2Error for such a call. The o
 pythonfmu library is kept next to it as ``pythonfmu-export.so``. Without a C compiler
 the FMU is built unwrapped, with a warning (errors then surface as fmi2OK + log).
 
+A shipped package with C kernels (``gyrodiag/_ckernels.c``) gets them compiled here for
+the building Python (CPython stable ABI: any CPython >= 3.11 on the platform) as
+``resources/gyrodiag/_ckernels.abi3.so``; extension modules and caches the builder copied
+from the source tree are dropped. Without a compiler the FMU runs the plain-Python kernels.
+
 Finally every FMU is checked with ``fmpy.validation.validate_fmu``; any problem makes
 the command exit non-zero.  An FMU whose source folder does not exist yet is skipped with
 a message (it is not an error).
@@ -127,7 +132,7 @@ def source_files(entry: tuple[str, str, str]) -> list[Path]:
     """Every file whose change makes the FMU stale (script, project files, this builder)."""
     out = [script_path(entry), Path(__file__).resolve(), SHIM_SOURCE]
     for p in project_files(entry):
-        out.extend(sorted(p.rglob("*.py")) if p.is_dir() else [p])
+        out.extend(sorted([*p.rglob("*.py"), *p.rglob("*.c")]) if p.is_dir() else [p])
     return out
 
 
@@ -294,6 +299,33 @@ def compile_status_shim(work_dir: Path) -> Path | None:
     return out
 
 
+def compile_kernels(source: Path, work_dir: Path) -> Path | None:
+    """Compile a package's C kernels (``_ckernels.c``) for the Python running this build.
+
+    The extension uses the CPython stable ABI (3.11), so the ``.abi3.so`` loads in any
+    CPython >= 3.11 on the same platform, whatever numpy it has. Returns None with a
+    warning when there is no compiler (the FMU then runs the plain-Python kernels).
+    """
+    import shutil
+    import sysconfig
+
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None or not sys.platform.startswith("linux"):
+        print("[build_fmu] warning: no C compiler (or not Linux): the FMU gets no compiled "
+              "kernels and runs the plain-Python fallback")
+        return None
+    work_dir.mkdir(parents=True, exist_ok=True)
+    out = work_dir / "_ckernels.abi3.so"
+    include = sysconfig.get_paths()["include"]
+    cmd = [cc, "-O2", "-shared", "-fPIC", "-ffp-contract=off", "-Wall", "-Wextra",
+           "-Wno-unused-parameter", "-Wno-missing-field-initializers",
+           "-Wno-cast-function-type", "-Werror", f"-I{include}", "-o", str(out), str(source)]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(f"compiling {source.name} failed:\n{proc.stderr}")
+    return out
+
+
 HOST_NOTES = """
 <h2>Using this FMU</h2>
 <p>This is an FMI 2.0 co-simulation FMU made with pythonfmu 0.7: its binary starts the
@@ -315,6 +347,11 @@ process and run long campaigns in separate processes.</li>
 the call returns fmi2Error (binaries/linux64 carries a small status shim around
 pythonfmu's library, which itself would report fmi2Fatal). The Windows binary is
 pythonfmu's own, without the shim.</li>
+<li>Speed: per-sample kernels are compiled (<code>resources/gyrodiag/_ckernels.abi3.so</code>,
+Linux x86-64, any CPython &ge; 3.11, any numpy; no JIT, no cache folder, nothing written
+at run time). Where it does not load (another platform or Python) the FMU runs the same
+kernels in plain Python, with the same outputs to 1e-12, slower; the environment
+variable <code>GYRODIAG_KERNELS=python</code> forces that fallback.</li>
 <li>The FMU supports fmi2Get/SetFMUstate and state serialisation; the saved state holds
 every internal filter state, covariance and window.</li>
 </ul>
@@ -359,10 +396,14 @@ pre{{white-space:pre-wrap}}</style></head><body>
 def rewrite_fmu(
     fmu: Path, model_description: bytes, requirements: list[str], model_identifier: str,
     shim: Path | None, documentation: bytes | None = None,
+    kernels: dict[str, Path] | None = None,
 ) -> None:
     """Replace modelDescription.xml, add resources/requirements.txt and the
-    documentation, wrap the Linux binary with the status shim."""
+    documentation, wrap the Linux binary with the status shim, and put the compiled
+    kernels ``kernels`` (archive name → file) in place of any extension modules the
+    builder copied from the source tree (those are for whichever Python built them)."""
     linux_binary = f"binaries/linux64/{model_identifier}.so"
+    kernels = kernels or {}
     buffer = io.BytesIO()
     with zipfile.ZipFile(fmu) as src, zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as dst:
         names = set(src.namelist())
@@ -372,7 +413,13 @@ def rewrite_fmu(
                 continue
             if shim is not None and info.filename == linux_binary:
                 continue
+            if info.filename.startswith("resources/") and (
+                info.filename.endswith((".so", ".pyc")) or "__pycache__/" in info.filename
+            ):
+                continue
             dst.writestr(info, src.read(info.filename))
+        for name, path in kernels.items():
+            dst.writestr(name, path.read_bytes())
         dst.writestr("modelDescription.xml", model_description)
         dst.writestr("resources/requirements.txt", "\n".join(requirements) + "\n")
         if documentation is not None:
@@ -414,8 +461,18 @@ def build_one(name: str, out_dir: Path) -> Path:
     for note in notes:
         print(f"[build_fmu] {name}: note: {note}")
     shim = compile_status_shim(out_dir / ".shim" / name)
+    kernels: dict[str, Path] = {}
+    with zipfile.ZipFile(built) as zf:
+        c_sources = [n for n in zf.namelist()
+                     if n.startswith("resources/") and n.endswith("/_ckernels.c")]
+    for c_name in c_sources:
+        package = c_name[len("resources/"):-len("/_ckernels.c")]
+        compiled = compile_kernels(script.parent / package / "_ckernels.c",
+                                   out_dir / ".kernels" / name / package)
+        if compiled is not None:
+            kernels[f"resources/{package}/_ckernels.abi3.so"] = compiled
     rewrite_fmu(built, fixed, list(getattr(module, "REQUIREMENTS", DEFAULT_REQUIREMENTS)),
-                model_name, shim, documentation_html(fixed, module.__doc__ or ""))
+                model_name, shim, documentation_html(fixed, module.__doc__ or ""), kernels)
     final = out_dir / f"{name}.fmu"
     built.replace(final)
     return final

@@ -1,28 +1,35 @@
-"""Cost of one Diagnoser.fmu doStep with all channels on at 1 kHz, and what it is made of.
+"""Cost of a Diagnoser.fmu step per channel, as ratios to cheap FMUs, compiled and fallback.
 
 Usage::
 
-    .venv/bin/python benchmarks/bench_diagnoser.py [--steps 5000] [--warmup 1500]
+    .venv/bin/python benchmarks/bench_diagnoser.py [--steps 3000] [--warmup 1500] [--no-chain]
 
-Measures, in one run, on the same input records:
+Measures, in one run, each FMU in a fresh process through fmpy (DESIGN §6.11), on the
+same input records at 1 kHz:
 
-* Diagnoser.fmu doStep (DTG + grey + detection filter, sample period 1 ms), through
-  fmpy, in a fresh process (DESIGN §6.11); also the whole host step (set the 13 inputs,
-  doStep, read the 60 outputs);
-* a trivial pythonfmu FMU (one Real output set in do_step), built here in a temporary
-  directory with pythonfmu's builder, in its own fresh process: the floor of any
-  pythonfmu FMU step;
-* the library channels called directly (DTGChannel, GreyFaultDetector, DFChannel) in
-  this process: the floor of the diagnosis itself.
+* the host step of a trivial pythonfmu FMU (one Real output set in do_step, built here in
+  a temporary directory with pythonfmu's builder): the floor of any pythonfmu step;
+* the host step of FaultInjector.fmu (set its inputs, doStep), the near-trivial FMU of
+  the project that the targets are stated against;
+* the host step of Diagnoser.fmu (set the channel's inputs, doStep) for the DTG, grey and
+  detection-filter channels alone and all together, with the default install (compiled
+  kernels) and with the plain-Python fallback (``GYRODIAG_KERNELS=python``);
+* the Diagnoser's fmi2Instantiate and its initialisation (channels built) per channel;
+* the library channels called directly (no FMI) with both kernel sets;
+* the real-time factor of the DTG 1 kHz chain, the seed scenario ``dtg_nominal``
+  (DTG → FaultInjector → two Diagnoser DTG channels, 60 s) through the harness.
 
-Prints figures only (no assertions). The detection filter calibrates over the warm-up
-(0.5 s) so that the timed steps are steady-state monitoring steps, fault-free.
+Prints figures only (no assertions); medians of per-step times. The detection filter
+calibrates over the warm-up (0.5 s), so the timed steps are steady-state monitoring.
+Targets (issue 14): all-channel step ≤ 4× the FaultInjector step (default install),
+≤ 12× (fallback); DTG chain real-time factor ≥ 10; instantiate ≤ 0.4 s.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -37,9 +44,16 @@ IN_NAMES = (
     ["dtg.Utx", "dtg.Uty", "dtg.Ux", "dtg.Uy", "grey.y", "df.u[1]", "df.u[2]"]
     + [f"df.y[{i}]" for i in range(1, 7)]
 )
-PARAMS = {"sample_period_s": H, "df.calibrate_s": 0.5, "df.burn_in_s": 0.1,
-          "dtg.learn_start_s": 0.2, "dtg.learn_end_s": 0.8, "dtg.p0": 1e8,
-          "grey.window": 10, "grey.threshold": 0.05}
+BASE_PARAMS = {"sample_period_s": H, "df.calibrate_s": 0.5, "df.burn_in_s": 0.1,
+               "dtg.learn_start_s": 0.2, "dtg.learn_end_s": 0.8, "dtg.p0": 1e8,
+               "grey.window": 10, "grey.threshold": 0.05}
+#: channel configuration → (enabled channels, input columns of IN_NAMES)
+CONFIGS = {
+    "DTG": (("dtg",), list(range(0, 4))),
+    "grey": (("grey",), [4]),
+    "DF": (("df",), list(range(5, 13))),
+    "all": (("dtg", "grey", "df"), list(range(13))),
+}
 
 TRIVIAL_SCRIPT = '''
 from pythonfmu import Fmi2Causality, Fmi2Slave, Real
@@ -94,8 +108,8 @@ def make_records(n: int, seed: int = 1) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ FMU measurement
-def measure_fmu(fmu: Path, records: Path | None, warmup: int, steps: int) -> dict:
-    """Runs in a fresh process: per-step times of doStep (and of the whole host step)."""
+def measure_fmu(fmu: Path, spec: dict, warmup: int, steps: int) -> dict:
+    """Runs in a fresh process: instantiate/initialise times and per-step times."""
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
 
@@ -105,55 +119,70 @@ def measure_fmu(fmu: Path, records: Path | None, warmup: int, steps: int) -> dic
     types = {v.name: v.type for v in md.modelVariables}
     slave = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir,
                       modelIdentifier=md.coSimulation.modelIdentifier, instanceName="bench")
+    t0 = time.perf_counter()
     slave.instantiate()
+    t_inst = time.perf_counter() - t0
     slave.setupExperiment(startTime=0.0)
-    if records is not None:
-        for name, value in PARAMS.items():
-            if types[name] == "Real":
-                slave.setReal([vr[name]], [float(value)])
-            else:
-                slave.setInteger([vr[name]], [int(value)])
+    for name, value in spec.get("params", {}).items():
+        setter = {"Real": slave.setReal, "Integer": slave.setInteger,
+                  "Boolean": slave.setBoolean}[types[name]]
+        setter([vr[name]], [value])
+    t0 = time.perf_counter()
     slave.enterInitializationMode()
     slave.exitInitializationMode()
-    rec = np.load(records) if records is not None else None
-    in_vr = [vr[n] for n in IN_NAMES] if rec is not None else []
+    t_init = time.perf_counter() - t0
+    in_names = spec.get("inputs")
+    if in_names is None:  # every Real input (the FaultInjector)
+        in_names = [v.name for v in md.modelVariables
+                    if v.causality == "input" and v.type == "Real"]
+    in_vr = [vr[n] for n in in_names]
+    rec = np.load(spec["records"])[:, spec["columns"]] if "records" in spec else None
+    if rec is None and in_vr:
+        rec = np.random.default_rng(0).standard_normal((warmup + steps, len(in_vr)))
     outputs = [v for v in md.modelVariables if v.causality == "output"]
-    out_real = [v.valueReference for v in outputs if v.type == "Real"]
-    out_int = [v.valueReference for v in outputs if v.type == "Integer"]
-    out_bool = [v.valueReference for v in outputs if v.type == "Boolean"]
-    do_step = np.empty(warmup + steps)
+    out_by_type = {kind: [v.valueReference for v in outputs if v.type == kind]
+                   for kind in ("Real", "Integer", "Boolean")}
+    getters = {"Real": slave.getReal, "Integer": slave.getInteger, "Boolean": slave.getBoolean}
+    host = np.empty(warmup + steps)
     whole = np.empty(warmup + steps)
+    rows = rec.tolist() if rec is not None else None
     for k in range(warmup + steps):
         t0 = time.perf_counter()
-        if rec is not None:
-            slave.setReal(in_vr, rec[k].tolist())
-        t1 = time.perf_counter()
+        if rows is not None:
+            slave.setReal(in_vr, rows[k])
         slave.doStep(currentCommunicationPoint=k * H, communicationStepSize=H)
-        t2 = time.perf_counter()
-        slave.getReal(out_real)
-        if out_int:
-            slave.getInteger(out_int)
-        if out_bool:
-            slave.getBoolean(out_bool)
-        t3 = time.perf_counter()
-        do_step[k], whole[k] = t2 - t1, t3 - t0
+        t1 = time.perf_counter()
+        for kind, refs in out_by_type.items():
+            if refs:
+                getters[kind](refs)
+        whole[k] = time.perf_counter() - t0
+        host[k] = t1 - t0
+    accelerated = None
+    accel = sys.modules.get("gyrodiag._accel")
+    if accel is not None:
+        accelerated = bool(accel.ACCELERATED)
     slave.terminate()
     slave.fmi2FreeInstance(slave.component)
     timed = slice(warmup, None)
-    return {"do_step_us": 1e6 * float(np.median(do_step[timed])),
-            "do_step_mean_us": 1e6 * float(np.mean(do_step[timed])),
-            "whole_step_us": 1e6 * float(np.median(whole[timed])),
-            "n_outputs": len(outputs)}
+    return {"step_us": 1e6 * float(np.median(host[timed])),
+            "whole_us": 1e6 * float(np.median(whole[timed])),
+            "instantiate_s": t_inst, "initialise_s": t_init,
+            "n_inputs": len(in_vr), "n_outputs": len(outputs), "accelerated": accelerated}
 
 
-def run_measurement(fmu: Path, records: Path | None, warmup: int, steps: int) -> dict:
+def run_measurement(fmu: Path, spec: dict, warmup: int, steps: int,
+                    fallback: bool = False) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "result.json"
-        cmd = [sys.executable, __file__, "--_measure", str(fmu), str(out),
+        spec_file = Path(tmp) / "spec.json"
+        spec_file.write_text(json.dumps(spec))
+        cmd = [sys.executable, __file__, "--_measure", str(fmu), str(out), str(spec_file),
                "--warmup", str(warmup), "--steps", str(steps)]
-        if records is not None:
-            cmd += ["--records", str(records)]
-        subprocess.run(cmd, check=True, cwd=ROOT)
+        env = dict(os.environ)
+        env.pop("GYRODIAG_KERNELS", None)
+        if fallback:
+            env["GYRODIAG_KERNELS"] = "python"
+        subprocess.run(cmd, check=True, cwd=ROOT, env=env)
         return json.loads(out.read_text())
 
 
@@ -166,84 +195,170 @@ def build_trivial(tmp: Path) -> Path:
     return tmp / "GdBenchTrivial.fmu"
 
 
-def diagnoser_fmu() -> Path:
-    """build/fmus/Diagnoser.fmu, rebuilt first if older than its sources."""
+def built_fmus(names: list[str]) -> Path:
+    """build/fmus with these FMUs, rebuilt first if older than their sources."""
     out = ROOT / "build" / "fmus"
     sys.path.insert(0, str(ROOT))
     import build_fmu
 
-    if build_fmu.stale_fmus(out, ["Diagnoser"]):
+    if build_fmu.stale_fmus(out, names):
         subprocess.run([sys.executable, str(ROOT / "build_fmu.py"), "--out", str(out),
-                        "Diagnoser"], check=True, cwd=ROOT, capture_output=True)
-    return out / "Diagnoser.fmu"
+                        *names], check=True, cwd=ROOT, capture_output=True)
+    return out
 
 
 # ------------------------------------------------------------------ library measurement
-def measure_library(rec: np.ndarray, warmup: int) -> dict:
-    """Per-step times of the three channels called directly, same settings as PARAMS."""
-    from gyrodiag.df_channel import DFChannel, DFChannelConfig
-    from gyrodiag.dtg_channel import DTGChannel, DTGChannelConfig
-    from gyrodiag.grey import GreyFaultDetector, ImprovedGreyPredictor
+def measure_library(rec: np.ndarray, warmup: int, kernels: str) -> dict:
+    """Per-step times of the three channels called directly, same settings as BASE_PARAMS."""
+    from gyrodiag import _accel
 
-    dtg = DTGChannel(DTGChannelConfig(sample_period_s=H, learn_start_s=0.2, learn_end_s=0.8,
-                                      p0=1e8))
-    grey = GreyFaultDetector(ImprovedGreyPredictor(10, a_min=1e-6), 0.05, H, 20.0)
-    df = DFChannel(DFChannelConfig(sample_period_s=H, calibrate_s=0.5, burn_in_s=0.1))
+    previous = _accel.use(kernels)
+    try:
+        from gyrodiag.df_channel import DFChannel, DFChannelConfig
+        from gyrodiag.dtg_channel import DTGChannel, DTGChannelConfig
+        from gyrodiag.grey import GreyFaultDetector, ImprovedGreyPredictor
+
+        dtg = DTGChannel(DTGChannelConfig(sample_period_s=H, learn_start_s=0.2,
+                                          learn_end_s=0.8, p0=1e8))
+        grey = GreyFaultDetector(ImprovedGreyPredictor(10, a_min=1e-6), 0.05, H, 20.0)
+        df = DFChannel(DFChannelConfig(sample_period_s=H, calibrate_s=0.5, burn_in_s=0.1))
+    finally:
+        _accel.kernels = previous
+        _accel.ACCELERATED = previous is not _accel._pykernels
     times = np.empty((len(rec), 3))
-    for k, row in enumerate(rec):
-        t0 = time.perf_counter()
+    rows = rec.tolist()
+    perf = time.perf_counter
+    for k, row in enumerate(rows):
+        t0 = perf()
         dtg.update(row[0], row[1], row[2], row[3])
-        t1 = time.perf_counter()
-        grey.update(float(row[4]), time_s=k * H)
-        t2 = time.perf_counter()
+        t1 = perf()
+        grey.update(row[4], time_s=k * H)
+        t2 = perf()
         df_out = df.update(row[5:7], row[7:13])
-        t3 = time.perf_counter()
+        t3 = perf()
         times[k] = (t1 - t0, t2 - t1, t3 - t2)
-    med = 1e6 * np.median(times[warmup:], axis=0)
-    total = 1e6 * float(np.median(times[warmup:].sum(axis=1)))
     if df_out.calibrating:
         raise RuntimeError("the detection filter is still calibrating: raise --warmup")
-    return {"dtg_us": float(med[0]), "grey_us": float(med[1]), "df_us": float(med[2]),
-            "total_us": total}
+    med = 1e6 * np.median(times[warmup:], axis=0)
+    return {"DTG": float(med[0]), "grey": float(med[1]), "DF": float(med[2]),
+            "all": 1e6 * float(np.median(times[warmup:].sum(axis=1)))}
 
 
+# ------------------------------------------------------------------ DTG chain
+_CHAIN_RUNNER = """
+import json, os, sys, time
+from harness import load_scenario, run_scenario
+s = load_scenario(sys.argv[1])
+t0 = time.perf_counter()
+r = run_scenario(s, fmu_dir=sys.argv[2], progress=False)
+print(json.dumps({"sim_s": s.duration_s, "wall_s": time.perf_counter() - t0,
+                  "error": r.error}))
+sys.stdout.flush()
+os._exit(0)
+"""
+
+
+def measure_chain(fmu_dir: Path, fallback: bool) -> dict:
+    env = dict(os.environ)
+    env.pop("GYRODIAG_KERNELS", None)
+    if fallback:
+        env["GYRODIAG_KERNELS"] = "python"
+    proc = subprocess.run([sys.executable, "-c", _CHAIN_RUNNER,
+                           str(ROOT / "scenarios" / "dtg_nominal.toml"), str(fmu_dir)],
+                          cwd=ROOT, capture_output=True, text=True, env=env)
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
+    if proc.returncode != 0 or not lines:
+        raise RuntimeError(f"dtg_nominal failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
+    return json.loads(lines[-1])
+
+
+# ------------------------------------------------------------------ main
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=5000, help="timed steps")
+    parser.add_argument("--steps", type=int, default=3000, help="timed steps")
     parser.add_argument("--warmup", type=int, default=1500, help="untimed steps first")
-    parser.add_argument("--records", type=Path, help=argparse.SUPPRESS)
-    parser.add_argument("--_measure", nargs=2, dest="measure", help=argparse.SUPPRESS)
+    parser.add_argument("--no-chain", action="store_true",
+                        help="skip the DTG chain (dtg_nominal, 60 s simulated)")
+    parser.add_argument("--_measure", nargs=3, dest="measure", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.measure:
-        fmu, out = map(Path, args.measure)
-        res = measure_fmu(fmu, args.records, args.warmup, args.steps)
+        fmu, out, spec = map(Path, args.measure)
+        res = measure_fmu(fmu, json.loads(spec.read_text()), args.warmup, args.steps)
         out.write_text(json.dumps(res))
         return 0
 
     sys.path.insert(0, str(ROOT / "fmu_src"))
     n = args.warmup + args.steps
     rec = make_records(n)
+    fmu_dir = built_fmus(["Diagnoser", "FaultInjector", "DTG"])
+    diag_fmu = fmu_dir / "Diagnoser.fmu"
+    results: dict[tuple[str, str], dict] = {}
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
         np.save(tmp / "records.npy", rec)
-        trivial = run_measurement(build_trivial(tmp), None, args.warmup, args.steps)
-        diag = run_measurement(diagnoser_fmu(), tmp / "records.npy", args.warmup, args.steps)
-    lib = measure_library(rec, args.warmup)
+        trivial = run_measurement(build_trivial(tmp), {}, args.warmup, args.steps)
+        injector = run_measurement(fmu_dir / "FaultInjector.fmu", {}, args.warmup, args.steps)
+        for kernels in ("default", "fallback"):
+            for config, (channels, columns) in CONFIGS.items():
+                params = dict(BASE_PARAMS)
+                for ch in ("dtg", "grey", "df"):
+                    params[f"{ch}.enabled"] = ch in channels
+                spec = {"params": params, "records": str(tmp / "records.npy"),
+                        "columns": columns, "inputs": [IN_NAMES[c] for c in columns]}
+                results[(kernels, config)] = run_measurement(
+                    diag_fmu, spec, args.warmup, args.steps, fallback=kernels == "fallback")
+    library = {"default": measure_library(rec, args.warmup, "c" if _compiled() else "python"),
+               "fallback": measure_library(rec, args.warmup, "python")}
 
-    d, tr = diag["do_step_us"], trivial["do_step_us"]
-    print(f"Diagnoser.fmu, all channels at 1 kHz: {args.steps} timed steps after "
-          f"{args.warmup} warm-up steps (medians, µs per step)")
-    print(f"  trivial pythonfmu FMU doStep        {tr:9.1f}")
-    print(f"  library channels, direct calls      {lib['total_us']:9.1f}   "
-          f"(DTG {lib['dtg_us']:.1f}, grey {lib['grey_us']:.1f}, DF {lib['df_us']:.1f})")
-    print(f"  Diagnoser.fmu doStep                {d:9.1f}   (mean {diag['do_step_mean_us']:.1f})")
-    print(f"  Diagnoser.fmu whole host step       {diag['whole_step_us']:9.1f}   "
-          f"(set 13 inputs, doStep, get {diag['n_outputs']} outputs)")
-    print(f"  doStep / trivial FMU doStep         {d / tr:9.1f} x")
-    print(f"  doStep / library direct             {d / lib['total_us']:9.2f} x   "
-          f"(facade + FMI overhead {d - lib['total_us']:.1f} µs)")
-    print(f"  real-time budget used at 1 kHz      {d / 1e3:9.1%}")
+    fi, tr = injector["step_us"], trivial["step_us"]
+    print(f"Diagnoser.fmu at 1 kHz, {args.steps} timed steps after {args.warmup} warm-up "
+          "steps, each FMU in a fresh process (medians, µs per host step = set inputs + "
+          "doStep)")
+    print(f"  trivial pythonfmu FMU (doStep)            {tr:8.1f} µs")
+    print(f"  FaultInjector.fmu ({injector['n_inputs']} inputs + doStep)      {fi:8.1f} µs")
+    for kernels in ("default", "fallback"):
+        label = ("default install (compiled kernels)" if kernels == "default"
+                 else "plain-Python fallback (GYRODIAG_KERNELS=python)")
+        acc = results[(kernels, "all")]["accelerated"]
+        print(f"\n  Diagnoser, {label}; kernels compiled in the FMU: {acc}")
+        print(f"    {'channels':8s} {'step µs':>9s} {'/ FaultInj':>11s} {'/ trivial':>10s} "
+              f"{'library µs':>11s} {'+outputs µs':>12s}")
+        for config in CONFIGS:
+            r = results[(kernels, config)]
+            print(f"    {config:8s} {r['step_us']:9.1f} {r['step_us'] / fi:10.2f}x "
+                  f"{r['step_us'] / tr:9.1f}x {library[kernels][config]:11.1f} "
+                  f"{r['whole_us']:12.1f}")
+    target = {"default": 4.0, "fallback": 12.0}
+    verdicts = []
+    for k in ("default", "fallback"):
+        ratio = results[(k, "all")]["step_us"] / fi
+        verdicts.append(f"{k} {ratio:.2f}x ({'met' if ratio <= target[k] else 'NOT met'})")
+    print("\n  targets: all channels <= 4x FaultInjector (default), <= 12x (fallback): "
+          + ", ".join(verdicts))
+    print("\n  Diagnoser instantiate / initialise (s, fmpy host, default install):")
+    for config in CONFIGS:
+        r = results[("default", config)]
+        print(f"    {config:8s} instantiate {r['instantiate_s']:6.3f}   "
+              f"initialise (channels built) {r['initialise_s']:6.3f}")
+    if not args.no_chain:
+        print("\n  DTG 1 kHz chain, seed scenario dtg_nominal (DTG -> FaultInjector -> 2 "
+              "Diagnoser DTG channels, 60 s) through the harness, fresh process:")
+        for kernels in ("default", "fallback"):
+            c = measure_chain(fmu_dir, kernels == "fallback")
+            err = "" if c["error"] is None else f"  (run error: {c['error']})"
+            print(f"    {kernels:8s} wall {c['wall_s']:6.2f} s   real-time factor "
+                  f"{c['sim_s'] / c['wall_s']:6.2f}{err}")
     return 0
+
+
+def _compiled() -> bool:
+    from gyrodiag import _accel
+
+    try:
+        _accel.use("c")
+    except ImportError:
+        return False
+    return True
 
 
 if __name__ == "__main__":

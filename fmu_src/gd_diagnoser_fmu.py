@@ -37,7 +37,7 @@ import math
 import re
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from gd_fmu_base import FacadeBase
@@ -45,7 +45,6 @@ from pythonfmu import DefaultExperiment
 
 from gyrodiag.aircraft import seed_aircraft
 from gyrodiag.decision import UNKNOWN_CODE
-from gyrodiag.df_channel import DFChannel, DFChannelConfig, DFChannelOutput
 from gyrodiag.dtg import N_THETA
 from gyrodiag.dtg_channel import (
     CLASSIFIERS,
@@ -57,6 +56,9 @@ from gyrodiag.dtg_channel import (
 from gyrodiag.dtg_patterns import PatternLibrary
 from gyrodiag.dtg_reference import CHANNELS, N_CHANNELS
 from gyrodiag.grey import ClassicGreyPredictor, GreyFaultDetector, ImprovedGreyPredictor
+
+if TYPE_CHECKING:  # imported when the channel is built: it needs SciPy (design time)
+    from gyrodiag.df_channel import DFChannel, DFChannelConfig, DFChannelOutput
 
 #: Signatures that fit in the parameter table (more: use ``dtg.signature_file``).
 MAX_SIGNATURES = 8
@@ -76,6 +78,21 @@ PHYSICAL_UNITS = ("1/s", "1/s2", "rad/s", "1/s2", "1/s2")
 REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10", "control>=0.10"]
 
 VARIABLE_META: dict[str, dict[str, Any]] = {}
+
+# Variable names used at every step, formatted once (an f-string per variable per step
+# cost ~10 % of a step).
+_DTG_INPUT_KEYS = ("dtg.Utx", "dtg.Uty", "dtg.Ux", "dtg.Uy")
+_DTG_THETA_KEYS = tuple(tuple(f"dtg.theta_{axis}[{i + 1}]" for i in range(N_THETA))
+                        for axis in ("x", "y"))
+_DTG_ETA_KEYS = tuple(tuple(f"dtg.eta_{axis}[{i + 1}]" for i in range(N_THETA))
+                      for axis in ("x", "y"))
+_DTG_THETA0_KEYS = tuple(f"dtg.theta0_used[{i + 1}]" for i in range(N_THETA))
+_DTG_PHYSICAL_KEYS = tuple(f"dtg.{name}" for name in PHYSICAL_NAMES)
+_DF_U_KEYS = tuple(f"df.u[{j + 1}]" for j in range(DF_P))
+_DF_Y_KEYS = tuple(f"df.y[{i + 1}]" for i in range(DF_M))
+_DF_RESIDUAL_KEYS = tuple(f"df.residual[{i + 1}]" for i in range(DF_M))
+_DF_ALARM_KEYS = tuple(f"df.alarm[{i + 1}]" for i in range(DF_M))
+_DF_THRESHOLD_KEYS = tuple(f"df.threshold_in_use[{i + 1}]" for i in range(DF_M))
 
 #: SI exponents of the seed aircraft's signal units (for the units of A, B, C entries).
 _UNIT_EXPONENTS: dict[str, dict[str, int]] = {
@@ -446,6 +463,8 @@ class Diagnoser(FacadeBase):
         p("df.valid", "Boolean", "output", True, "Last u, y sample was finite")
 
     def _df_config(self, period: float) -> DFChannelConfig:
+        from gyrodiag.df_channel import DFChannelConfig
+
         v = self.values
 
         def matrix(name: str, rows: int, cols: int) -> np.ndarray:
@@ -471,15 +490,18 @@ class Diagnoser(FacadeBase):
 
     def _copy_df(self, out: DFChannelOutput) -> None:
         v = self.values
-        for i in range(DF_M):
-            v[f"df.residual[{i + 1}]"] = float(out.residual[i])
-            v[f"df.alarm[{i + 1}]"] = bool(out.alarms[i])
+        for key, value in zip(_DF_RESIDUAL_KEYS, _as_list(out.residual), strict=True):
+            v[key] = float(value)
+        for key, value in zip(_DF_ALARM_KEYS, _as_list(out.alarms), strict=True):
+            v[key] = bool(value)
         assert self._df is not None
         thresholds = self._df.thresholds
-        for i in range(DF_M):
-            v[f"df.threshold_in_use[{i + 1}]"] = (
-                0.0 if thresholds is None else float(thresholds[0][i])
-            )
+        if thresholds is None:
+            for key in _DF_THRESHOLD_KEYS:
+                v[key] = 0.0
+        else:
+            for key, value in zip(_DF_THRESHOLD_KEYS, _as_list(thresholds[0]), strict=True):
+                v[key] = float(value)
         v["df.calibrating"] = bool(out.calibrating)
         v["df.detected"] = bool(out.detected)
         v["df.isolated_sensor"] = int(out.isolated_sensor)
@@ -504,6 +526,9 @@ class Diagnoser(FacadeBase):
             if self._df is not None:
                 self._copy_df(self._df.last_output)
             self._ready = True
+        except MissingPackageError as exc:
+            self._ready = False
+            self.report_error(f"{self.instance_name}: {exc}")
         except (ValueError, TypeError, OSError, KeyError) as exc:
             self._ready = False
             self.report_error(f"{self.instance_name}: invalid parameter: {exc}")
@@ -521,8 +546,10 @@ class Diagnoser(FacadeBase):
             self._dtg = DTGChannel(self._dtg_config(period)) if v["dtg.enabled"] else None
         with _channel_context("grey"):
             self._grey = self._grey_detector(period) if v["grey.enabled"] else None
-        with _channel_context("df"):
-            self._df = DFChannel(self._df_config(period)) if v["df.enabled"] else None
+        if v["df.enabled"]:
+            df_channel = _import_or_explain("gyrodiag.df_channel", "df.enabled")
+            with _channel_context("df"):
+                self._df = df_channel.DFChannel(self._df_config(period))
 
     def _dtg_config(self, period: float) -> DTGChannelConfig:
         v = self.values
@@ -680,7 +707,7 @@ class Diagnoser(FacadeBase):
         valid = True
         codes: list[int] = []
         if self._dtg is not None:
-            out = self._dtg.update(v["dtg.Utx"], v["dtg.Uty"], v["dtg.Ux"], v["dtg.Uy"])
+            out = self._dtg.update(*[v[key] for key in _DTG_INPUT_KEYS])
             if math.isnan(self._dtg_first_alarm_time) and not math.isnan(
                 out.first_alarm_time_s
             ):
@@ -701,8 +728,8 @@ class Diagnoser(FacadeBase):
                 codes.append(SUMMARY_CODE_BASE["grey"])
         if self._df is not None:
             df_out = self._df.update(
-                [v[f"df.u[{j + 1}]"] for j in range(DF_P)],
-                [v[f"df.y[{i + 1}]"] for i in range(DF_M)],
+                [v[key] for key in _DF_U_KEYS],
+                [v[key] for key in _DF_Y_KEYS],
             )
             self._copy_df(df_out)
             valid &= df_out.valid
@@ -715,16 +742,19 @@ class Diagnoser(FacadeBase):
 
     def _copy_dtg(self, out: Any) -> None:
         v = self.values
-        for a, axis in enumerate(("x", "y")):
-            for i in range(N_THETA):
-                v[f"dtg.theta_{axis}[{i + 1}]"] = float(out.theta[a, i])
-                v[f"dtg.eta_{axis}[{i + 1}]"] = float(out.eta[a, i])
+        for keys, row in zip(_DTG_THETA_KEYS, _as_list(out.theta), strict=True):
+            for key, value in zip(keys, row, strict=True):
+                v[key] = float(value)
+        for keys, row in zip(_DTG_ETA_KEYS, _as_list(out.eta), strict=True):
+            for key, value in zip(keys, row, strict=True):
+                v[key] = float(value)
         assert self._dtg is not None
         theta0 = self._dtg.theta0
-        for i in range(N_THETA):
-            v[f"dtg.theta0_used[{i + 1}]"] = 0.0 if theta0 is None else float(theta0[i])
-        for i, name in enumerate(PHYSICAL_NAMES):
-            v[f"dtg.{name}"] = float(out.physical[i])
+        theta0_values = [0.0] * N_THETA if theta0 is None else _as_list(theta0)
+        for key, value in zip(_DTG_THETA0_KEYS, theta0_values, strict=True):
+            v[key] = float(value)
+        for key, value in zip(_DTG_PHYSICAL_KEYS, _as_list(out.physical), strict=True):
+            v[key] = float(value)
         v["dtg.learning"] = bool(out.learning)
         v["dtg.alarm"] = bool(out.alarm)
         v["dtg.fault_code"] = int(out.fault_code) if out.alarm else 0
@@ -872,6 +902,39 @@ def _channel_context(prefix: str) -> Iterator[None]:
 def _finite_or(value: float, fallback: float) -> float:
     """``value`` if finite, else the documented sentinel (outputs never carry NaN)."""
     return float(value) if math.isfinite(value) else fallback
+
+
+def _as_list(values: Any) -> list:
+    """Plain Python values of an array or sequence (one call for a numpy array)."""
+    return values.tolist() if isinstance(values, np.ndarray) else list(values)
+
+
+class MissingPackageError(ImportError):
+    """A package a channel needs is not installed in the host's Python."""
+
+
+def _import_or_explain(module: str, needed_by: str) -> Any:
+    """Import a module needed only by some channels; a missing package is explained.
+
+    Raises
+    ------
+    MissingPackageError
+        Naming the missing package, who needs it and how to install it (the facade
+        turns it into fmi2Error with this message in the log).
+    """
+    import importlib
+
+    try:
+        return importlib.import_module(module)
+    except ModuleNotFoundError as exc:
+        missing = (exc.name or str(exc)).split(".")[0]
+        requirement = next((r for r in REQUIREMENTS if r.lower().startswith(missing.lower())),
+                           missing)
+        raise MissingPackageError(
+            f"{needed_by} needs the Python package {missing!r}, which is not installed in "
+            f"the host's Python: pip install '{requirement}' (or pip install -r "
+            "resources/requirements.txt of this FMU), or switch the channel off"
+        ) from None
 
 
 def _named_int(values: dict[str, Any], name: str) -> int:

@@ -201,21 +201,46 @@ class DTGRegressor:
 
     Keeps the two previous pick-off samples. After at least three samples,
     :meth:`update` returns the regressor rows; before that it returns ``None``.
+    :meth:`step` is the same on plain floats without checks (the per-sample hot path).
     """
 
     def __init__(self) -> None:
-        self._hist = np.zeros((2, 2))  # rows: k−1, k−2; cols: Utx, Uty
-        self._count = 0
+        self.reset()
 
     def reset(self) -> None:
         """Forget the sample history."""
-        self._hist[...] = 0.0
+        # (Utx, Uty) at k−1 and k−2
+        self._tx1 = self._ty1 = self._tx2 = self._ty2 = 0.0
         self._count = 0
+
+    @property
+    def _hist(self) -> NDArray[np.float64]:
+        """History as an array: rows k−1, k−2; columns Utx, Uty."""
+        return np.array([[self._tx1, self._ty1], [self._tx2, self._ty2]])
 
     @property
     def ready(self) -> bool:
         """True once two previous samples are available."""
         return self._count >= 2
+
+    def step(
+        self, Utx: float, Uty: float, Ux: float, Uy: float
+    ) -> tuple[tuple[float, ...], float, tuple[float, ...], float] | None:
+        """Push one sample of finite floats (volts), unchecked.
+
+        Returns ``(phi_x, y_x, phi_y, y_y)`` with the rows as tuples, or None before
+        the third sample.
+        """
+        tx1, ty1 = self._tx1, self._ty1
+        out = None
+        if self._count >= 2:
+            tx2, ty2 = self._tx2, self._ty2
+            out = ((tx1, -tx2, -Uty, ty1, Ux), Utx, (ty1, -ty2, Utx, -tx1, Uy), Uty)
+        else:
+            self._count += 1
+        self._tx2, self._ty2 = tx1, ty1
+        self._tx1, self._ty1 = Utx, Uty
+        return out
 
     def update(
         self, Utx: float, Uty: float, Ux: float, Uy: float, *, validate: bool = True
@@ -234,25 +259,20 @@ class DTGRegressor:
             if validate
             else np.array([Utx, Uty, Ux, Uy], dtype=float)
         )
-        tx, ty, ux, uy = v
-        (tx1, ty1), (tx2, ty2) = self._hist
-        out = None
-        if self.ready:
-            phi_x = np.array([tx1, -tx2, -ty, ty1, ux])
-            phi_y = np.array([ty1, -ty2, tx, -tx1, uy])
-            out = (phi_x, float(tx), phi_y, float(ty))
-        self._hist[1] = self._hist[0]
-        self._hist[0] = (tx, ty)
-        self._count = min(self._count + 1, 2)
-        return out
+        out = self.step(*v.tolist())
+        if out is None:
+            return None
+        phi_x, y_x, phi_y, y_y = out
+        return np.array(phi_x), y_x, np.array(phi_y), y_y
 
     def get_state(self) -> dict[str, Any]:
         """Copy of the sample history."""
-        return {"hist": self._hist.copy(), "count": self._count}
+        return {"hist": self._hist, "count": self._count}
 
     def set_state(self, state: dict[str, Any]) -> None:
         """Restore a state produced by :meth:`get_state`."""
-        self._hist = check_finite_array("state['hist']", state["hist"], shape=(2, 2)).copy()
+        hist = check_finite_array("state['hist']", state["hist"], shape=(2, 2))
+        (self._tx1, self._ty1), (self._tx2, self._ty2) = hist.tolist()
         self._count = int(state["count"])
 
 

@@ -11,11 +11,14 @@ regressor's: DTG regressors at 1 kHz are nearly collinear (θ1 ≈ 2, θ2 ≈ 1)
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from . import _accel
 from ._validation import check_finite_array, check_in_range, check_int, check_positive
 
 __all__ = ["RLS", "ForgettingRLS", "SlidingWindowLS", "batch_ls"]
@@ -134,7 +137,15 @@ class RLS(_Estimator):
         Convergence threshold on max |Δθ| per update (paper: 1e−5).
     convergence_hold : int, optional
         Number of consecutive quiet updates required (default 1, the paper's criterion).
+
+    Notes
+    -----
+    The per-sample arithmetic runs in a kernel on plain floats (compiled, or its
+    plain-Python fallback, see :mod:`gyrodiag._accel`); :meth:`step` is the unchecked
+    hot path for callers that validated the sample already.
     """
+
+    _forgetting = 1.0
 
     def __init__(
         self, n_params: int, p0: float = 1e6, theta0: ArrayLike | None = None,
@@ -142,22 +153,50 @@ class RLS(_Estimator):
     ) -> None:
         self.p0 = check_positive("p0", p0)
         super().__init__(n_params, theta0, convergence_tol, convergence_hold)
-        self._S = np.sqrt(self.p0) * np.eye(self.n_params)
+        self._kernel = _accel.kernels.PotterRLS(
+            self.n_params, self._forgetting, self._kernel_max_trace())
+        self._kernel_reset()
+
+    def _kernel_max_trace(self) -> float:
+        return math.inf
+
+    def _kernel_reset(self) -> None:
+        n = self.n_params
+        s0 = math.sqrt(self.p0)
+        self._kernel.set(self._theta_init.tolist(),
+                         [s0 if i == j else 0.0 for i in range(n) for j in range(n)])
+
+    @property
+    def _S(self) -> NDArray[np.float64]:
+        """Covariance factor S (P = S·Sᵀ), a copy."""
+        return np.array(self._kernel.get_S()).reshape(self.n_params, self.n_params)
 
     @property
     def P(self) -> NDArray[np.float64]:
         """Parameter covariance (up to the noise variance), P = S·Sᵀ."""
-        return self._S @ self._S.T
+        S = self._S
+        return S @ S.T
+
+    @property
+    def theta(self) -> NDArray[np.float64]:
+        """Current estimate θ (a new array; :meth:`step` returns it as a tuple)."""
+        return np.array(self._kernel.theta)
+
+    @theta.setter
+    def theta(self, value: ArrayLike) -> None:
+        # set by the common bookkeeping at reset/set_state only
+        if hasattr(self, "_kernel"):
+            self._kernel.set(np.asarray(value, dtype=float).tolist(), self._kernel.get_S())
 
     def reset(self) -> None:
         """Back to θ0 and P(0)."""
         self._reset_common()
-        self._S = np.sqrt(self.p0) * np.eye(self.n_params)
+        self._kernel_reset()
 
     def update(
         self, phi: ArrayLike, y: float, *, validate: bool = True
     ) -> NDArray[np.float64]:
-        """Incorporate one sample and return the new θ (a view; copy to keep).
+        """Incorporate one sample and return the new θ (a new array).
 
         ``validate=False`` skips the shape/finiteness checks, for callers that have
         checked the sample already (hot path of a channel).
@@ -168,30 +207,41 @@ class RLS(_Estimator):
             On a wrong shape or non-finite value; the state is untouched.
         """
         p, yy = self._check_sample(phi, y, validate)
-        self._rls_step(p, yy, forgetting=1.0)
+        self.step(p.tolist(), yy)
         return self.theta
 
-    def _rls_step(self, p: NDArray[np.float64], yy: float, forgetting: float) -> None:
-        S = self._S
-        f = S.T @ p
-        alpha = forgetting + float(f @ f)
-        Sf = S @ f
-        gain = Sf / alpha
-        err = yy - float(p @ self.theta)
-        gamma = 1.0 / (alpha + np.sqrt(forgetting * alpha))
-        self._S = (S - gamma * np.outer(Sf, f)) / np.sqrt(forgetting)
-        self._track_convergence(self.theta + gain * err)
+    def step(self, phi: Sequence[float], y: float) -> tuple[float, ...]:
+        """Incorporate one sample of plain floats, unchecked, and return θ as a tuple.
+
+        Parameters
+        ----------
+        phi : sequence of float
+            ``n_params`` finite regressors (the caller has checked them).
+        y : float
+            Finite target.
+        """
+        kernel = self._kernel
+        moved = kernel.step(phi, y)
+        self.n_updates += 1
+        if moved < self.convergence_tol:
+            self._quiet_count += 1
+            if self.converged_at is None and self._quiet_count >= self.convergence_hold:
+                self.converged_at = self.n_updates
+        else:
+            self._quiet_count = 0
+        return tuple(kernel.theta)
 
     def get_state(self) -> dict[str, Any]:
         """Copy of θ, the covariance factor S (P = S·Sᵀ) and the counters."""
-        return {**self._common_state(), "S": self._S.copy()}
+        return {**self._common_state(), "S": self._S}
 
     def set_state(self, state: dict[str, Any]) -> None:
         """Restore a state produced by :meth:`get_state`."""
         n = self.n_params
         S = check_finite_array("state['S']", state["S"], shape=(n, n))
+        theta = check_finite_array("state['theta']", state["theta"], shape=(n,))
         self._set_common_state(state)
-        self._S = S.copy()
+        self._kernel.set(theta.tolist(), S.ravel().tolist())
 
 
 class ForgettingRLS(RLS):
@@ -225,37 +275,23 @@ class ForgettingRLS(RLS):
         convergence_tol: float = 1e-5, convergence_hold: int = 1,
     ) -> None:
         self.forgetting = check_in_range("forgetting", forgetting, 0.0, 1.0, low_open=True)
-        super().__init__(n_params, p0, theta0, convergence_tol, convergence_hold)
+        self._forgetting = self.forgetting
+        p0_checked = check_positive("p0", p0)
+        n_checked = check_int("n_params", n_params, minimum=1)
         self.max_trace = (
-            self.n_params * self.p0
+            n_checked * p0_checked
             if max_trace is None
             else check_positive("max_trace", max_trace)
         )
-        if self.max_trace < self.n_params * self.p0 * (1.0 - 1e-12):
+        if self.max_trace < n_checked * p0_checked * (1.0 - 1e-12):
             raise ValueError(
-                f"max_trace must be >= n_params * p0 = {self.n_params * self.p0}, "
+                f"max_trace must be >= n_params * p0 = {n_checked * p0_checked}, "
                 f"got {max_trace!r}"
             )
+        super().__init__(n_params, p0, theta0, convergence_tol, convergence_hold)
 
-    def update(
-        self, phi: ArrayLike, y: float, *, validate: bool = True
-    ) -> NDArray[np.float64]:
-        """Incorporate one sample with forgetting and return the new θ.
-
-        ``validate=False`` skips the shape/finiteness checks, for callers that have
-        checked the sample already (hot path of a channel).
-
-        Raises
-        ------
-        ValueError
-            On a wrong shape or non-finite value; the state is untouched.
-        """
-        p, yy = self._check_sample(phi, y, validate)
-        self._rls_step(p, yy, forgetting=self.forgetting)
-        tr = float(np.sum(self._S * self._S))  # trace(S·Sᵀ) without forming P
-        if tr > self.max_trace:
-            self._S *= np.sqrt(self.max_trace / tr)
-        return self.theta
+    def _kernel_max_trace(self) -> float:
+        return self.max_trace
 
 
 class SlidingWindowLS(_Estimator):
