@@ -42,7 +42,7 @@ from .decision import (
     WindowedMedianFeature,
     feature_vector,
 )
-from .dtg import N_THETA, DTGRegressor, physical_from_theta
+from .dtg import N_THETA, DTGRegressor
 from .dtg_patterns import PatternClassifier, PatternLibrary, PatternResult
 from .dtg_reference import (
     N_CHANNELS,
@@ -434,6 +434,7 @@ class DTGChannel:
         )
         self._regressor = DTGRegressor()
         self._estimators = [self._make_estimator(), self._make_estimator()]
+        self._theta_now = tuple(tuple(e.theta.tolist()) for e in self._estimators)
         self._classifier = (
             SignatureClassifier(c.signatures, c.max_distance) if c.signatures else None
         )
@@ -449,15 +450,16 @@ class DTGChannel:
         self._features = WindowedMedianFeature(N_THETA, round(c.classify_window_s / self.T) + 1)
         # reference blocks: raw (nb, 4), filtered with the two samples before (nb + 2, 4),
         # fast-estimator θ of both axes (nb, 10)
-        nb = self._nb
-        self._buf_raw = np.zeros((nb, 4))
-        self._buf_filtered = np.zeros((nb + 2, 4))
-        self._buf_theta = np.zeros((nb, 2 * N_THETA))
-        self._buf_valid = np.ones(nb, dtype=bool)
-        self._buf_pos = 0
+        # the current block (plain lists; arrays at its end) and the two filtered samples
+        # before it
+        self._blk_raw: list[tuple[float, ...]] = []
+        self._blk_filtered: list[tuple[float, ...]] = []
+        self._blk_theta: list[tuple[float, ...]] = []
+        self._blk_valid: list[bool] = []
+        self._hist_filtered: list[tuple[float, ...]] = [(0.0,) * 4, (0.0,) * 4]
         self._gap = 0
         self._learner: ReferenceLearner | None = ReferenceLearner(
-            nb, self._short_blocks, self._long_blocks, c.thresholds, nb * self.T)
+            self._nb, self._short_blocks, self._long_blocks, c.thresholds, self._nb * self.T)
         self.reference: NominalReference | None = None
         self._monitor: ResidualMonitor | None = None
         self._diagnosis = DTGDiagnosis()
@@ -483,8 +485,9 @@ class DTGChannel:
         A sample with any NaN/Inf is skipped: the state is untouched and the previous
         outputs are returned with ``valid=False``.
         """
-        raw = np.array([Utx, Uty, Ux, Uy], dtype=float)
-        if not np.all(np.isfinite(raw)):
+        raw = (float(Utx), float(Uty), float(Ux), float(Uy))
+        if not (math.isfinite(raw[0]) and math.isfinite(raw[1]) and math.isfinite(raw[2])
+                and math.isfinite(raw[3])):
             # the regression rows spanning the gap, and the prefilter's ringing after it,
             # are left out of the reference statistics (a one-sample jump would look
             # like a burst of noise)
@@ -495,30 +498,32 @@ class DTGChannel:
         t = n * self.T
         self._n_samples += 1
         # raw was checked finite above; the stages downstream need not check again
-        sample = (
-            self._prefilter.update(raw, validate=False) if self._prefilter is not None else raw
-        )
-        rows = self._regressor.update(*sample, validate=False)
+        sample = tuple(self._prefilter.step(raw)) if self._prefilter is not None else raw
+        rows = self._regressor.step(*sample)
         if rows is not None:
-            self._estimators[0].update(rows[0], rows[1], validate=False)
-            self._estimators[1].update(rows[2], rows[3], validate=False)
-        theta = np.vstack([e.theta for e in self._estimators])
-        block_done = self._collect(n, raw, sample)
+            self._theta_now = (self._step_estimator(0, rows[0], rows[1]),
+                               self._step_estimator(1, rows[2], rows[3]))
+        th_x, th_y = self._theta_now
+        block_done = self._collect(n, raw, sample, th_x + th_y)
+        theta = np.array((th_x, th_y))
 
         if self.theta0 is None and not self.pattern_mode:
             self._learn(t, theta)
         if self.theta0 is None or self._decisions is None:
             self._last = DTGChannelOutput(
-                True, True, theta, np.ones((2, N_THETA)), _physical(theta, self.T), False, 0,
-                np.zeros(N_THETA, dtype=np.int64), self._first_alarm_time, self._diagnosis,
+                True, True, theta, np.ones((2, N_THETA)), _physical(th_x, th_y, self.T),
+                False, 0, np.zeros(N_THETA, dtype=np.int64), self._first_alarm_time,
+                self._diagnosis,
             )
             return self._last
 
-        decisions = [d.update(th) for d, th in zip(self._decisions, theta, strict=True)]
-        eta = np.vstack([d.eta for d in decisions])
-        band_alarm = any(d.alarm for d in decisions)
+        eta_x, alarm_x = self._decisions[0].step(th_x)
+        eta_y, alarm_y = self._decisions[1].step(th_y)
+        eta = np.array((eta_x, eta_y))
+        band_alarm = alarm_x or alarm_y
+        physical = _physical(th_x, th_y, self.T)
         if self.pattern_mode:
-            return self._pattern_output(t, theta, eta, band_alarm, block_done)
+            return self._pattern_output(t, theta, eta, physical, band_alarm, block_done)
         alarm = band_alarm
         feats = [feature_vector(e) for e in eta]
         worst = int(np.argmax([np.abs(f).sum() for f in feats]))
@@ -538,14 +543,21 @@ class DTGChannel:
                 else UNKNOWN_CODE
             )
         self._last = DTGChannelOutput(
-            True, False, theta, eta, _physical(theta, self.T), alarm, code, feature,
+            True, False, theta, eta, physical, alarm, code, feature,
             self._first_alarm_time, self._diagnosis,
         )
         return self._last
 
+    def _step_estimator(self, axis: int, phi: tuple[float, ...], y: float
+                        ) -> tuple[float, ...]:
+        est = self._estimators[axis]
+        if isinstance(est, RLS):
+            return est.step(phi, y)
+        return tuple(est.update(np.array(phi), y, validate=False).tolist())
+
     def _pattern_output(self, t: float, theta: NDArray[np.float64],
-                        eta: NDArray[np.float64], band_alarm: bool,
-                        block_done: bool) -> DTGChannelOutput:
+                        eta: NDArray[np.float64], physical: NDArray[np.float64],
+                        band_alarm: bool, block_done: bool) -> DTGChannelOutput:
         mon = self._monitor
         residual_alarm = mon is not None and mon.alarm
         alarm = band_alarm or residual_alarm
@@ -558,7 +570,7 @@ class DTGChannel:
         if alarm:
             code = UNKNOWN_CODE if d.fault_type <= 0 else self._class_code(d.class_name)
         self._last = DTGChannelOutput(
-            True, False, theta, eta, _physical(theta, self.T), alarm, code, _NO_FEATURE,
+            True, False, theta, eta, physical, alarm, code, _NO_FEATURE,
             self._first_alarm_time, d,
         )
         return self._last
@@ -606,47 +618,50 @@ class DTGChannel:
             level=stats.level, log_variance=stats.log_variance, growth=stats.growth,
             window_s=stats.window_s, tests=mon.statistics.copy(), block=block)
 
-    def _collect(self, n: int, raw: NDArray[np.float64],
-                 sample: NDArray[np.float64]) -> bool:
+    def _collect(self, n: int, raw: tuple[float, ...], sample: tuple[float, ...],
+                 theta: tuple[float, ...]) -> bool:
         """Buffer one sample into the reference blocks; True when a runtime block ended.
 
         Blocks start at the learning window's first sample and again at its end (the
         partial block before the end is dropped); the learner gets the learning blocks,
         the residual monitor the blocks after.
         """
-        pos = self._buf_pos
         if n == self._n_start or n == self._n_end:
             # restart the block grid; the two samples before become the history
-            hist = self._buf_filtered[pos:pos + 2].copy()
-            self._buf_filtered[:2] = hist
-            pos = 0
+            self._hist_filtered = (self._hist_filtered + self._blk_filtered)[-2:]
+            self._clear_block()
             if n == self._n_start and self._learner is not None:
-                self._learner.set_history(hist)
+                self._learner.set_history(np.array(self._hist_filtered))
             if n == self._n_end:
                 self._finish_learning()
-        self._buf_raw[pos] = raw
-        self._buf_filtered[pos + 2] = sample
-        self._buf_valid[pos] = self._gap == 0
-        if self._gap:
-            self._gap -= 1
-        th = self._buf_theta[pos]
-        th[:N_THETA] = self._estimators[0].theta
-        th[N_THETA:] = self._estimators[1].theta
-        pos += 1
+        self._blk_raw.append(raw)
+        self._blk_filtered.append(sample)
+        self._blk_theta.append(theta)
+        gap = self._gap
+        self._blk_valid.append(gap == 0)
+        if gap:
+            self._gap = gap - 1
+        if len(self._blk_raw) < self._nb:
+            return False
         done = False
-        if pos == self._nb:
-            if self._n_start <= n < self._n_end:
-                if self._learner is not None:
-                    self._learner.push_block(self._buf_raw, self._buf_filtered[2:],
-                                             self._buf_theta, self._buf_valid)
-            elif n >= self._n_end and self._monitor is not None:
-                self._monitor.push_block(self._buf_raw, self._buf_filtered, self._buf_theta,
-                                         self._buf_valid)
-                done = True
-            self._buf_filtered[:2] = self._buf_filtered[-2:]
-            pos = 0
-        self._buf_pos = pos
+        if self._n_start <= n < self._n_end:
+            if self._learner is not None:
+                self._learner.push_block(np.array(self._blk_raw), np.array(self._blk_filtered),
+                                         np.array(self._blk_theta), np.array(self._blk_valid))
+        elif n >= self._n_end and self._monitor is not None:
+            self._monitor.push_block(np.array(self._blk_raw),
+                                     np.array(self._hist_filtered + self._blk_filtered),
+                                     np.array(self._blk_theta), np.array(self._blk_valid))
+            done = True
+        self._hist_filtered = self._blk_filtered[-2:]
+        self._clear_block()
         return done
+
+    def _clear_block(self) -> None:
+        self._blk_raw = []
+        self._blk_filtered = []
+        self._blk_theta = []
+        self._blk_valid = []
 
     def _finish_learning(self) -> None:
         """Build the checked reference at the end of the learning window."""
@@ -710,9 +725,13 @@ class DTGChannel:
             else [d.get_state() for d in self._decisions],
             "first_alarm_time": self._first_alarm_time,
             "features": self._features.get_state(),
-            "buffers": {"raw": self._buf_raw.copy(), "filtered": self._buf_filtered.copy(),
-                        "theta": self._buf_theta.copy(), "valid": self._buf_valid.copy(),
-                        "pos": self._buf_pos, "gap": self._gap},
+            "buffers": {"raw": np.array(self._blk_raw, dtype=float).reshape(-1, 4),
+                        "filtered": np.array(self._blk_filtered, dtype=float).reshape(-1, 4),
+                        "theta": np.array(self._blk_theta, dtype=float).reshape(
+                            -1, 2 * N_THETA),
+                        "valid": np.array(self._blk_valid, dtype=bool),
+                        "history": np.array(self._hist_filtered, dtype=float),
+                        "gap": self._gap},
             "learner": None if self._learner is None else self._learner.get_state(),
             "reference": None if self.reference is None else self.reference.get_state(),
             "monitor": None if self._monitor is None else self._monitor.get_state(),
@@ -728,10 +747,10 @@ class DTGChannel:
         except ValueError as exc:
             raise ValueError(f"state['features'] (classify_window_s): {exc}") from exc
         buffers = state["buffers"]
-        raw = np.asarray(buffers["raw"], dtype=float)
-        if raw.shape != self._buf_raw.shape:
-            raise ValueError(f"state['buffers'] hold blocks of {raw.shape[0]} samples, this "
-                             f"channel {self._nb} (another sample period?)")
+        raw = np.asarray(buffers["raw"], dtype=float).reshape(-1, 4)
+        if raw.shape[0] >= self._nb:
+            raise ValueError(f"state['buffers'] hold {raw.shape[0]} samples of a block, this "
+                             f"channel's blocks have {self._nb} (another sample period?)")
         if (state["prefilter"] is None) != (self._prefilter is None):
             raise ValueError("state['prefilter'] does not match prefilter_enabled")
         if self._prefilter is not None:
@@ -752,14 +771,18 @@ class DTGChannel:
             for d, s in zip(self._decisions, state["decisions"], strict=True):
                 d.set_state(s)
         self._first_alarm_time = float(state["first_alarm_time"])
-        self._buf_raw = raw.copy()
-        self._buf_filtered = np.asarray(buffers["filtered"], dtype=float).reshape(
-            self._nb + 2, 4).copy()
-        self._buf_theta = np.asarray(buffers["theta"], dtype=float).reshape(
-            self._nb, 2 * N_THETA).copy()
-        self._buf_valid = np.asarray(buffers["valid"], dtype=bool).reshape(self._nb).copy()
-        self._buf_pos = int(buffers["pos"])
+        k = raw.shape[0]
+        self._blk_raw = [tuple(r) for r in raw.tolist()]
+        self._blk_filtered = [tuple(r) for r in np.asarray(
+            buffers["filtered"], dtype=float).reshape(k, 4).tolist()]
+        self._blk_theta = [tuple(r) for r in np.asarray(
+            buffers["theta"], dtype=float).reshape(k, 2 * N_THETA).tolist()]
+        self._blk_valid = [bool(v) for v in np.asarray(buffers["valid"], dtype=bool)
+                           .reshape(k).tolist()]
+        self._hist_filtered = [tuple(r) for r in np.asarray(
+            buffers["history"], dtype=float).reshape(2, 4).tolist()]
         self._gap = int(buffers["gap"])
+        self._theta_now = tuple(tuple(e.theta.tolist()) for e in self._estimators)
         c = self.config
         if state["learner"] is None:
             self._learner = None
@@ -802,11 +825,20 @@ def _ringing_samples(config: DTGChannelConfig, T: float) -> int:
     return int(above[-1]) + 1 if above.size else 0
 
 
-def _physical(theta: NDArray[np.float64], T: float) -> NDArray[np.float64]:
-    mean = theta.mean(axis=0)
-    if mean[1] == 0.0:
+def _physical(th_x: tuple[float, ...], th_y: tuple[float, ...],
+              T: float) -> NDArray[np.float64]:
+    """:func:`~gyrodiag.dtg.physical_from_theta` of the mean θ of both axes, on plain
+    floats (same operations, same values); NaN where the inversion is undefined."""
+    t1 = (th_x[0] + th_y[0]) / 2.0
+    t2 = (th_x[1] + th_y[1]) / 2.0
+    if t2 == 0.0:
         return np.full(N_THETA, np.nan)
-    return physical_from_theta(mean, T).as_array()
+    t3 = (th_x[2] + th_y[2]) / 2.0
+    t4 = (th_x[3] + th_y[3]) / 2.0
+    t5 = (th_x[4] + th_y[4]) / 2.0
+    T2 = T**2
+    return np.array([(t1 - 2.0 * t2) / (t2 * T), (1.0 - t1 + t2) / (t2 * T2),
+                     t4 / (t2 * T), (t3 - t4) / (t2 * T2), t5 / (t2 * T2)])
 
 
 def _replace(out: DTGChannelOutput, **changes: Any) -> DTGChannelOutput:
