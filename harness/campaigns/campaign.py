@@ -182,9 +182,10 @@ class CampaignSpec(_Strict):
     #: What ``${out}/`` stands for in the base scenarios' ``files`` (default: the
     #: campaign's output folder).
     results_dir: str | None = None
-    #: DTG training scenarios: learned into ``<results_dir>/dtg_signatures.json`` first
-    #: when that file is missing.
+    #: DTG training scenarios: learned into ``<results_dir>/<signatures_file>`` first
+    #: when that file is missing (a pattern training set gives a pattern library).
     signatures_training: str | None = None
+    signatures_file: str = Field(default="dtg_signatures.json", pattern=r"^[\w.-]+\.json$")
     classes: dict[str, FaultClass] = Field(min_length=1)
     sweeps: list[Sweep] = Field(default_factory=list)
     nominal: list[Nominal] = Field(default_factory=list)
@@ -829,7 +830,7 @@ def prepare(spec: CampaignSpec, base_dir: Path, out_dir: Path) -> None:
     if spec.signatures_training is None:
         return
     results = (base_dir / spec.results_dir).resolve() if spec.results_dir else out_dir
-    target = results / "dtg_signatures.json"
+    target = results / spec.signatures_file
     if target.is_file():
         return
     training = (base_dir / spec.signatures_training).resolve()
