@@ -172,3 +172,42 @@ def test_windowed_classification_is_the_median_of_the_per_sample_features():
 def test_invalid_settings_name_the_setting(changes, name):
     with pytest.raises((ValueError, TypeError), match=name):
         DTGChannel(DTGChannelConfig(**changes))
+
+
+def test_pattern_alarm_clears_after_an_intermittent_fault_and_the_estimator_is_held():
+    """A noise burst on Utx 4-6 s (pattern classifier): the residual tests alarm at once and
+    clear within the long window + clear time (2.5 s) + the prefilter's memory (0.095 s)
+    + block alignment (2 × 25 ms) after it; the fast estimators are
+    held from before the burst, so the ratio band does not keep the alarm while they
+    would forget the burst (its data raise their information ~100-fold)."""
+    rec = _record(STABLE_ROTOR, 10000, seed=21, noise=1e-4)
+    scale = np.std(rec[:, 0])
+    rec[4000:6000, 0] += 10 * scale * np.random.default_rng(22).standard_normal(2000)
+    ch = DTGChannel(DTGChannelConfig(sample_period_s=T, p0=1e8, learn_start_s=0.5,
+                                     learn_end_s=3.0))
+    outs = _run(ch, rec)
+    t = np.arange(len(rec)) * T
+    alarm = np.array([o.alarm for o in outs])
+    residual = np.array([o.diagnosis.residual_alarm for o in outs])
+    assert not alarm[t < 4.0].any()
+    assert alarm[(t >= 4.05) & (t < 6.0)].all()
+    cleared = t[(t > 6.0) & ~alarm][0] - 6.0
+    assert 2.0 < cleared <= 2.5 + 0.095 + 0.05, cleared
+    assert not alarm[t > 6.0 + cleared].any()
+    # the ratio band alone may alarm within the block that detects the burst (before the
+    # block's tests run), never after the burst
+    band_only = alarm & ~residual
+    assert not band_only[t > 4.1].any(), t[band_only]
+    # held at their pre-burst estimates: θ during the burst equals θ just before it
+    np.testing.assert_array_equal(outs[5000].theta, outs[5900].theta)
+    assert np.all(np.abs(outs[5000].eta - 1.0) < 0.2)
+    # the hold and the snapshots are part of the state
+    ch2 = DTGChannel(ch.config)
+    _run(ch2, rec[:5000])
+    state = ch2.get_state()
+    ref = _run(ch2, rec[5000:7000])
+    ch2.set_state(state)
+    again = _run(ch2, rec[5000:7000])
+    for a, b in zip(ref, again, strict=True):
+        np.testing.assert_array_equal(a.theta, b.theta)
+        assert a.alarm == b.alarm

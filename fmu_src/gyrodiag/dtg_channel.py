@@ -21,6 +21,7 @@ The Diagnoser FMU only maps its variables onto this class.
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -458,6 +459,12 @@ class DTGChannel:
         self._blk_valid: list[bool] = []
         self._hist_filtered: list[tuple[float, ...]] = [(0.0,) * 4, (0.0,) * 4]
         self._gap = 0
+        # pattern classifier: the fast estimators are held while the residual tests are
+        # in alarm, from their state half a test window before the alarm (a fault's data
+        # would take them seconds to forget: a 0.3 V noise burst on a pick-off raises
+        # their information ~1000-fold, i.e. ~7 s of forgetting 0.999)
+        self._hold = False
+        self._snapshots: deque[tuple[Any, ...]] = deque(maxlen=self._short_blocks + 1)
         self._learner: ReferenceLearner | None = ReferenceLearner(
             self._nb, self._short_blocks, self._long_blocks, c.thresholds, self._nb * self.T)
         self.reference: NominalReference | None = None
@@ -500,7 +507,7 @@ class DTGChannel:
         # raw was checked finite above; the stages downstream need not check again
         sample = tuple(self._prefilter.step(raw)) if self._prefilter is not None else raw
         rows = self._regressor.step(*sample)
-        if rows is not None:
+        if rows is not None and not self._hold:
             self._theta_now = (self._step_estimator(0, rows[0], rows[1]),
                                self._step_estimator(1, rows[2], rows[3]))
         th_x, th_y = self._theta_now
@@ -649,13 +656,33 @@ class DTGChannel:
                 self._learner.push_block(np.array(self._blk_raw), np.array(self._blk_filtered),
                                          np.array(self._blk_theta), np.array(self._blk_valid))
         elif n >= self._n_end and self._monitor is not None:
-            self._monitor.push_block(np.array(self._blk_raw),
-                                     np.array(self._hist_filtered + self._blk_filtered),
-                                     np.array(self._blk_theta), np.array(self._blk_valid))
+            was = self._monitor.alarm
+            now = self._monitor.push_block(np.array(self._blk_raw),
+                                           np.array(self._hist_filtered + self._blk_filtered),
+                                           np.array(self._blk_theta),
+                                           np.array(self._blk_valid))
+            self._hold_estimators(was, now)
             done = True
         self._hist_filtered = self._blk_filtered[-2:]
         self._clear_block()
         return done
+
+    def _hold_estimators(self, was: bool, now: bool) -> None:
+        """Snapshot the estimators at quiet block ends; at a residual alarm restore the
+        oldest snapshot and hold them until the alarm clears."""
+        if not now:
+            if was:
+                self._hold = False
+                self._snapshots.clear()
+            self._snapshots.append((self._estimators[0].get_state(),
+                                    self._estimators[1].get_state(), self._theta_now))
+            return
+        if not was and self._snapshots:
+            sx, sy, theta = self._snapshots[0]
+            self._estimators[0].set_state(sx)
+            self._estimators[1].set_state(sy)
+            self._theta_now = theta
+        self._hold = True
 
     def _clear_block(self) -> None:
         self._blk_raw = []
@@ -732,6 +759,8 @@ class DTGChannel:
                         "valid": np.array(self._blk_valid, dtype=bool),
                         "history": np.array(self._hist_filtered, dtype=float),
                         "gap": self._gap},
+            "hold": self._hold,
+            "snapshots": [list(snap) for snap in self._snapshots],
             "learner": None if self._learner is None else self._learner.get_state(),
             "reference": None if self.reference is None else self.reference.get_state(),
             "monitor": None if self._monitor is None else self._monitor.get_state(),
@@ -783,6 +812,11 @@ class DTGChannel:
             buffers["history"], dtype=float).reshape(2, 4).tolist()]
         self._gap = int(buffers["gap"])
         self._theta_now = tuple(tuple(e.theta.tolist()) for e in self._estimators)
+        self._hold = bool(state["hold"])
+        self._snapshots.clear()
+        for sx, sy, theta in state["snapshots"]:
+            self._snapshots.append((sx, sy, tuple(tuple(float(v) for v in row)
+                                                  for row in theta)))
         c = self.config
         if state["learner"] is None:
             self._learner = None
