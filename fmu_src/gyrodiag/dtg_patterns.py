@@ -226,7 +226,9 @@ class PatternLibrary:
     component_cap : float
         Cap of each channel's χ² term.
     max_distance : float or None
-        χ² per channel beyond which a fault is "unknown" (None: no limit).
+        χ² per channel beyond which a signal fault is "unknown" (None: no limit).
+    physical_max_distance : float or None
+        The same for the physical classes (their fits are judged on log η).
     prior : NominalPrior or None
         Nominal reference of the training runs (the learning guard's prior).
     """
@@ -243,6 +245,7 @@ class PatternLibrary:
     component_cap: float = 25.0
     max_distance: float | None = None
     prior: NominalPrior | None = None
+    physical_max_distance: float | None = None
 
     @property
     def names(self) -> list[str]:
@@ -269,6 +272,7 @@ class PatternLibrary:
             raise ValueError(f"patterns.classes: duplicate class names {dup}")
         noise = NoiseModel.from_dict(d.get("noise"), "patterns.noise")
         md = d.get("max_distance")
+        pmd = d.get("physical_max_distance")
         prior = d.get("nominal")
         return cls(
             classes=classes, noise=noise,
@@ -290,6 +294,8 @@ class PatternLibrary:
                                                                    md),
             prior=None if prior is None else NominalPrior.from_dict(prior,
                                                                     "patterns.nominal"),
+            physical_max_distance=None if pmd is None else check_nonnegative(
+                "patterns.physical_max_distance", pmd),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -302,6 +308,7 @@ class PatternLibrary:
             "log_variance_model_error": self.log_variance_model_error,
             "log_eta_model_error": self.log_eta_model_error,
             "component_cap": self.component_cap, "max_distance": self.max_distance,
+            "physical_max_distance": self.physical_max_distance,
         }
         if self.prior is not None:
             out["nominal"] = self.prior.to_dict()
@@ -521,7 +528,8 @@ class PatternClassifier:
         scored.sort()
         chi2, i, a = scored[0]
         distance = chi2 / N_ETA
-        if lib.max_distance is not None and distance > lib.max_distance:
+        limit = lib.physical_max_distance
+        if limit is not None and distance > limit:
             return PatternResult(UNKNOWN_CODE, "unknown", -1, -1, -1, distance)
         best = lib.classes[i]
         runner = scored[1] if len(scored) > 1 else None

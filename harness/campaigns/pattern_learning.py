@@ -34,8 +34,8 @@ is classified is what was learned:
    with the fewest errors over all alarm samples of the step and drift runs, counted as
    fractions of each class.
 4. **Prior**: median reference of the runs whose reference was valid, θ0 spread.
-5. **max_distance**: 4 × the largest distance of a training run to its own class, so
-   that a fault unlike every class is "unknown".
+5. **max_distance**: 4 × the largest distance of a training run to its own class (signal
+   faults and physical faults apart), so that a fault unlike every class is "unknown".
 """
 
 from __future__ import annotations
@@ -416,7 +416,8 @@ def learn_patterns(runs: Sequence[PatternRun], codes: dict[str, int], *,
 
     # 5. distances of the training runs, max_distance
     clf = PatternClassifier(lib)
-    distances = []
+    distances: list[float] = []
+    physical: list[float] = []
     for entry, r in zip(record_runs, [r for n in order for r in by_class[n]], strict=True):
         level, log_var, win = end_stats(r)
         k = max(1, round(win / block_s))
@@ -431,11 +432,11 @@ def learn_patterns(runs: Sequence[PatternRun], codes: dict[str, int], *,
         entry["classified"] = res.name
         entry["distance"] = float(res.distance)
         if res.name == r.name:
-            distances.append(res.distance)
-    max_distance = 4.0 * max(distances) if distances else None
+            (physical if r.type in PHYSICAL_TYPES else distances).append(res.distance)
     lib = PatternLibrary(classes=tuple(classes), noise=noise, sample_period_s=sample_period_s,
                          block_s=block_s, growth_threshold=threshold, prior=prior,
-                         max_distance=max_distance)
+                         max_distance=4.0 * max(distances) if distances else None,
+                         physical_max_distance=4.0 * max(physical) if physical else None)
     record = {"runs": record_runs,
               "nominal_samples": int(L.shape[0]),
               "growth": {"threshold": threshold,
