@@ -4,8 +4,9 @@ Usage::
 
     .venv/bin/python benchmarks/bench_diagnoser.py [--steps 3000] [--warmup 1500] [--no-chain]
 
-Measures, in one run, each FMU in a fresh process through fmpy (DESIGN §6.11), on the
-same input records at 1 kHz:
+Measures, in one run, through fmpy, on the same input records at 1 kHz, in one fresh
+process per Diagnoser configuration (DESIGN §6.11) in which three FMUs are stepped in
+turn, step by step, so that their ratios do not depend on the load of a shared machine:
 
 * the host step of a trivial pythonfmu FMU (one Real output set in do_step, built here in
   a temporary directory with pythonfmu's builder): the floor of any pythonfmu step;
@@ -17,7 +18,9 @@ same input records at 1 kHz:
 * the Diagnoser's fmi2Instantiate and its initialisation (channels built) per channel;
 * the library channels called directly (no FMI) with both kernel sets;
 * the real-time factor of the DTG 1 kHz chain, the seed scenario ``dtg_nominal``
-  (DTG → FaultInjector → two Diagnoser DTG channels, 60 s) through the harness.
+  (DTG → FaultInjector → two Diagnoser DTG channels, 60 s) through the harness, as
+  simulated time over the process's CPU time (and over wall time, which a loaded machine
+  inflates).
 
 Prints figures only (no assertions); medians of per-step times. The detection filter
 calibrates over the warm-up (0.5 s), so the timed steps are steady-state monitoring.
@@ -108,75 +111,106 @@ def make_records(n: int, seed: int = 1) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ FMU measurement
-def measure_fmu(fmu: Path, spec: dict, warmup: int, steps: int) -> dict:
-    """Runs in a fresh process: instantiate/initialise times and per-step times."""
-    from fmpy import extract, read_model_description
-    from fmpy.fmi2 import FMU2Slave
+class _Instance:
+    """One FMU instance through fmpy with the inputs it is fed (host step = set + doStep)."""
 
-    unzipdir = extract(str(fmu))
-    md = read_model_description(unzipdir)
-    vr = {v.name: v.valueReference for v in md.modelVariables}
-    types = {v.name: v.type for v in md.modelVariables}
-    slave = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir,
-                      modelIdentifier=md.coSimulation.modelIdentifier, instanceName="bench")
-    t0 = time.perf_counter()
-    slave.instantiate()
-    t_inst = time.perf_counter() - t0
-    slave.setupExperiment(startTime=0.0)
-    for name, value in spec.get("params", {}).items():
-        setter = {"Real": slave.setReal, "Integer": slave.setInteger,
-                  "Boolean": slave.setBoolean}[types[name]]
-        setter([vr[name]], [value])
-    t0 = time.perf_counter()
-    slave.enterInitializationMode()
-    slave.exitInitializationMode()
-    t_init = time.perf_counter() - t0
-    in_names = spec.get("inputs")
-    if in_names is None:  # every Real input (the FaultInjector)
-        in_names = [v.name for v in md.modelVariables
-                    if v.causality == "input" and v.type == "Real"]
-    in_vr = [vr[n] for n in in_names]
-    rec = np.load(spec["records"])[:, spec["columns"]] if "records" in spec else None
-    if rec is None and in_vr:
-        rec = np.random.default_rng(0).standard_normal((warmup + steps, len(in_vr)))
-    outputs = [v for v in md.modelVariables if v.causality == "output"]
-    out_by_type = {kind: [v.valueReference for v in outputs if v.type == kind]
-                   for kind in ("Real", "Integer", "Boolean")}
-    getters = {"Real": slave.getReal, "Integer": slave.getInteger, "Boolean": slave.getBoolean}
-    host = np.empty(warmup + steps)
-    whole = np.empty(warmup + steps)
-    rows = rec.tolist() if rec is not None else None
-    for k in range(warmup + steps):
+    def __init__(self, fmu: str, spec: dict, n: int) -> None:
+        from fmpy import extract, read_model_description
+        from fmpy.fmi2 import FMU2Slave
+
+        unzipdir = extract(fmu)
+        md = read_model_description(unzipdir)
+        vr = {v.name: v.valueReference for v in md.modelVariables}
+        types = {v.name: v.type for v in md.modelVariables}
+        self.slave = slave = FMU2Slave(
+            guid=md.guid, unzipDirectory=unzipdir,
+            modelIdentifier=md.coSimulation.modelIdentifier, instanceName="bench")
+        t0, c0 = time.perf_counter(), time.process_time()
+        slave.instantiate()
+        self.instantiate_s = time.perf_counter() - t0
+        self.instantiate_cpu_s = time.process_time() - c0
+        slave.setupExperiment(startTime=0.0)
+        for name, value in spec.get("params", {}).items():
+            setter = {"Real": slave.setReal, "Integer": slave.setInteger,
+                      "Boolean": slave.setBoolean}[types[name]]
+            setter([vr[name]], [value])
+        t0, c0 = time.perf_counter(), time.process_time()
+        slave.enterInitializationMode()
+        slave.exitInitializationMode()
+        self.initialise_s = time.perf_counter() - t0
+        self.initialise_cpu_s = time.process_time() - c0
+        in_names = spec.get("inputs")
+        if in_names is None:  # every Real input (the FaultInjector)
+            in_names = [v.name for v in md.modelVariables
+                        if v.causality == "input" and v.type == "Real"]
+        self.in_vr = [vr[name] for name in in_names]
+        if "records" in spec:
+            self.rows = np.load(spec["records"])[:n, spec["columns"]].tolist()
+        else:
+            self.rows = np.random.default_rng(0).standard_normal(
+                (n, len(self.in_vr))).tolist()
+        outputs = [v for v in md.modelVariables if v.causality == "output"]
+        getters = {"Real": slave.getReal, "Integer": slave.getInteger,
+                   "Boolean": slave.getBoolean}
+        self.reads = [(getters[kind], refs) for kind in ("Real", "Integer", "Boolean")
+                      if (refs := [v.valueReference for v in outputs if v.type == kind])]
+        self.n_inputs, self.n_outputs = len(self.in_vr), len(outputs)
+
+    def step(self, k: int) -> tuple[float, float]:
+        """(host step, host step + reading every output) in seconds."""
+        slave = self.slave
         t0 = time.perf_counter()
-        if rows is not None:
-            slave.setReal(in_vr, rows[k])
+        if self.in_vr:
+            slave.setReal(self.in_vr, self.rows[k])
         slave.doStep(currentCommunicationPoint=k * H, communicationStepSize=H)
         t1 = time.perf_counter()
-        for kind, refs in out_by_type.items():
-            if refs:
-                getters[kind](refs)
-        whole[k] = time.perf_counter() - t0
-        host[k] = t1 - t0
-    accelerated = None
+        for getter, refs in self.reads:
+            getter(refs)
+        return t1 - t0, time.perf_counter() - t0
+
+    def close(self) -> None:
+        self.slave.terminate()
+        self.slave.fmi2FreeInstance(self.slave.component)
+
+
+def measure_fmus(specs: dict[str, dict], warmup: int, steps: int) -> dict:
+    """Runs in a fresh process: the FMUs of ``specs`` stepped in turn, step by step.
+
+    Interleaving makes the ratios robust to the load of a shared machine: each step of
+    the Diagnoser is compared with the FaultInjector and trivial steps taken around it.
+    """
+    n = warmup + steps
+    instances = {name: _Instance(spec["fmu"], spec, n) for name, spec in specs.items()}
+    times = {name: np.empty((n, 2)) for name in specs}
+    for k in range(n):
+        for name, inst in instances.items():
+            times[name][k] = inst.step(k)
     accel = sys.modules.get("gyrodiag._accel")
-    if accel is not None:
-        accelerated = bool(accel.ACCELERATED)
-    slave.terminate()
-    slave.fmi2FreeInstance(slave.component)
+    out: dict = {"accelerated": None if accel is None else bool(accel.ACCELERATED)}
     timed = slice(warmup, None)
-    return {"step_us": 1e6 * float(np.median(host[timed])),
-            "whole_us": 1e6 * float(np.median(whole[timed])),
-            "instantiate_s": t_inst, "initialise_s": t_init,
-            "n_inputs": len(in_vr), "n_outputs": len(outputs), "accelerated": accelerated}
+    for name, inst in instances.items():
+        out[name] = {"step_us": 1e6 * float(np.median(times[name][timed, 0])),
+                     "whole_us": 1e6 * float(np.median(times[name][timed, 1])),
+                     "instantiate_s": inst.instantiate_s, "initialise_s": inst.initialise_s,
+                     "instantiate_cpu_s": inst.instantiate_cpu_s,
+                     "initialise_cpu_s": inst.initialise_cpu_s,
+                     "n_inputs": inst.n_inputs, "n_outputs": inst.n_outputs}
+    base = times["diag"][timed, 0]
+    for ref in ("injector", "trivial"):
+        if ref in times:
+            out[f"ratio_{ref}"] = float(np.median(base / times[ref][timed, 0]))
+    for inst in instances.values():
+        inst.close()
+    return out
 
 
-def run_measurement(fmu: Path, spec: dict, warmup: int, steps: int,
+def run_measurement(specs: dict[str, dict], warmup: int, steps: int,
                     fallback: bool = False) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "result.json"
         spec_file = Path(tmp) / "spec.json"
-        spec_file.write_text(json.dumps(spec))
-        cmd = [sys.executable, __file__, "--_measure", str(fmu), str(out), str(spec_file),
+        spec_file.write_text(json.dumps(specs))
+        cmd = [sys.executable, __file__, "--_measure", str(out), str(spec_file),
                "--warmup", str(warmup), "--steps", str(steps)]
         env = dict(os.environ)
         env.pop("GYRODIAG_KERNELS", None)
@@ -249,10 +283,10 @@ _CHAIN_RUNNER = """
 import json, os, sys, time
 from harness import load_scenario, run_scenario
 s = load_scenario(sys.argv[1])
-t0 = time.perf_counter()
+t0, c0 = time.perf_counter(), time.process_time()
 r = run_scenario(s, fmu_dir=sys.argv[2], progress=False)
 print(json.dumps({"sim_s": s.duration_s, "wall_s": time.perf_counter() - t0,
-                  "error": r.error}))
+                  "cpu_s": time.process_time() - c0, "error": r.error}))
 sys.stdout.flush()
 os._exit(0)
 """
@@ -279,11 +313,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warmup", type=int, default=1500, help="untimed steps first")
     parser.add_argument("--no-chain", action="store_true",
                         help="skip the DTG chain (dtg_nominal, 60 s simulated)")
-    parser.add_argument("--_measure", nargs=3, dest="measure", help=argparse.SUPPRESS)
+    parser.add_argument("--_measure", nargs=2, dest="measure", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.measure:
-        fmu, out, spec = map(Path, args.measure)
-        res = measure_fmu(fmu, json.loads(spec.read_text()), args.warmup, args.steps)
+        out, spec = map(Path, args.measure)
+        res = measure_fmus(json.loads(spec.read_text()), args.warmup, args.steps)
         out.write_text(json.dumps(res))
         return 0
 
@@ -291,63 +325,73 @@ def main(argv: list[str] | None = None) -> int:
     n = args.warmup + args.steps
     rec = make_records(n)
     fmu_dir = built_fmus(["Diagnoser", "FaultInjector", "DTG"])
-    diag_fmu = fmu_dir / "Diagnoser.fmu"
     results: dict[tuple[str, str], dict] = {}
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
         np.save(tmp / "records.npy", rec)
-        trivial = run_measurement(build_trivial(tmp), {}, args.warmup, args.steps)
-        injector = run_measurement(fmu_dir / "FaultInjector.fmu", {}, args.warmup, args.steps)
+        trivial = str(build_trivial(tmp))
         for kernels in ("default", "fallback"):
             for config, (channels, columns) in CONFIGS.items():
                 params = dict(BASE_PARAMS)
                 for ch in ("dtg", "grey", "df"):
                     params[f"{ch}.enabled"] = ch in channels
-                spec = {"params": params, "records": str(tmp / "records.npy"),
-                        "columns": columns, "inputs": [IN_NAMES[c] for c in columns]}
+                # the Diagnoser first: its instantiation is the process's first
+                specs = {
+                    "diag": {"fmu": str(fmu_dir / "Diagnoser.fmu"), "params": params,
+                             "records": str(tmp / "records.npy"), "columns": columns,
+                             "inputs": [IN_NAMES[c] for c in columns]},
+                    "trivial": {"fmu": trivial},
+                    "injector": {"fmu": str(fmu_dir / "FaultInjector.fmu")},
+                }
                 results[(kernels, config)] = run_measurement(
-                    diag_fmu, spec, args.warmup, args.steps, fallback=kernels == "fallback")
+                    specs, args.warmup, args.steps, fallback=kernels == "fallback")
     library = {"default": measure_library(rec, args.warmup, "c" if _compiled() else "python"),
                "fallback": measure_library(rec, args.warmup, "python")}
 
-    fi, tr = injector["step_us"], trivial["step_us"]
+    first = results[("default", "all")]
     print(f"Diagnoser.fmu at 1 kHz, {args.steps} timed steps after {args.warmup} warm-up "
-          "steps, each FMU in a fresh process (medians, µs per host step = set inputs + "
-          "doStep)")
-    print(f"  trivial pythonfmu FMU (doStep)            {tr:8.1f} µs")
-    print(f"  FaultInjector.fmu ({injector['n_inputs']} inputs + doStep)      {fi:8.1f} µs")
+          "steps. Per process (one per row): a trivial pythonfmu FMU, FaultInjector.fmu and "
+          "Diagnoser.fmu stepped in turn; host step = set inputs + doStep; ratios are "
+          "medians of the per-step ratios (robust to the machine's load)")
+    print(f"  e.g. trivial pythonfmu FMU doStep {first['trivial']['step_us']:.1f} µs, "
+          f"FaultInjector ({first['injector']['n_inputs']} inputs + doStep) "
+          f"{first['injector']['step_us']:.1f} µs")
     for kernels in ("default", "fallback"):
         label = ("default install (compiled kernels)" if kernels == "default"
                  else "plain-Python fallback (GYRODIAG_KERNELS=python)")
         acc = results[(kernels, "all")]["accelerated"]
-        print(f"\n  Diagnoser, {label}; kernels compiled in the FMU: {acc}")
+        print(f"\n  Diagnoser, {label}; compiled kernels in use in the FMU: {acc}")
         print(f"    {'channels':8s} {'step µs':>9s} {'/ FaultInj':>11s} {'/ trivial':>10s} "
-              f"{'library µs':>11s} {'+outputs µs':>12s}")
+              f"{'FI µs':>7s} {'library µs':>11s} {'+outputs µs':>12s}")
         for config in CONFIGS:
             r = results[(kernels, config)]
-            print(f"    {config:8s} {r['step_us']:9.1f} {r['step_us'] / fi:10.2f}x "
-                  f"{r['step_us'] / tr:9.1f}x {library[kernels][config]:11.1f} "
-                  f"{r['whole_us']:12.1f}")
+            d = r["diag"]
+            print(f"    {config:8s} {d['step_us']:9.1f} {r['ratio_injector']:10.2f}x "
+                  f"{r['ratio_trivial']:9.1f}x {r['injector']['step_us']:7.1f} "
+                  f"{library[kernels][config]:11.1f} {d['whole_us']:12.1f}")
     target = {"default": 4.0, "fallback": 12.0}
     verdicts = []
     for k in ("default", "fallback"):
-        ratio = results[(k, "all")]["step_us"] / fi
+        ratio = results[(k, "all")]["ratio_injector"]
         verdicts.append(f"{k} {ratio:.2f}x ({'met' if ratio <= target[k] else 'NOT met'})")
     print("\n  targets: all channels <= 4x FaultInjector (default), <= 12x (fallback): "
           + ", ".join(verdicts))
-    print("\n  Diagnoser instantiate / initialise (s, fmpy host, default install):")
+    print("\n  Diagnoser instantiate / initialise, fmpy host, default install, first "
+          "instance in the process (s; CPU time of the process, wall in brackets):")
     for config in CONFIGS:
-        r = results[("default", config)]
-        print(f"    {config:8s} instantiate {r['instantiate_s']:6.3f}   "
-              f"initialise (channels built) {r['initialise_s']:6.3f}")
+        d = results[("default", config)]["diag"]
+        print(f"    {config:8s} instantiate {d['instantiate_cpu_s']:6.3f} "
+              f"({d['instantiate_s']:6.3f})   initialise (channels built) "
+              f"{d['initialise_cpu_s']:6.3f} ({d['initialise_s']:6.3f})")
     if not args.no_chain:
         print("\n  DTG 1 kHz chain, seed scenario dtg_nominal (DTG -> FaultInjector -> 2 "
               "Diagnoser DTG channels, 60 s) through the harness, fresh process:")
         for kernels in ("default", "fallback"):
             c = measure_chain(fmu_dir, kernels == "fallback")
             err = "" if c["error"] is None else f"  (run error: {c['error']})"
-            print(f"    {kernels:8s} wall {c['wall_s']:6.2f} s   real-time factor "
-                  f"{c['sim_s'] / c['wall_s']:6.2f}{err}")
+            print(f"    {kernels:8s} CPU {c['cpu_s']:6.2f} s, wall {c['wall_s']:6.2f} s: "
+                  f"real-time factor {c['sim_s'] / c['cpu_s']:6.2f} on CPU time "
+                  f"({c['sim_s'] / c['wall_s']:.2f} on wall time){err}")
     return 0
 
 
