@@ -25,8 +25,10 @@ fmi2Error (never fmi2Fatal): the status shim in the FMU binary maps the logged e
 NaN/Inf on a channel's input clears that channel's ``valid`` output, leaves its state
 untouched, and the channel resumes on the next valid sample: its outputs are then those
 of a run without that sample (the channels' own clocks count valid samples, e.g. for the
-learning and calibration windows). Reported times (``dtg.first_alarm_time``) are
-simulation times.
+learning and calibration windows). One exception: the DTG channel remembers the gap and
+leaves the regression rows that span it, and the prefilter's ringing after it, out of
+its reference statistics (a one-sample jump in the signals would look like a noise
+burst). Reported times (``dtg.first_alarm_time``) are simulation times.
 """
 
 from __future__ import annotations

@@ -459,11 +459,13 @@ class DTGChannel:
         self._blk_valid: list[bool] = []
         self._hist_filtered: list[tuple[float, ...]] = [(0.0,) * 4, (0.0,) * 4]
         self._gap = 0
-        # pattern classifier: the fast estimators are held while the residual tests are
-        # in alarm, from their state half a test window before the alarm (a fault's data
-        # would take them seconds to forget: a 0.3 V noise burst on a pick-off raises
-        # their information ~1000-fold, i.e. ~7 s of forgetting 0.999)
-        self._hold = False
+        # pattern classifier: when the residual tests clear, the fast estimators are
+        # rolled back to their state half a test window before the alarm rose (a fault's
+        # data would take them seconds to forget: a 0.3 V noise burst on a pick-off
+        # raises their information ~1000-fold, i.e. ~7 s of forgetting 0.999, and the
+        # ratio band would hold the alarm that long); during the alarm they go on
+        # tracking, so that a physical fault shows in η
+        self._rollback: tuple[Any, ...] | None = None
         self._snapshots: deque[tuple[Any, ...]] = deque(maxlen=self._short_blocks + 1)
         self._learner: ReferenceLearner | None = ReferenceLearner(
             self._nb, self._short_blocks, self._long_blocks, c.thresholds, self._nb * self.T)
@@ -507,11 +509,12 @@ class DTGChannel:
         # raw was checked finite above; the stages downstream need not check again
         sample = tuple(self._prefilter.step(raw)) if self._prefilter is not None else raw
         rows = self._regressor.step(*sample)
-        if rows is not None and not self._hold:
+        if rows is not None:
             self._theta_now = (self._step_estimator(0, rows[0], rows[1]),
                                self._step_estimator(1, rows[2], rows[3]))
         th_x, th_y = self._theta_now
         block_done = self._collect(n, raw, sample, th_x + th_y)
+        th_x, th_y = self._theta_now  # rolled back if the residual alarm just cleared
         theta = np.array((th_x, th_y))
 
         if self.theta0 is None and not self.pattern_mode:
@@ -599,6 +602,16 @@ class DTGChannel:
         if mon.alarm:
             if stats is not None and self._pattern is not None:
                 result = self._pattern.classify_signal_fault(stats)
+                if self._pattern.has_physical:
+                    # a large physical fault (e.g. torquer scale 0.6) also raises the
+                    # residual variance, inside the ratio band: the family that
+                    # explains more wins (a signal fault corrupts one axis' estimates,
+                    # which no physical class explains)
+                    physical = self._pattern.classify_physical(
+                        mon.window_statistics(self._long_blocks))
+                    if physical.fault_type > 0 and (
+                            result.fault_type < 0 or physical.distance < result.distance):
+                        result = physical
         elif band_alarm:
             stats = mon.window_statistics(self._long_blocks)
             if self._pattern is not None:
@@ -668,21 +681,21 @@ class DTGChannel:
         return done
 
     def _hold_estimators(self, was: bool, now: bool) -> None:
-        """Snapshot the estimators at quiet block ends; at a residual alarm restore the
-        oldest snapshot and hold them until the alarm clears."""
-        if not now:
-            if was:
-                self._hold = False
-                self._snapshots.clear()
-            self._snapshots.append((self._estimators[0].get_state(),
-                                    self._estimators[1].get_state(), self._theta_now))
+        """Snapshot the estimators at quiet block ends; keep the oldest snapshot when the
+        residual tests alarm and restore it when they clear."""
+        if now:
+            if not was and self._snapshots:
+                self._rollback = self._snapshots[0]
             return
-        if not was and self._snapshots:
-            sx, sy, theta = self._snapshots[0]
+        if was and self._rollback is not None:
+            sx, sy, theta = self._rollback
             self._estimators[0].set_state(sx)
             self._estimators[1].set_state(sy)
             self._theta_now = theta
-        self._hold = True
+            self._rollback = None
+            self._snapshots.clear()
+        self._snapshots.append((self._estimators[0].get_state(),
+                                self._estimators[1].get_state(), self._theta_now))
 
     def _clear_block(self) -> None:
         self._blk_raw = []
@@ -759,7 +772,7 @@ class DTGChannel:
                         "valid": np.array(self._blk_valid, dtype=bool),
                         "history": np.array(self._hist_filtered, dtype=float),
                         "gap": self._gap},
-            "hold": self._hold,
+            "rollback": None if self._rollback is None else list(self._rollback),
             "snapshots": [list(snap) for snap in self._snapshots],
             "learner": None if self._learner is None else self._learner.get_state(),
             "reference": None if self.reference is None else self.reference.get_state(),
@@ -812,11 +825,14 @@ class DTGChannel:
             buffers["history"], dtype=float).reshape(2, 4).tolist()]
         self._gap = int(buffers["gap"])
         self._theta_now = tuple(tuple(e.theta.tolist()) for e in self._estimators)
-        self._hold = bool(state["hold"])
+        def snapshot(raw: Any) -> tuple[Any, ...]:
+            sx, sy, theta = raw
+            return sx, sy, tuple(tuple(float(v) for v in row) for row in theta)
+
+        self._rollback = None if state["rollback"] is None else snapshot(state["rollback"])
         self._snapshots.clear()
-        for sx, sy, theta in state["snapshots"]:
-            self._snapshots.append((sx, sy, tuple(tuple(float(v) for v in row)
-                                                  for row in theta)))
+        for raw_snap in state["snapshots"]:
+            self._snapshots.append(snapshot(raw_snap))
         c = self.config
         if state["learner"] is None:
             self._learner = None
