@@ -5,7 +5,11 @@
 * sensor noise is the documented seeded sequence; FMU state round trip is exact;
 * the LQR gains equal python-control's, margins as documented;
 * Aircraft + PitchController with a 0.25 rad square-wave command stay bounded for 120 s
-  and ϑ follows the command.
+  and ϑ follows the command;
+* turbulence: the FMU equals the model core (gd_aircraft_core) to 1e−12 with the same
+  seed, inputs and a mid-run intensity change; its state round trip is exact;
+* every PitchController command shape equals gd_pitch_commands at the step start, with
+  its window flag.
 """
 
 from __future__ import annotations
@@ -104,6 +108,70 @@ def _closed_loop(fmu_dir: Path, FmuSlave) -> dict:
     return {"rows": np.array(rows), "gains": np.array(gains)}
 
 
+TURB = {"turbulence_sigma_w": 1.5, "turbulence_scale_length": 60.0,
+        "turbulence_wingspan": 8.0, "seed": 9, "noise_std_q": 1e-3, "noise_std_alpha": 1e-4}
+TURB_STEPS = [0.01] * 150 + [0.005] * 100  # 2 s; intensity 0.5 m/s from step 100
+
+
+def _turbulence(fmu: Path, FmuSlave) -> dict:
+    sys.path.insert(0, str(ROOT / "models" / "aircraft"))
+    from gd_aircraft_core import AircraftModel
+    from gd_aircraft_turbulence import DrydenGust
+
+    s = FmuSlave(fmu, "ac_turb", TURB)
+    noise = [0.0, 1e-4, 1e-3, 0.0, 0.0, 0.0]
+    ref = AircraftModel(noise_std=noise, seed=9, gust=DrydenGust(1.5, 60.0, wingspan=8.0))
+    ref_y = ref.measure()
+    rows, ref_rows = [], []
+    saved = None
+    for k, h in enumerate(TURB_STEPS):
+        if k == 100:
+            s.set("turbulence_sigma_w", 0.5)
+            ref.set_gust(DrydenGust(0.5, 60.0, wingspan=8.0))
+        if k == 120:
+            saved = (s.fmu.serializeFMUstate(s.fmu.getFMUstate()), s.time)
+        elev = inputs(s.time)[1]
+        s.set("elevator", elev)
+        s.step(h)
+        ref.step(h, np.array([0.0, elev]))
+        ref_y = ref.measure()
+        rows.append(s.get_many(STATES + SENSORS + ["gust_alpha", "gust_q"]))
+        ref_rows.append([*ref.x, *ref_y, *ref.gust_output])
+    s.fmu.setFMUstate(s.fmu.deSerializeFMUstate(saved[0]))
+    s.time = saved[1]
+    again = []
+    for h in TURB_STEPS[120:]:
+        s.set("elevator", inputs(s.time)[1])
+        s.step(h)
+        again.append(s.get_many(STATES + SENSORS + ["gust_alpha", "gust_q"]))
+    s.close()
+    return {"fmu": np.array(rows), "ref": np.array(ref_rows), "again": np.array(again)}
+
+
+COMMANDS = [  # (command_source, parameters)
+    (1, {"cmd_amplitude": 0.05, "cmd_period": 2.0, "cmd_start_s": 1.0, "cmd_duration_s": 4.0}),
+    (2, {"cmd_amplitude": -0.01, "cmd_start_s": 0.5, "cmd_duration_s": 0.0}),
+    (3, {"cmd_amplitude": 0.2, "cmd_start_s": 1.0, "cmd_pulse_s": 0.5, "cmd_period": 3.0,
+         "cmd_duration_s": 5.0}),
+    (4, {"cmd_amplitude": 0.1, "cmd_start_s": 0.5, "cmd_duration_s": 5.0, "cmd_f0_hz": 0.1,
+         "cmd_f1_hz": 2.0}),
+]
+
+
+def _commands(fmu: Path, FmuSlave) -> dict:
+    res = {}
+    for source, params in COMMANDS:
+        s = FmuSlave(fmu, f"pc_cmd{source}", {"command_source": source, **params})
+        rows = []
+        for _ in range(700):
+            t = s.time
+            s.step(0.01)
+            rows.append([t, s.get("theta_cmd"), s.get("cmd_active")])
+        s.close()
+        res[f"cmd{source}"] = np.array(rows)
+    return res
+
+
 def _scenarios(fmu_dir: Path, out: Path) -> None:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from conftest import FmuSlave
@@ -119,6 +187,9 @@ def _scenarios(fmu_dir: Path, out: Path) -> None:
         res[f"state_{k}"] = v
     for k, v in _closed_loop(fmu_dir, FmuSlave).items():
         res[f"cl_{k}"] = v
+    for k, v in _turbulence(fmu, FmuSlave).items():
+        res[f"turb_{k}"] = v
+    res.update(_commands(fmu_dir / "PitchController.fmu", FmuSlave))
     np.savez(out, **res)
 
 
@@ -222,9 +293,37 @@ def test_closed_loop_bounded_and_tracks_square_wave(rec):
         seg = slice(start + half - int(1.0 / H_CL), start + half)
         err = np.abs(x[seg, 3] - cmd[seg])
         assert err.max() < 0.03, (t[seg][0], err.max())  # measured ≤ 0.0193 rad
-    # the command really is the ±0.25 rad square wave of period PERIOD
-    expected = np.where((t % PERIOD) < PERIOD / 2, 0.25, -0.25)
+    # the command really is the ±0.25 rad square wave of period PERIOD (switching instants
+    # judged with the command's 1 ns tolerance: t accumulates h in floating point)
+    expected = np.where(((t + 1e-9) % PERIOD) < PERIOD / 2, 0.25, -0.25)
     np.testing.assert_array_equal(cmd, expected)
+
+
+def test_turbulence_fmu_equals_model_core(rec):
+    fmu, ref = rec["turb_fmu"], rec["turb_ref"]
+    np.testing.assert_allclose(fmu, ref, rtol=1e-12, atol=1e-12)
+    gust = fmu[:, -2:]
+    assert np.abs(gust[:100]).max() > 1e-3  # turbulence on, q and alpha moved by it
+    assert np.abs(fmu[:, 2]).max() > 1e-3
+
+
+def test_turbulence_fmu_state_round_trip(rec):
+    np.testing.assert_array_equal(rec["turb_fmu"][120:], rec["turb_again"])
+
+
+def test_command_shapes_match_the_model_library(rec):
+    sys.path.insert(0, str(ROOT / "models" / "pitch_controller"))
+    from gd_pitch_commands import PitchCommand
+
+    names = {"cmd_amplitude": "amplitude", "cmd_period": "period", "cmd_start_s": "start",
+             "cmd_duration_s": "duration", "cmd_pulse_s": "pulse", "cmd_f0_hz": "f0",
+             "cmd_f1_hz": "f1"}
+    for source, params in COMMANDS:
+        rows = rec[f"cmd{source}"]
+        shape = PitchCommand(source, **{names[k]: v for k, v in params.items()})
+        np.testing.assert_array_equal(rows[:, 1], [shape.value(t) for t in rows[:, 0]])
+        np.testing.assert_array_equal(rows[:, 2], [shape.active(t) for t in rows[:, 0]])
+        assert np.abs(rows[:, 1]).max() > 0.5 * abs(params["cmd_amplitude"])
 
 
 if __name__ == "__main__":

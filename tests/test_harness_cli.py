@@ -83,7 +83,7 @@ start_s = 0.1
     assert proc.returncode == 1
     assert "unstable: ERROR (0.1 s recorded of 0.2 s): instance ctl: doStep at t=0.1" in \
         proc.stdout
-    assert "command_source must be 0 or 1, got 7" in proc.stderr
+    assert "command_source must be 0..4" in proc.stderr
     r = RunResult.load(tmp_path / "r" / "unstable")
     assert len(r.time) == 11 and "got 7" in r.error
 

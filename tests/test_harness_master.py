@@ -103,6 +103,21 @@ def error_mid_run_scenario() -> dict:
     }
 
 
+def manoeuvre_scenario() -> dict:
+    """Aircraft off trim (ϑ0 = 0.05 rad) and a PitchController flying a doublet from 0.1 s."""
+    return {
+        "name": "manoeuvre", "duration_s": 0.4, "step_s": H,
+        "fmus": {"ac": {"fmu": "Aircraft"}, "ctl": {"fmu": "PitchController"}},
+        "manoeuvres": [
+            {"name": "doublet", "kind": "doublet", "instance": "ctl", "start_s": 0.1,
+             "duration_s": 0.2, "amplitude_rad": 0.02, "pulse_s": 0.05},
+            {"name": "start", "kind": "off_trim", "instance": "ac", "duration_s": 0.3,
+             "theta0_rad": 0.05},
+        ],
+        "record": {"variables": ["ctl.theta_cmd", "ctl.cmd_active", "ac.x_theta"]},
+    }
+
+
 def wrong_step_scenario() -> dict:
     """Diagnoser sampled at 0.02 s but stepped every 0.01 s: refused at the first step."""
     return {
@@ -224,6 +239,7 @@ def _runner(fmu_dir: Path, out_path: Path) -> None:
         for prefix, sc in (("multirate", multirate_scenario()),
                            ("decimated", decimation_scenario()),
                            ("physical", physical_fault_scenario()),
+                           ("manoeuvre", manoeuvre_scenario()),
                            ("wrong_step", wrong_step_scenario())):
             case(prefix, lambda sc=sc, prefix=prefix: _save_result(
                 out, prefix, run_scenario(parse_scenario(sc, source=prefix), fmu_dir=fmu_dir,
@@ -368,11 +384,26 @@ def test_physical_fault_sets_and_restores_a_tunable_parameter(runs):
     assert r["ctl.throttle"][0] == 0.1
 
 
+def test_manoeuvres_become_start_values(runs):
+    """The doublet is flown from its start (command published one step later), the
+    aircraft starts at ϑ0; the windows are not faults."""
+    t = runs["manoeuvre/time"]
+    cmd = runs["manoeuvre/ctl.theta_cmd"]
+    active = runs["manoeuvre/ctl.cmd_active"]
+    # row k holds the command the controller used for its step [t_{k-1}, t_k]
+    t_cmd = t - H
+    expected = np.where((t_cmd >= 0.1 - 1e-9) & (t_cmd < 0.15 - 1e-9), 0.02,
+                        np.where((t_cmd >= 0.15 - 1e-9) & (t_cmd < 0.2 - 1e-9), -0.02, 0.0))
+    np.testing.assert_array_equal(cmd[1:], expected[1:])
+    assert active[1:].tolist() == ((t_cmd[1:] >= 0.1 - 1e-9) & (t_cmd[1:] < 0.3 - 1e-9)).tolist()
+    assert runs["manoeuvre/ac.x_theta"][0] == 0.05
+
+
 def test_fmu_error_mid_run_stops_with_log_and_keeps_rows(runs):
     r, loaded = _get(runs, "err"), _get(runs, "err_loaded")
     error = str(r["error"])
     assert error.startswith("instance ctl: doStep at t=0.05 returned ERROR")
-    assert "command_source must be 0 or 1, got 5" in error      # the FMU's own log line
+    assert "command_source must be 0..4" in error      # the FMU's own log line
     np.testing.assert_allclose(r["time"], np.arange(6) * H, atol=1e-15)
     assert np.all(np.abs(r["ctl.theta_cmd"][1:]) == 0.25)       # rows before the error kept
     # saved although the run failed

@@ -6,7 +6,8 @@ Life of a run
    instance is an fmpy ``FMU2Slave`` on that directory, with its own logger callback
    context so that the FMU's log lines can be quoted in errors.
 2. Instantiate, ``setupExperiment``, set parameters (type from the modelDescription;
-   injector faults become parameters of the FaultInjector instance), enter
+   injector faults become parameters of the FaultInjector instance, manoeuvres start
+   values of the instance that flies them), enter
    initialisation mode, propagate outputs through the connections until nothing changes
    (at most ``len(instances) + 1`` passes), then leave initialisation mode instance by
    instance in coupling order, setting each one's inputs from its sources first (our
@@ -440,6 +441,13 @@ def run_scenario(scenario: Scenario | Path | str, fmu_dir: Path | str | None = N
     return result
 
 
+def manoeuvre_windows(scenario: Scenario) -> list[FaultWindow]:
+    """The scenario's manoeuvres as windows (``kind`` = manoeuvre kind, ``target`` = the
+    instance that flies it)."""
+    return [FaultWindow(m.name, m.instance, m.kind, m.start_s, m.end_s)
+            for m in scenario.manoeuvres]
+
+
 def fault_windows(scenario: Scenario) -> list[FaultWindow]:
     """The scenario's fault schedule as :class:`FaultWindow` entries."""
     windows = []
@@ -541,6 +549,8 @@ class _Run:
         params: dict[str, dict[str, Any]] = {n: dict(i.parameters) for n, i in s.fmus.items()}
         for f in s.injector_faults:
             params[f.injector].update(f.injector_parameters())
+        for m in s.manoeuvres:
+            params[m.instance].update(m.instance_parameters())
         for name, paths in self.files.items():
             params[name].update(paths)
         for name in self.plan.order:
@@ -640,6 +650,7 @@ class _Run:
             time=np.array(self.times, dtype=float),
             signals={q: table[:, j].copy() for j, q in enumerate(self.record_names)},
             fault_windows=fault_windows(s),
+            manoeuvre_windows=manoeuvre_windows(s),
             step_s=h,
             error=error,
             wall_time_s=time.perf_counter() - wall0,

@@ -92,6 +92,9 @@ class RunResult:
         Wall-clock duration of the run (s).
     stop_time_s : float
         Planned simulated duration (s).
+    manoeuvre_windows : list of FaultWindow
+        The scheduled manoeuvres (``kind`` = manoeuvre kind, ``target`` = the instance that
+        flies it); fault-free time for false-alarm counts.
     """
 
     scenario: str
@@ -102,6 +105,7 @@ class RunResult:
     error: str | None = None
     wall_time_s: float = 0.0
     stop_time_s: float = 0.0
+    manoeuvre_windows: list[FaultWindow] = field(default_factory=list)
 
     @property
     def completed(self) -> bool:
@@ -120,6 +124,14 @@ class RunResult:
             return self.signals[name]
         except KeyError:
             raise KeyError(_missing_signal_message(name, list(self.signals))) from None
+
+    def manoeuvre(self, name: str) -> FaultWindow:
+        """The manoeuvre window called ``name`` (KeyError listing the known ones)."""
+        for window in self.manoeuvre_windows:
+            if window.name == name:
+                return window
+        known = ", ".join(w.name for w in self.manoeuvre_windows) or "none"
+        raise KeyError(f"run {self.scenario!r} has no manoeuvre {name!r}; manoeuvres: {known}")
 
     def fault(self, name: str) -> FaultWindow:
         """The fault window called ``name`` (KeyError listing the known faults)."""
@@ -157,6 +169,7 @@ class RunResult:
             "n_samples": n_rows,
             "signals": names,
             "fault_windows": [w.to_json() for w in self.fault_windows],
+            "manoeuvre_windows": [w.to_json() for w in self.manoeuvre_windows],
         }
         (directory / META_FILE).write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
 
@@ -187,6 +200,8 @@ class RunResult:
             time=table[:, 0].copy(),
             signals=signals,
             fault_windows=[FaultWindow.from_json(w) for w in meta.get("fault_windows", [])],
+            manoeuvre_windows=[FaultWindow.from_json(w)
+                               for w in meta.get("manoeuvre_windows", [])],
             step_s=float(meta.get("step_s", 0.0)),
             error=meta.get("error"),
             wall_time_s=float(meta.get("wall_time_s", 0.0)),

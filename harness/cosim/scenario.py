@@ -81,6 +81,42 @@ FAULT_TYPE_PARAMETERS: dict[str, tuple[str, ...]] = {
 _CHANNEL_PARAMETERS = ("magnitude", "gain", "stuck_value", "noise_std", "period", "duty",
                        "sat_min", "sat_max")
 
+#: PitchController ``command_source`` codes of the command manoeuvres, copied from the
+#: PitchController FMU's documentation (``KIND_NAMES`` in models/pitch_controller); a test
+#: checks that this table matches the built FMU.  The harness never imports models/.
+MANOEUVRE_COMMAND_CODES: dict[str, int] = {
+    "square_wave": 1,
+    "step": 2,
+    "doublet": 3,
+    "sine_sweep": 4,
+}
+#: Manoeuvre kinds: the command shapes plus a start off trim (initial state of an
+#: Aircraft-like instance: ``x0_theta``, ``x0_q``, ``x0_alpha``).
+MANOEUVRE_KINDS = (*MANOEUVRE_COMMAND_CODES, "off_trim")
+#: Fields each manoeuvre kind needs (all required) and may take (optional).
+MANOEUVRE_REQUIRED: dict[str, tuple[str, ...]] = {
+    "square_wave": ("amplitude_rad", "period_s"),
+    "step": ("amplitude_rad",),
+    "doublet": ("amplitude_rad", "pulse_s"),
+    "sine_sweep": ("amplitude_rad", "f0_hz", "f1_hz", "duration_s"),
+    "off_trim": ("duration_s",),
+}
+MANOEUVRE_OPTIONAL: dict[str, tuple[str, ...]] = {
+    "square_wave": ("duration_s",),
+    "step": ("duration_s",),
+    "doublet": ("period_s", "duration_s"),
+    "sine_sweep": (),
+    "off_trim": ("theta0_rad", "q0_rad_s", "alpha0_rad"),
+}
+_MANOEUVRE_FIELDS = ("amplitude_rad", "period_s", "pulse_s", "f0_hz", "f1_hz", "duration_s",
+                     "theta0_rad", "q0_rad_s", "alpha0_rad")
+#: FMU parameter of each command-manoeuvre field (PitchController) and off-trim field
+#: (Aircraft).
+_COMMAND_PARAMETER = {"amplitude_rad": "cmd_amplitude", "period_s": "cmd_period",
+                      "pulse_s": "cmd_pulse_s", "f0_hz": "cmd_f0_hz", "f1_hz": "cmd_f1_hz",
+                      "duration_s": "cmd_duration_s"}
+_OFF_TRIM_PARAMETER = {"theta0_rad": "x0_theta", "q0_rad_s": "x0_q", "alpha0_rad": "x0_alpha"}
+
 DEFAULT_FMU_DIR = "build/fmus"
 #: Environment variable that overrides the scenario's ``fmu_dir`` (CI, test sessions).
 FMU_DIR_ENV = "GYRODIAG_FMU_DIR"
@@ -238,6 +274,92 @@ class PhysicalFault(_Strict):
         return self.set
 
 
+class Manoeuvre(_Strict):
+    """``[[manoeuvres]]``: a pilot input or an off-trim start — not a fault.
+
+    A command manoeuvre (``square_wave``, ``step``, ``doublet``, ``sine_sweep``) becomes
+    start values of the command generator ``instance`` (a PitchController: its
+    ``command_source`` and ``cmd_*`` parameters), which flies the shape from ``start_s``
+    for ``duration_s`` (0 or left out: to the end of the run; required for a sweep) and
+    commands trim outside that window.  ``off_trim`` sets the initial state of an
+    Aircraft-like ``instance`` (``x0_theta``, ``x0_q``, ``x0_alpha``); its window is
+    [0, ``duration_s``], the time given to return to trim.
+
+    Manoeuvre windows are fault-free time for the expectations: an alarm inside one is a
+    false alarm for ``no_alarm_outside_faults`` (and ``no_alarm_during_manoeuvres``).
+    """
+
+    name: str = Field(min_length=1)
+    kind: str
+    instance: str = Field(min_length=1)
+    start_s: float = Field(default=0.0, ge=0.0, allow_inf_nan=False)
+    duration_s: float | None = Field(default=None, ge=0.0, allow_inf_nan=False)
+    amplitude_rad: float | None = Field(default=None, allow_inf_nan=False)
+    period_s: float | None = Field(default=None, gt=0.0, allow_inf_nan=False)
+    pulse_s: float | None = Field(default=None, gt=0.0, allow_inf_nan=False)
+    f0_hz: float | None = Field(default=None, gt=0.0, allow_inf_nan=False)
+    f1_hz: float | None = Field(default=None, gt=0.0, allow_inf_nan=False)
+    theta0_rad: float | None = Field(default=None, allow_inf_nan=False)
+    q0_rad_s: float | None = Field(default=None, allow_inf_nan=False)
+    alpha0_rad: float | None = Field(default=None, allow_inf_nan=False)
+
+    @field_validator("kind")
+    @classmethod
+    def _known_kind(cls, value: str) -> str:
+        if value not in MANOEUVRE_KINDS:
+            raise ValueError(f"unknown manoeuvre kind {value!r}"
+                             f"{_suggest(value, list(MANOEUVRE_KINDS))} "
+                             f"(known: {', '.join(MANOEUVRE_KINDS)})")
+        return value
+
+    @model_validator(mode="after")
+    def _fields_match_kind(self) -> Manoeuvre:
+        need, may = MANOEUVRE_REQUIRED[self.kind], MANOEUVRE_OPTIONAL[self.kind]
+        missing = [f for f in need if getattr(self, f) is None]
+        unused = [f for f in _MANOEUVRE_FIELDS
+                  if f not in need and f not in may and getattr(self, f) is not None]
+        if missing:
+            raise ValueError(f"manoeuvre kind {self.kind!r} needs {', '.join(missing)}")
+        if unused:
+            raise ValueError(f"manoeuvre kind {self.kind!r} does not use {', '.join(unused)} "
+                             f"(it uses: {', '.join(need + may)})")
+        if self.kind == "sine_sweep" and not self.duration_s:
+            raise ValueError("a sine sweep needs duration_s > 0")
+        if self.kind == "off_trim":
+            if self.start_s != 0.0:
+                raise ValueError("an off_trim start begins at t = 0: leave out start_s")
+            if all(getattr(self, f) is None for f in _OFF_TRIM_PARAMETER):
+                raise ValueError("off_trim needs at least one of theta0_rad, q0_rad_s, "
+                                 "alpha0_rad")
+            if not self.duration_s:
+                raise ValueError("off_trim needs duration_s > 0 (the time to return to trim)")
+        if (self.kind == "doublet" and self.period_s is not None
+                and self.period_s < 2.0 * self.pulse_s):
+            raise ValueError(f"period_s ({self.period_s}) must be >= 2 * pulse_s "
+                             f"({2.0 * self.pulse_s}) for a repeated doublet")
+        return self
+
+    @property
+    def end_s(self) -> float:
+        """End of the manoeuvre window (``math.inf``: to the end of the run)."""
+        return self.start_s + self.duration_s if self.duration_s else math.inf
+
+    def instance_parameters(self) -> dict[str, float | int]:
+        """Start values of ``instance`` that realise this manoeuvre."""
+        if self.kind == "off_trim":
+            return {_OFF_TRIM_PARAMETER[f]: float(getattr(self, f))
+                    for f in _OFF_TRIM_PARAMETER if getattr(self, f) is not None}
+        params: dict[str, float | int] = {"command_source": MANOEUVRE_COMMAND_CODES[self.kind],
+                                          "cmd_start_s": float(self.start_s),
+                                          "cmd_duration_s": float(self.duration_s or 0.0)}
+        for f, pname in _COMMAND_PARAMETER.items():
+            if f != "duration_s" and getattr(self, f) is not None:
+                params[pname] = float(getattr(self, f))
+        if self.kind == "doublet" and self.period_s is None:
+            params["cmd_period"] = 0.0  # once
+        return params
+
+
 def _fault_tag(value: Any) -> str:
     if isinstance(value, dict):
         return "physical_fault" if "set" in value else "injector_fault"
@@ -271,7 +393,7 @@ class Record(_Strict):
 class Expectation(BaseModel):
     """One ``[[expect]]`` entry.  Its arguments belong to
     ``harness.verification.expectations``, which validates them; here only the references
-    (``signal``, ``fault``) are checked."""
+    (``signal``, ``fault``, ``manoeuvre``) are checked."""
 
     model_config = ConfigDict(extra="allow")
 
@@ -279,6 +401,7 @@ class Expectation(BaseModel):
     name: str | None = None
     signal: str | None = None
     fault: str | None = None
+    manoeuvre: str | None = None
 
     def arguments(self) -> dict[str, Any]:
         """All keys of the entry except ``kind`` (extra keys included)."""
@@ -341,6 +464,7 @@ class Scenario(_Strict):
     fmus: dict[str, FmuInstance] = Field(min_length=1)
     connections: list[Connection] = Field(default_factory=list)
     faults: list[Fault] = Field(default_factory=list)
+    manoeuvres: list[Manoeuvre] = Field(default_factory=list)
     record: Record = Field(default_factory=Record)
     expect: list[Expectation] = Field(default_factory=list)
     training: Training | None = None
@@ -540,6 +664,35 @@ def _cross_reference_problems(s: Scenario) -> list[tuple[str, str]]:
         if f.start_s > s.duration_s:
             problems.append((f"faults[{i}].start_s", f"{f.start_s} s is after the end of the "
                                                      f"run ({s.duration_s} s)"))
+    manoeuvre_names: dict[str, int] = {}
+    commanded: dict[str, int] = {}
+    for i, m in enumerate(s.manoeuvres):
+        if m.name in manoeuvre_names or m.name in fault_names:
+            other = (f"manoeuvres[{manoeuvre_names[m.name]}]" if m.name in manoeuvre_names
+                     else f"faults[{fault_names[m.name]}]")
+            problems.append((f"manoeuvres[{i}].name", f"duplicate name {m.name!r} (also "
+                                                      f"{other})"))
+        manoeuvre_names.setdefault(m.name, i)
+        if m.instance not in s.fmus:
+            problems.append((f"manoeuvres[{i}].instance", f"unknown instance {m.instance!r}"
+                                                          f"{_suggest(m.instance, instances)}"))
+            continue
+        if m.kind != "off_trim":
+            if m.instance in commanded:
+                problems.append((f"manoeuvres[{i}].instance",
+                                 f"{m.instance!r} already flies "
+                                 f"manoeuvres[{commanded[m.instance]}]: one command "
+                                 "manoeuvre per command generator"))
+            commanded.setdefault(m.instance, i)
+        if m.start_s > s.duration_s:
+            problems.append((f"manoeuvres[{i}].start_s", f"{m.start_s} s is after the end of "
+                                                         f"the run ({s.duration_s} s)"))
+        own = s.fmus[m.instance].parameters
+        clash = [p for p in m.instance_parameters() if p in own]
+        if clash:
+            problems.append((f"fmus.{m.instance}.parameters.{clash[0]}",
+                             f"also set by manoeuvre {m.name!r} (manoeuvres[{i}]): set it in "
+                             "one place only"))
     for i, v in enumerate(s.record.variables or []):
         check_instance(f"record.variables[{i}]", v)
     expectations = _expectations_module()
@@ -559,6 +712,10 @@ def _cross_reference_problems(s: Scenario) -> list[tuple[str, str]]:
         if e.fault is not None and e.fault not in fault_names:
             problems.append((f"expect[{i}].fault", f"unknown fault {e.fault!r}"
                                                    f"{_suggest(e.fault, list(fault_names))}"))
+        if e.manoeuvre is not None and e.manoeuvre not in manoeuvre_names:
+            problems.append((f"expect[{i}].manoeuvre",
+                             f"unknown manoeuvre {e.manoeuvre!r}"
+                             f"{_suggest(e.manoeuvre, list(manoeuvre_names))}"))
     return problems
 
 
@@ -810,6 +967,14 @@ def check_against_models(scenario: Scenario, models: Mapping[str, ModelInfo]) ->
                 msg = _value_type_problem(info, f.value)
                 if msg:
                     problems.append((f"faults[{i}].value", msg))
+    for i, m in enumerate(scenario.manoeuvres):
+        model = models[m.instance]
+        missing = [p for p in m.instance_parameters() if p not in model.variables]
+        if missing:
+            what = "an Aircraft" if m.kind == "off_trim" else "a PitchController"
+            problems.append((f"manoeuvres[{i}].instance",
+                             f"instance {m.instance!r} (FMU {model.fmu_name}) has no parameter "
+                             f"{missing[0]!r}: not {what}"))
     for i, v in enumerate(scenario.record.variables or []):
         info = lookup(f"record.variables[{i}]", v, None, "")
         if info is not None and info.type not in _NUMERIC:

@@ -2,7 +2,7 @@
 
 Every function returns a :class:`matplotlib.figure.Figure` on an Agg canvas, built
 without pyplot (headless; no global backend switch, no figure registry to leak). Fault windows
-are shaded (``axvspan``) on every panel.
+are shaded (``axvspan``) on every panel, manoeuvre windows hatched.
 
 * :func:`plot_signals_with_faults` — stacked signals with ± thresholds (residuals).
 * :func:`plot_theta` — θ1..θ5 in five stacked panels, x and y axes of the DTG channel
@@ -11,6 +11,8 @@ are shaded (``axvspan``) on every panel.
 * :func:`plot_grey_prediction` — measurement and one-step grey prediction, the error
   below with its threshold (grey paper).
 * :func:`plot_alarm_timeline` — alarm / flag / code signals as step lanes.
+* :func:`plot_witnesses` — independent witnesses of one root cause on one timeline
+  (a scenario's ``witnesses_agree`` expectations).
 * :func:`figures_for_result` — chooses the plots from the recorded signal names.
 
 Long records are reduced to a min/max envelope per pixel-column bucket before plotting,
@@ -42,9 +44,11 @@ __all__ = [
     "plot_grey_prediction",
     "plot_signals_with_faults",
     "plot_theta",
+    "plot_witnesses",
     "scenario_connections",
     "scenario_parameters",
     "shade_fault_windows",
+    "shade_manoeuvre_windows",
 ]
 
 MAX_PLOT_POINTS = 3000
@@ -107,6 +111,28 @@ def shade_fault_windows(
             continue
         ax.axvspan(w.start_s, max(end, w.start_s), color=_FAULT_COLOURS[i % len(_FAULT_COLOURS)],
                    alpha=0.15, lw=0, label=f"fault: {w.name}" if label else None)
+
+
+def shade_manoeuvre_windows(
+    ax: Axes, manoeuvre_windows: Sequence[FaultWindow], t_end_s: float, *, label: bool = True
+) -> None:
+    """Mark each manoeuvre window on ``ax`` (grey hatch: fault-free time, unlike faults).
+
+    Parameters are those of :func:`shade_fault_windows`; labels read
+    ``manoeuvre: <name> (<kind>)``.
+    """
+    for w in manoeuvre_windows:
+        end = min(w.end_s, t_end_s)
+        if end < w.start_s:
+            continue
+        ax.axvspan(w.start_s, max(end, w.start_s), facecolor="none", edgecolor="0.55",
+                   hatch="//", lw=0, alpha=0.6,
+                   label=f"manoeuvre: {w.name} ({w.kind})" if label else None)
+
+
+def _shade(ax: Axes, result: RunResult, *, label: bool) -> None:
+    shade_fault_windows(ax, result.fault_windows, _t_end(result), label=label)
+    shade_manoeuvre_windows(ax, result.manoeuvre_windows, _t_end(result), label=label)
 
 
 def _t_end(result: RunResult) -> float:
@@ -220,7 +246,7 @@ def plot_signals_with_faults(
     t = np.asarray(result.time, dtype=float)
     fig, axes = _new_figure(len(names), 1.6)
     for k, (ax, name) in enumerate(zip(axes, names, strict=True)):
-        shade_fault_windows(ax, result.fault_windows, _t_end(result), label=k == 0)
+        _shade(ax, result, label=k == 0)
         _plot(ax, t, result.signal(name), lw=0.8, color="tab:blue", label=name)
         thr = thresholds.get(name)
         curves = [np.asarray(result.signal(name), dtype=float)]
@@ -280,7 +306,7 @@ def plot_theta(
         raise ValueError(f"no {prefix}.theta_x[i] / theta_y[i] signal recorded")
     fig, axes = _new_figure(n_theta, 1.7)
     for i, ax in enumerate(axes, start=1):
-        shade_fault_windows(ax, result.fault_windows, _t_end(result), label=i == 1)
+        _shade(ax, result, label=i == 1)
         curves = []
         for axis, colour in (("x", "tab:blue"), ("y", "tab:green")):
             name = f"{prefix}.theta_{axis}[{i}]"
@@ -345,7 +371,7 @@ def plot_grey_prediction(
     p = np.asarray(result.signal(predicted), dtype=float)
     fig, (top, bottom) = _new_figure(2, 2.3)
     for k, ax in enumerate((top, bottom)):
-        shade_fault_windows(ax, result.fault_windows, _t_end(result), label=k == 0)
+        _shade(ax, result, label=k == 0)
     if measured is not None:
         y = np.asarray(result.signal(measured), dtype=float)
         _plot(top, t, y, lw=0.9, color="tab:blue", label=f"measured ({measured})")
@@ -397,7 +423,7 @@ def plot_alarm_timeline(
     t = np.asarray(result.time, dtype=float)
     fig, axes = _new_figure(len(names), 0.7)
     for k, (ax, name) in enumerate(zip(axes, names, strict=True)):
-        shade_fault_windows(ax, result.fault_windows, _t_end(result), label=k == 0)
+        _shade(ax, result, label=k == 0)
         _plot(ax, t, result.signal(name), lw=1.0, color="tab:blue", drawstyle="steps-post")
         ax.set_ylabel(name, rotation=0, ha="right", va="center", fontsize=7)
         ax.tick_params(axis="y", labelsize=6)
@@ -413,6 +439,79 @@ def plot_alarm_timeline(
     axes[-1].set_xlabel("time (s)")
     fig.suptitle(title or "alarms and flags")
     return fig
+
+
+def plot_witnesses(
+    result: RunResult, witnesses: Sequence[str], details: Sequence[str] = (), *,
+    title: str | None = None,
+) -> Figure:
+    """One timeline for independent witnesses of one root cause.
+
+    Each witness's alarm is a filled lane (first rise marked with its time); ``details``
+    (class codes, isolated sensor, estimated size) follow as step lanes; fault windows
+    are shaded and manoeuvre windows hatched on every lane.
+
+    Parameters
+    ----------
+    result : RunResult
+        The run.
+    witnesses : sequence of str
+        Recorded alarm signals (0/1), one per witness.
+    details : sequence of str
+        Further recorded signals shown under the witnesses.
+    title : str, optional
+        Figure title.
+    """
+    if not witnesses:
+        raise ValueError("witnesses must name at least one recorded signal")
+    t = np.asarray(result.time, dtype=float)
+    names = [*witnesses, *details]
+    fig, axes = _new_figure(len(names), 0.75)
+    for k, (ax, name) in enumerate(zip(axes, names, strict=True)):
+        _shade(ax, result, label=k == 0)
+        x = np.asarray(result.signal(name), dtype=float)
+        if k < len(witnesses):
+            colour = _FAULT_COLOURS[k % len(_FAULT_COLOURS)]
+            ax.fill_between(t, 0.0, np.where(x > 0.5, 1.0, 0.0), step="post", color=colour,
+                            alpha=0.55, lw=0)
+            on = np.flatnonzero(x > 0.5)
+            if on.size:
+                ax.annotate(f"{t[on[0]]:.2f} s", (t[on[0]], 1.0), fontsize=6,
+                            xytext=(2, -8), textcoords="offset points")
+            ax.set_ylim(-0.1, 1.3)
+            ax.set_yticks([])
+        else:
+            _plot(ax, t, x, lw=1.0, color="tab:blue", drawstyle="steps-post")
+            ax.margins(y=0.2)
+            ax.tick_params(axis="y", labelsize=6)
+        ax.set_ylabel(name, rotation=0, ha="right", va="center", fontsize=7)
+        ax.grid(alpha=0.3)
+    if result.fault_windows or result.manoeuvre_windows:
+        axes[0].legend(loc="upper left", fontsize=6)
+    axes[-1].set_xlabel("time (s)")
+    fig.suptitle(title or "witnesses")
+    return fig
+
+
+def _witness_specs(scenario: Any) -> list[tuple[list[str], list[str], str]]:
+    """(witnesses, details, label) of the scenario's witnesses_agree expectations."""
+    if scenario is None:
+        return []
+    from harness.verification import expectations as ex
+
+    raw = scenario.get("expect", []) if isinstance(scenario, Mapping) else getattr(
+        scenario, "expect", [])
+    specs = []
+    for e in raw or []:
+        kind = e.get("kind") if isinstance(e, Mapping) else getattr(e, "kind", None)
+        if kind != "witnesses_agree":
+            continue
+        try:
+            w = ex.parse_expectation(e)
+        except Exception:
+            continue
+        specs.append((list(w.witnesses), list(w.details), w.label()))
+    return specs
 
 
 # --------------------------------------------------------------- selection
@@ -521,6 +620,12 @@ def figures_for_result(result: RunResult, scenario: Any = None) -> list[tuple[st
         title = f"grey prediction — {inst}"
         figures.append((title, plot_grey_prediction(result, n, measured, error=error,
                                                     threshold=threshold, title=title)))
+
+    for witnesses, details, label in _witness_specs(scenario):
+        shown = [n for n in witnesses if n in result.signals]
+        if len(shown) >= 2:
+            extra = [n for n in details if n in result.signals]
+            figures.append((label, plot_witnesses(result, shown, extra, title=label)))
 
     flags = [n for n in names if FLAG_PATTERN.search(n.rsplit(".", 1)[-1])
              and _is_flag(np.asarray(result.signals[n], dtype=float))]

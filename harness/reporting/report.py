@@ -293,6 +293,12 @@ def _scenario_section(
                 [_esc(w.name), _esc(w.target), _esc(w.kind), _num(w.start_s),
                  "open" if math.isinf(w.end_s) else _num(w.end_s)]
                 for w in result.fault_windows]))
+        if result.manoeuvre_windows:
+            parts.append("<h3>Manoeuvres (fault-free time)</h3>")
+            parts.append(_table(["name", "flown by", "kind", "start (s)", "end (s)"], [
+                [_esc(w.name), _esc(w.target), _esc(w.kind), _num(w.start_s),
+                 "open" if math.isinf(w.end_s) else _num(w.end_s)]
+                for w in result.manoeuvre_windows]))
     if v.error is not None:
         parts.append(f"<h3>Run error</h3><pre>{_esc(v.error)}</pre>")
     parts.append("<h3>Expectations</h3>")

@@ -11,7 +11,14 @@ detected_within            ``signal`` rises above ``level`` within ``max_delay_s
 no_alarm_before            ``signal`` stays at or below ``level`` before ``t_s`` (default:
                            the first fault's start; the whole run if it has no faults)
 no_alarm_outside_faults    ``signal`` at or below ``level`` outside every fault window
-                           ``[start, end + margin_s]``
+                           ``[start, end + margin_s]``; manoeuvre windows are fault-free
+                           time: an alarm during a manoeuvre fails it
+no_alarm_during_manoeuvres ``signal`` at or below ``level`` inside every manoeuvre window
+                           ``[start, end + margin_s]`` (or the one named ``manoeuvre``)
+witnesses_agree            two or more independent alarm ``witnesses`` tell the same story:
+                           with ``fault``, each rises above ``level`` within
+                           ``max_delay_s`` of its start; without, none ever does
+                           (``details`` are quoted at the end of the run)
 value_at_end / value_at    the last sample (or the sample held at ``t_s``) equals
                            ``equals`` ± ``tol`` or lies in ``[min, max]``
 value_in_window            every sample in ``[t0_s, t1_s]`` lies in ``[min, max]``
@@ -22,7 +29,9 @@ metric                     a metric of :data:`harness.verification.metrics.METRI
 Every kind also takes an optional ``name`` (label in reports; default built from the
 kind and its signal). The measured ``value`` of an :class:`ExpectationResult` is: the
 detection delay (s) for detected_within; the first alarm time (s) for no_alarm_before;
-the time the alarm is on outside the windows (s) for no_alarm_outside_faults; the sample
+the time the alarm is on outside the windows (s) for no_alarm_outside_faults, inside them
+for no_alarm_during_manoeuvres; the spread of the witnesses' detection delays (s) for
+witnesses_agree; the sample
 for value_at_end / value_at; the sample nearest to (or farthest beyond) a bound for
 value_in_window; the metric's value for metric. None where nothing was measured.
 
@@ -54,12 +63,14 @@ __all__ = [
     "ExpectationResult",
     "MetricExpectation",
     "NoAlarmBefore",
+    "NoAlarmDuringManoeuvres",
     "NoAlarmOutsideFaults",
     "ScenarioLike",
     "ScenarioVerdict",
     "ValueAt",
     "ValueAtEnd",
     "ValueInWindow",
+    "WitnessesAgree",
     "evaluate",
     "parse_expectation",
     "parse_expectations",
@@ -178,6 +189,35 @@ class NoAlarmOutsideFaults(_Base):
     level: float = metrics.DEFAULT_LEVEL
 
 
+class NoAlarmDuringManoeuvres(_Base):
+    """``signal`` at or below ``level`` inside every manoeuvre window [start, end + margin_s]
+    (only the one named ``manoeuvre`` when given)."""
+
+    kind: Literal["no_alarm_during_manoeuvres"]
+    signal: str
+    manoeuvre: str | None = None
+    margin_s: float = Field(default=0.0, ge=0.0)
+    level: float = metrics.DEFAULT_LEVEL
+
+
+class WitnessesAgree(_Base):
+    """Independent alarms (``witnesses``) agree: all detect ``fault`` within
+    ``max_delay_s`` (s) of its start, or — without ``fault`` — all stay at or below
+    ``level`` for the whole run.  ``details`` (recorded signals, e.g. a class code, an
+    isolated sensor, an estimated gain) are quoted with their values at the end."""
+
+    kind: Literal["witnesses_agree"]
+    witnesses: list[str] = Field(min_length=2)
+    fault: str | None = None
+    max_delay_s: float = Field(default=math.inf, ge=0.0)
+    details: list[str] = Field(default_factory=list)
+    level: float = metrics.DEFAULT_LEVEL
+
+    def _default_label(self) -> str:
+        what = f"on {self.fault}" if self.fault else "fault-free"
+        return f"witnesses_agree({', '.join(self.witnesses)}, {what})"
+
+
 class _Bounds(_Base):
     min: float | None = None
     max: float | None = None
@@ -291,8 +331,8 @@ class MetricExpectation(_Bounds):
 
 
 Expectation = Annotated[
-    DetectedWithin | NoAlarmBefore | NoAlarmOutsideFaults | ValueAtEnd | ValueAt
-    | ValueInWindow | MetricExpectation,
+    DetectedWithin | NoAlarmBefore | NoAlarmOutsideFaults | NoAlarmDuringManoeuvres
+    | WitnessesAgree | ValueAtEnd | ValueAt | ValueInWindow | MetricExpectation,
     Field(discriminator="kind"),
 ]
 """Any expectation model, chosen by its ``kind`` key."""
@@ -300,8 +340,8 @@ Expectation = Annotated[
 _ADAPTER: TypeAdapter[Any] = TypeAdapter(Expectation, config=ConfigDict(title="expect"))
 _LIST_ADAPTER: TypeAdapter[Any] = TypeAdapter(list[Expectation],
                                               config=ConfigDict(title="expect"))
-_MODELS = (DetectedWithin, NoAlarmBefore, NoAlarmOutsideFaults, ValueAtEnd, ValueAt,
-           ValueInWindow, MetricExpectation)
+_MODELS = (DetectedWithin, NoAlarmBefore, NoAlarmOutsideFaults, NoAlarmDuringManoeuvres,
+           WitnessesAgree, ValueAtEnd, ValueAt, ValueInWindow, MetricExpectation)
 
 
 def parse_expectation(raw: Mapping[str, Any] | BaseModel) -> Expectation:
@@ -338,6 +378,8 @@ def referenced_signals(expectation: Expectation | Mapping[str, Any] | BaseModel)
         spec = metrics.METRICS[exp.metric]
         return [str(v) for k, v in exp.args.items()
                 if (p := spec.param(k)) is not None and p.kind == "signal"]
+    if isinstance(exp, WitnessesAgree):
+        return [*exp.witnesses, *exp.details]
     return [exp.signal]
 
 
@@ -413,6 +455,63 @@ def _eval_no_alarm_outside(exp: NoAlarmOutsideFaults, result: RunResult) -> _Out
             f"({_fmt(fa.rate_per_h, '/h')} of fault-free time)", on_s)
 
 
+def _eval_no_alarm_during(exp: NoAlarmDuringManoeuvres, result: RunResult) -> _Outcome:
+    t = np.asarray(result.time, dtype=float)
+    x = np.asarray(result.signal(exp.signal), dtype=float)
+    chosen = (result.manoeuvre_windows if exp.manoeuvre is None
+              else [result.manoeuvre(exp.manoeuvre)])
+    if not chosen:
+        return False, "the run has no manoeuvre window to check", None
+    inside = np.zeros(t.shape, dtype=bool)
+    for w in chosen:
+        inside |= ((t >= w.start_s - metrics.TIME_TOL_S)
+                   & (t <= w.end_s + exp.margin_s + metrics.TIME_TOL_S))
+    bad = inside & (x > exp.level)
+    names = ", ".join(repr(w.name) for w in chosen)
+    expected = (f"{exp.signal} <= {exp.level:g} during manoeuvre(s) {names} "
+                f"[start, end + {exp.margin_s:g} s]")
+    if not np.any(bad):
+        return True, f"expected {expected}; measured: none", 0.0
+    dt = np.diff(t, append=t[-1] + (t[-1] - t[-2] if t.size > 1 else result.step_s))
+    on_s = float(np.sum(dt[bad]))
+    return (False, f"expected {expected}; measured: alarm on for {on_s:g} s, first at "
+            f"{float(t[np.flatnonzero(bad)[0]]):g} s", on_s)
+
+
+def _eval_witnesses(exp: WitnessesAgree, result: RunResult) -> _Outcome:
+    t = np.asarray(result.time, dtype=float)
+    parts, delays = [], []
+    start = metrics.find_fault_window(result, exp.fault).start_s if exp.fault else None
+    for name in exp.witnesses:
+        x = np.asarray(result.signal(name), dtype=float)
+        on = np.flatnonzero(x > exp.level)
+        if start is None:
+            parts.append(f"{name}: " + (f"alarm at {t[on[0]]:g} s" if on.size else "quiet"))
+            delays.append(math.inf if on.size else 0.0)
+            continue
+        delay = metrics.detection_delay_s(t, x, start, exp.level)
+        before = on.size and t[on[0]] < start - metrics.TIME_TOL_S
+        delays.append(delay)
+        parts.append(f"{name}: " + ("missed" if math.isnan(delay) else
+                                    f"detected after {delay:.4g} s")
+                     + (" (already on before the fault)" if before else ""))
+    for name in exp.details:
+        x = np.asarray(result.signal(name), dtype=float)
+        parts.append(f"{name} = {x[-1]:.6g} at the end" if x.size else f"{name}: no samples")
+    if start is None:
+        agree = all(d == 0.0 for d in delays)
+        story = "all quiet" if agree else "not all quiet"
+        return agree, f"fault-free run: {story}; " + "; ".join(parts), 0.0 if agree else None
+    ok = [not math.isnan(d) and d <= exp.max_delay_s + metrics.TIME_TOL_S for d in delays]
+    agree = all(ok)
+    spread = (max(delays) - min(delays)) if agree else None
+    verdict = ("the witnesses agree" if agree else
+               "the witnesses disagree" if any(ok) else "no witness detected it in time")
+    limit = "" if math.isinf(exp.max_delay_s) else f" within {exp.max_delay_s:g} s"
+    return (agree, f"fault {exp.fault!r} (start {start:g} s){limit}: {verdict}; "
+            + "; ".join(parts), spread)
+
+
 def _check_value(exp: _ValueCheck, x: float, where: str) -> _Outcome:
     passed = exp.holds(x)
     return passed, f"expected {exp.signal} {where} {exp.expected_text()}; measured {x:.6g}", x  # type: ignore[attr-defined]
@@ -478,6 +577,8 @@ _EVALUATORS: dict[type, Any] = {
     DetectedWithin: _eval_detected_within,
     NoAlarmBefore: _eval_no_alarm_before,
     NoAlarmOutsideFaults: _eval_no_alarm_outside,
+    NoAlarmDuringManoeuvres: _eval_no_alarm_during,
+    WitnessesAgree: _eval_witnesses,
     ValueAtEnd: _eval_value_at_end,
     ValueAt: _eval_value_at,
     ValueInWindow: _eval_value_in_window,

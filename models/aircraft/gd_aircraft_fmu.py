@@ -4,6 +4,12 @@ Timing: ``do_step(t, h)`` integrates exactly (ZOH matrix exponential) with throt
 elevator held at their values set for t; at t + h it publishes the true states x(t + h)
 and the sensor outputs y(t + h) = C x(t + h) + noise (no direct feedthrough, D = 0).
 Before the first step the outputs are C x0 + noise.  Model: ``gd_aircraft_core``.
+
+Turbulence: ``turbulence_sigma_w`` > 0 (m/s, tunable) switches on Dryden gusts
+(``gd_aircraft_turbulence``: vertical gust of scale length ``turbulence_scale_length``,
+pitch-rate gust of span ``turbulence_wingspan``, airspeed 272.24 m/s) acting on the
+air-relative α and q; the gust is drawn from a stream of ``seed`` separate from the
+sensor noise and is published as ``gust_alpha``, ``gust_q``.
 """
 
 from __future__ import annotations
@@ -13,6 +19,7 @@ from typing import Any
 
 import numpy as np
 from gd_aircraft_core import INPUT_NAMES, OUTPUT_NAMES, STATE_NAMES, AircraftModel
+from gd_aircraft_turbulence import DEFAULT_SCALE_LENGTH, DEFAULT_WINGSPAN, DrydenGust
 from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real
 from pythonfmu.default_experiment import DefaultExperiment
 from pythonfmu.enums import Fmi2Status
@@ -23,7 +30,12 @@ _DOC = {"v": "airspeed perturbation", "alpha": "angle of attack", "q": "pitch ra
         "h": "altitude perturbation"}
 
 VARIABLE_META: dict[str, dict] = {"throttle": {"unit": "1"}, "elevator": {"unit": "rad"},
-                                  "seed": {"min": 0}}
+                                  "seed": {"min": 0},
+                                  "turbulence_sigma_w": {"unit": "m/s", "min": 0.0},
+                                  "turbulence_scale_length": {"unit": "m", "min": 1e-3},
+                                  "turbulence_wingspan": {"unit": "m", "min": 1e-3},
+                                  "gust_alpha": {"unit": "rad"},
+                                  "gust_q": {"unit": "rad/s"}}
 for _n in OUTPUT_NAMES:
     VARIABLE_META[f"y_{_n}"] = {"unit": _UNITS[_n]}
     VARIABLE_META[f"noise_std_{_n}"] = {"unit": _UNITS[_n], "min": 0.0}
@@ -83,11 +95,38 @@ class Aircraft(Fmi2Slave):
                 setter=(lambda v, j=j: m.noise_std.__setitem__(j, v))))
         self.register_variable(Integer(
             "seed", causality=P.parameter, variability=V.fixed,
-            description="sensor noise generator seed",
+            description="seed of the sensor noise and (separate stream) the turbulence",
             getter=lambda: m.seed, setter=lambda v: setattr(m, "seed", int(v))))
+        self.turbulence_sigma_w = 0.0
+        self.turbulence_scale_length = DEFAULT_SCALE_LENGTH
+        self.turbulence_wingspan = DEFAULT_WINGSPAN
+        self._gust_out = np.zeros(2)
+        self.register_variable(Real(
+            "turbulence_sigma_w", causality=P.parameter, variability=V.tunable,
+            description="Dryden vertical gust intensity sigma_w (0: no turbulence; "
+                        "MIL-F-8785C low altitude: light 0.77, moderate 1.5, severe 2.3)"))
+        self.register_variable(Real(
+            "turbulence_scale_length", causality=P.parameter, variability=V.fixed,
+            description="Dryden vertical gust scale length L_w (MIL-F-8785C below 1000 ft: "
+                        "the altitude, 50 m for the seed aircraft)"))
+        self.register_variable(Real(
+            "turbulence_wingspan", causality=P.parameter, variability=V.fixed,
+            description="wing span b of the pitch-rate gust filter 4b/(pi V)"))
+        for j, (name, doc) in enumerate([("gust_alpha", "gust angle of attack w_g/V"),
+                                         ("gust_q", "gust pitch rate")]):
+            self.register_variable(Real(
+                name, causality=P.output, variability=V.continuous,
+                description=f"turbulence: {doc} (0 without turbulence)",
+                getter=(lambda j=j: float(self._gust_out[j])),
+                setter=(lambda v, j=j: self._gust_out.__setitem__(j, v))))
+
+    def _gust(self) -> DrydenGust:
+        return DrydenGust(self.turbulence_sigma_w, self.turbulence_scale_length,
+                          wingspan=self.turbulence_wingspan)
 
     def exit_initialization_mode(self) -> None:
         try:
+            self.model.gust = self._gust()
             self.model.check()
             self.model.reset()
             self._publish()
@@ -96,6 +135,8 @@ class Aircraft(Fmi2Slave):
 
     def do_step(self, current_time: float, step_size: float) -> bool:
         try:
+            if self.turbulence_sigma_w != self.model.gust.sigma_w:
+                self.model.set_gust(self._gust())
             self.model.check()
             self.model.step(step_size, self._u)
             self._publish()
@@ -106,6 +147,7 @@ class Aircraft(Fmi2Slave):
     def _publish(self) -> None:
         self._x = self.model.x.copy()
         self._y = self.model.measure()
+        self._gust_out = self.model.gust_output
 
     def _fail(self, where: str) -> None:
         # pythonfmu 0.7 turns any Python exception into fmi2Fatal; instead log the
@@ -116,7 +158,8 @@ class Aircraft(Fmi2Slave):
     def _get_fmu_state(self) -> dict[str, Any]:
         state = super()._get_fmu_state()
         model_state = self.model.get_state()
-        state["__model__"] = {"x": model_state["x"].tolist(), "rng": model_state["rng"]}
+        state["__model__"] = {**model_state, "x": model_state["x"].tolist(),
+                              "g": model_state["g"].tolist()}
         return state
 
     def _set_fmu_state(self, state: dict[str, Any]) -> None:

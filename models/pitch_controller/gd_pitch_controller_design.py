@@ -172,7 +172,3 @@ class PitchController:
     def set_state(self, state: dict[str, float]) -> None:
         self.xi = float(state["xi"])
 
-
-def square_wave(t: float, amplitude: float, period: float) -> float:
-    """+amplitude for the first half of each period, −amplitude for the second (rad)."""
-    return amplitude if (t % period) < 0.5 * period else -amplitude

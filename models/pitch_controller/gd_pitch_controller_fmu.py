@@ -1,12 +1,16 @@
 """PitchController FMU (FMI 2.0 co-simulation): LQR pitch-attitude hold for the Aircraft.
 
 Reads the (possibly faulty) sensor values alpha_meas, q_meas, theta_meas and a pitch
-command (input ``theta_cmd_in`` or, with ``command_source`` = 1, an internal ±amplitude
-square wave), outputs ``elevator`` and a constant ``throttle``.  Timing: ``do_step(t, h)``
-computes the elevator from the inputs of the step start t and the command at t, then
-integrates the pitch error; the elevator is published at t + h (one communication step
-of latency — keep h ≤ 0.05 s, see the margins in ``gd_pitch_controller_design``).
-Before the first step ``elevator`` is computed from the input start values.
+command, outputs ``elevator`` and a constant ``throttle``.  The command is the input
+``theta_cmd_in`` (``command_source`` = 0) or one manoeuvre of the family in
+``gd_pitch_commands``: 1 square wave, 2 step, 3 doublet, 4 exponential sine sweep, of
+amplitude ``cmd_amplitude`` from ``cmd_start_s`` for ``cmd_duration_s`` (0: to the end),
+zero (trim) outside that window; ``cmd_active`` says whether the window is open.
+Timing: ``do_step(t, h)`` computes the elevator from the inputs of the step start t and
+the command at t, then integrates the pitch error; the elevator is published at t + h
+(one communication step of latency — keep h ≤ 0.05 s, see the margins in
+``gd_pitch_controller_design``).  Before the first step ``elevator`` is computed from the
+input start values.
 """
 
 from __future__ import annotations
@@ -14,19 +18,16 @@ from __future__ import annotations
 import traceback
 from typing import Any
 
+from gd_pitch_commands import COMMAND_INPUT, COMMAND_SINE_SWEEP, KIND_NAMES, PitchCommand
 from gd_pitch_controller_design import (
     PitchController as PitchLaw,
 )
 from gd_pitch_controller_design import (
     design_pitch_controller,
-    square_wave,
 )
 from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real
 from pythonfmu.default_experiment import DefaultExperiment
 from pythonfmu.enums import Fmi2Status
-
-COMMAND_INPUT = 0
-COMMAND_SQUARE_WAVE = 1
 
 VARIABLE_META: dict[str, dict] = {
     "alpha_meas": {"unit": "rad"},
@@ -36,9 +37,14 @@ VARIABLE_META: dict[str, dict] = {
     "elevator": {"unit": "rad"},
     "throttle": {"unit": "1"},
     "theta_cmd": {"unit": "rad"},
-    "command_source": {"min": COMMAND_INPUT, "max": COMMAND_SQUARE_WAVE},
+    "command_source": {"min": COMMAND_INPUT, "max": COMMAND_SINE_SWEEP},
     "cmd_amplitude": {"unit": "rad"},
     "cmd_period": {"unit": "s", "min": 0.0},
+    "cmd_start_s": {"unit": "s"},
+    "cmd_duration_s": {"unit": "s", "min": 0.0},
+    "cmd_pulse_s": {"unit": "s", "min": 0.0},
+    "cmd_f0_hz": {"unit": "Hz", "min": 0.0},
+    "cmd_f1_hz": {"unit": "Hz", "min": 0.0},
     "throttle_trim": {"unit": "1"},
     "q_alpha": {"min": 0.0},
     "q_q": {"min": 0.0},
@@ -59,7 +65,8 @@ class PitchController(Fmi2Slave):
     description = (
         "LQR pitch-attitude controller (integral action, exact trim feed-forward) for the "
         "seed-002 aircraft. elevator(t+h) computed from sensor inputs at t. Command: input "
-        "theta_cmd_in (command_source=0) or internal square wave (command_source=1)."
+        "theta_cmd_in (command_source=0) or an internal manoeuvre: 1 square wave, 2 step, "
+        "3 doublet, 4 sine sweep, from cmd_start_s for cmd_duration_s."
     )
     default_experiment = DefaultExperiment(start_time=0.0, stop_time=120.0, step_size=0.01)
 
@@ -69,9 +76,15 @@ class PitchController(Fmi2Slave):
         self.q_meas = 0.0
         self.theta_meas = 0.0
         self.theta_cmd_in = 0.0
-        self.command_source = COMMAND_SQUARE_WAVE
+        self.command_source = 1
         self.cmd_amplitude = 0.25
         self.cmd_period = 20.0
+        self.cmd_start_s = 0.0
+        self.cmd_duration_s = 0.0
+        self.cmd_pulse_s = 1.0
+        self.cmd_f0_hz = 0.1
+        self.cmd_f1_hz = 2.0
+        self.cmd_active = 0
         self.throttle_trim = 0.0
         self.q_alpha, self.q_q, self.q_theta, self.q_int, self.r = 1.0, 1.0, 10.0, 1.0e-3, 100.0
         self._t0 = 0.0
@@ -94,10 +107,22 @@ class PitchController(Fmi2Slave):
                                         description=doc))
         self.register_variable(Integer(
             "command_source", causality=P.parameter, variability=V.tunable,
-            description="0: theta_cmd_in input, 1: internal square wave"))
+            description="0: theta_cmd_in input; internal manoeuvre: 1 square wave, 2 step, "
+                        "3 doublet, 4 exponential sine sweep"))
+        self.register_variable(Integer(
+            "cmd_active", causality=P.output, variability=V.discrete,
+            description="1 while the internal manoeuvre window is open at the step start"))
         for name, var, doc in [
-            ("cmd_amplitude", V.tunable, "square-wave amplitude (+A first half period, -A second)"),
-            ("cmd_period", V.tunable, "square-wave period"),
+            ("cmd_amplitude", V.tunable, "manoeuvre amplitude A (square wave: +A first half "
+                                         "period, -A second)"),
+            ("cmd_period", V.tunable, "square-wave period; doublet repetition period "
+                                      "(0: once)"),
+            ("cmd_start_s", V.tunable, "manoeuvre start time"),
+            ("cmd_duration_s", V.tunable, "manoeuvre length (0: to the end of the run; "
+                                          "> 0 for a sweep)"),
+            ("cmd_pulse_s", V.tunable, "doublet half width"),
+            ("cmd_f0_hz", V.tunable, "sine sweep start frequency"),
+            ("cmd_f1_hz", V.tunable, "sine sweep end frequency"),
             ("throttle_trim", V.tunable, "constant throttle output"),
             ("q_alpha", V.fixed, "LQR weight on alpha"),
             ("q_q", V.fixed, "LQR weight on q"),
@@ -117,14 +142,25 @@ class PitchController(Fmi2Slave):
     def _publish_gains(self) -> None:
         self.k_alpha, self.k_q, self.k_theta, self.k_int = (float(v) for v in self.law.design.k)
 
+    def _shape(self) -> PitchCommand:
+        if self.command_source not in KIND_NAMES:
+            kinds = ", ".join(f"{k} {v}" for k, v in KIND_NAMES.items())
+            raise ValueError(f"command_source must be 0..{COMMAND_SINE_SWEEP} ({kinds}), "
+                             f"got {self.command_source!r}")
+        try:
+            return PitchCommand(int(self.command_source), self.cmd_amplitude, self.cmd_start_s,
+                                self.cmd_duration_s, self.cmd_period, self.cmd_pulse_s,
+                                self.cmd_f0_hz, self.cmd_f1_hz)
+        except ValueError as exc:  # name the FMU parameter, not the dataclass field
+            raise ValueError(f"cmd_* parameters of command_source {self.command_source}: "
+                             f"{exc}") from None
+
     def _command(self, t: float) -> float:
-        if self.command_source == COMMAND_SQUARE_WAVE:
-            if not self.cmd_period > 0.0:
-                raise ValueError(f"cmd_period must be > 0 s, got {self.cmd_period!r}")
-            return square_wave(t, self.cmd_amplitude, self.cmd_period)
-        if self.command_source == COMMAND_INPUT:
+        shape = self._shape()
+        self.cmd_active = int(shape.active(t))
+        if shape.kind == COMMAND_INPUT:
             return self.theta_cmd_in
-        raise ValueError(f"command_source must be 0 or 1, got {self.command_source!r}")
+        return shape.value(t)
 
     def setup_experiment(self, start_time: float, stop_time: float | None = None,
                          tolerance: float | None = None) -> None:
