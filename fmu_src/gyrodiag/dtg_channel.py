@@ -510,8 +510,8 @@ class DTGChannel:
         sample = tuple(self._prefilter.step(raw)) if self._prefilter is not None else raw
         rows = self._regressor.step(*sample)
         if rows is not None:
-            self._theta_now = (self._step_estimator(0, rows[0], rows[1]),
-                               self._step_estimator(1, rows[2], rows[3]))
+            self._theta_now = (self._estimators[0].step(rows[0], rows[1]),
+                               self._estimators[1].step(rows[2], rows[3]))
         th_x, th_y = self._theta_now
         block_done = self._collect(n, raw, sample, th_x + th_y)
         th_x, th_y = self._theta_now  # rolled back if the residual alarm just cleared
@@ -557,13 +557,6 @@ class DTGChannel:
             self._first_alarm_time, self._diagnosis,
         )
         return self._last
-
-    def _step_estimator(self, axis: int, phi: tuple[float, ...], y: float
-                        ) -> tuple[float, ...]:
-        est = self._estimators[axis]
-        if isinstance(est, RLS):
-            return est.step(phi, y)
-        return tuple(est.update(np.array(phi), y, validate=False).tolist())
 
     def _pattern_output(self, t: float, theta: NDArray[np.float64],
                         eta: NDArray[np.float64], physical: NDArray[np.float64],
