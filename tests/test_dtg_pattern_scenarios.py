@@ -1,10 +1,8 @@
 """DTG pattern classifier end to end: the pattern training set learned through the CLI,
 then the ``dtg_pattern_*`` verification scenarios, in subprocesses (DESIGN §6.11).
 
-* the 54 training runs in two ``verify`` processes in parallel (they carry no
-  expectations; their runs are saved), then ``learn-signatures --saved`` learns the
-  library from them;
-* the 9 verification scenarios in two ``verify`` processes against that library.
+* ``learn-signatures`` on the 54 training runs (two workers);
+* ``verify`` of the 9 verification scenarios against that library (two workers).
 
 The tests assert exit 0, zero JUnit failures and figures read back from the saved runs:
 the learned library, detection delays and classes on both axes, alarm memory (held 64 s),
@@ -17,7 +15,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 import time
@@ -52,53 +49,27 @@ def _env() -> dict[str, str]:
     return env
 
 
-def _parallel(groups: list[list[str]], out: Path, fmu: list[str], timeout: float) -> list:
-    procs = [subprocess.Popen(_cmd("verify", *g, "--out", str(out / f"part{i}"), *fmu),
-                              cwd=ROOT, env=_env(), stdout=subprocess.PIPE,
-                              stderr=subprocess.STDOUT, text=True)
-             for i, g in enumerate(groups)]
-    return [(p.communicate(timeout=timeout)[0], p.returncode) for p in procs]
-
-
 @pytest.fixture(scope="module")
 def pattern_runs(fmu_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> dict:
     out = tmp_path_factory.mktemp("dtg_patterns")
-    fmu = ["--fmu-dir", str(fmu_dir), "--no-progress"]
+    fmu = ["--fmu-dir", str(fmu_dir), "--no-progress", "--workers", "2"]
     t0 = time.perf_counter()
-    train = sorted(str(p) for p in TRAINING.glob("*.toml"))
-    runs_dir = out / "training"
-    trained = _parallel([train[0::2], train[1::2]], runs_dir, fmu, 1800)
-    # verify saves each run in <part>/<name>: gather them where --saved looks
-    runs_dir.mkdir(exist_ok=True)
-    for part in runs_dir.glob("part*"):
-        for run in part.iterdir():
-            if run.is_dir():
-                run.rename(runs_dir / run.name)
     learn = subprocess.run(_cmd("learn-signatures", str(TRAINING), "--out",
-                                str(out / "dtg_patterns.json"), "--runs-out", str(runs_dir),
-                                "--saved", "--no-progress"),
-                           cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=600)
+                                str(out / "dtg_patterns.json"), *fmu),
+                           cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=3600)
     scen = sorted(str(p) for p in SCEN.glob("dtg_pattern_*.toml"))
-    # each verify process's ${out} is its own folder: the library goes into both
-    for i in range(2):
-        (out / f"part{i}").mkdir(exist_ok=True)
-        if learn.returncode == 0:
-            shutil.copy(out / "dtg_patterns.json", out / f"part{i}" / "dtg_patterns.json")
-    verified = _parallel([scen[0::2], scen[1::2]], out, fmu, 1800)
-    return {"out": out, "trained": trained, "learn": learn, "verified": verified,
+    verify = subprocess.run(_cmd("verify", *scen, "--out", str(out), *fmu),
+                            cwd=ROOT, env=_env(), capture_output=True, text=True,
+                            timeout=3600)
+    return {"out": out, "learn": learn, "verify": verify,
             "wall_s": time.perf_counter() - t0}
 
 
 def _run(runs: dict, name: str) -> RunResult:
-    for part in sorted(runs["out"].glob("part*")):
-        if (part / name).is_dir():
-            return RunResult.load(part / name)
-    raise FileNotFoundError(name)
+    return RunResult.load(runs["out"] / name)
 
 
 def test_training_runs_and_the_library(pattern_runs, capsys):
-    for text, rc in pattern_runs["trained"]:
-        assert rc == 0, text[-3000:]
     learn = pattern_runs["learn"]
     assert learn.returncode == 0, learn.stdout[-3000:] + learn.stderr[-3000:]
     lib = json.loads((pattern_runs["out"] / "dtg_patterns.json").read_text())
@@ -126,11 +97,10 @@ def test_training_runs_and_the_library(pattern_runs, capsys):
 
 
 def test_verification_scenarios_pass(pattern_runs):
-    for text, rc in pattern_runs["verified"]:
-        assert rc == 0, text[-5000:]
-    for part in pattern_runs["out"].glob("part*"):
-        root = ET.parse(part / "junit.xml").getroot()
-        assert (root.get("failures"), root.get("errors")) == ("0", "0")
+    v = pattern_runs["verify"]
+    assert v.returncode == 0, v.stdout[-5000:] + v.stderr[-3000:]
+    root = ET.parse(pattern_runs["out"] / "junit.xml").getroot()
+    assert (root.get("failures"), root.get("errors")) == ("0", "0")
 
 
 def test_both_axes_slow_drifts_and_sizes(pattern_runs):

@@ -59,6 +59,7 @@ from __future__ import annotations
 import hashlib
 import importlib
 import json
+import logging
 import math
 import os
 import shutil
@@ -81,6 +82,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from harness.cosim.scenario import FAULT_TYPE_PARAMETERS, ScenarioError
 
+log = logging.getLogger(__name__)
 REPO_ROOT = Path(__file__).resolve().parents[2]
 #: The per-run function used unless the spec or the caller names another.
 DEFAULT_RUNNER = "harness.campaigns.campaign:simulate_run"
@@ -834,7 +836,7 @@ def prepare(spec: CampaignSpec, base_dir: Path, out_dir: Path) -> None:
     if target.is_file():
         return
     training = (base_dir / spec.signatures_training).resolve()
-    print(f"learning the DTG signatures from {training} -> {target}", flush=True)
+    log.info("learning the DTG signatures from %s -> %s", training, target)
     cmd = [sys.executable, "-m", "harness", "learn-signatures", str(training), "--out",
            str(target)]
     if spec.fmu_dir:
