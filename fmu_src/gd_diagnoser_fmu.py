@@ -13,11 +13,13 @@ Channels (each can be switched off):
 * Detection filter: sensor-fault detection and isolation on a linear plant, by default
   the seed aircraft (``gyrodiag.df_channel``).
 
-Sampled-data contract: every enabled channel processes exactly one sample per
-``doStep``, taken from the inputs set before the step (at the step's start time), and
-the outputs after the step describe that sample. The communication step must equal
-``sample_period_s`` (relative tolerance 1e−6); any other step is refused with fmi2Error.
-Run several instances for channels at different rates.
+Sampled-data contract: a ``doStep`` of n sample periods (h = n·``sample_period_s``,
+n ≥ 1, relative tolerance 1e−6) makes every enabled channel process n samples, at the
+times t, t + T, …, t + (n−1)·T, all from the inputs set before the step (held over the
+step); the outputs after the step describe the last of them (``dtg.first_alarm_time``
+and the latched ``df.detected`` keep what happened inside the step). Any other step is
+refused with fmi2Error and consumes no sample. Run several instances for channels at
+different rates.
 
 Errors: an invalid parameter, a wrong step or an unexpected exception is logged through
 the FMU logger with the parameter name and allowed range, and the call returns
@@ -42,7 +44,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from gd_fmu_base import FacadeBase
+from gd_fmu_base import STEP_RTOL, FacadeBase, samples_in_step
 from pythonfmu import DefaultExperiment
 
 from gyrodiag.aircraft import seed_aircraft
@@ -75,11 +77,23 @@ PHYSICAL_NAMES = ("c_over_J", "k_over_J", "L_over_J", "lambda_over_J", "Ku_over_
 #: Units of the DTG statistics channels (Utx, Uty, Ux, Uy, ex, ey).
 CHANNEL_TEXT = "Utx, Uty, Ux, Uy, residual x, residual y"
 PHYSICAL_UNITS = ("1/s", "1/s2", "rad/s", "1/s2", "1/s2")
+#: Declared unit of the grey channel's signal (the HRG output voltage it was made for).
+GREY_UNIT = "V"
 
 #: Packages the host's Python needs (written to resources/requirements.txt).
 REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10", "control>=0.10"]
 
 VARIABLE_META: dict[str, dict[str, Any]] = {}
+#: Lower bound declared for parameters that must be > 0 (FMI bounds are inclusive).
+POSITIVE = 1e-9
+#: Parameters that may change between steps; a change applies from the next sample
+#: (the channel is rebuilt with the new value and takes over the old one's state).
+TUNABLE = {
+    "dtg": ("dtg.low", "dtg.high", "dtg.persistence_k", "dtg.latch", "dtg.max_distance",
+            *(f"dtg.monitored[{i}]" for i in range(1, N_THETA + 1))),
+    "grey": ("grey.threshold", "grey.clear_after_s"),
+}
+_TUNABLE_NAMES = frozenset(n for names in TUNABLE.values() for n in names)
 
 # Variable names used at every step, formatted once (an f-string per variable per step
 # cost ~10 % of a step).
@@ -144,6 +158,9 @@ class Diagnoser(FacadeBase):
         "grey-prediction detection, Beard-Jones detection filter with isolation"
     )
     default_experiment = DefaultExperiment(start_time=0.0, stop_time=10.0, step_size=1e-3)
+    # building the channels costs up to a second, and the initial outputs (learning,
+    # calibrating flags) depend on no input: computed once, at the end of initialisation
+    provisional_outputs = False
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
@@ -157,13 +174,27 @@ class Diagnoser(FacadeBase):
         # only, so after a skipped NaN sample it would lag the simulation time.
         self._dtg_first_alarm_time = math.nan
         self._dtg_block_copied = -1
+        self._dtg_reference_warned = False
+        # tunable values the running channels were built with
+        self._applied: dict[str, Any] = {}
+        self._real_outputs = [n for n, kind in self.kinds.items()
+                              if kind == "Real" and self.causalities[n] == "output"]
+        self._nonfinite_reported: set[str] = set()
 
     # ------------------------------------------------------------------ variables
+    def add_variable(self, name: str, kind: str, causality: str, start: Any,
+                     description: str, variability: str | None = None) -> None:
+        if name in _TUNABLE_NAMES:
+            variability = "tunable"
+            description += " (tunable: a change applies from the next sample)"
+        super().add_variable(name, kind, causality, start, description, variability)
+
     def _declare(self) -> None:
         p = self.add_variable
         p("sample_period_s", "Real", "parameter", 1e-3,
-          "Sample period of every channel = required communication step")
-        _meta("sample_period_s", "s", 0.0)
+          "Sample period of every channel; a communication step must be a whole number "
+          "of sample periods")
+        _meta("sample_period_s", "s", POSITIVE)
         # DTG channel
         p("dtg.enabled", "Boolean", "parameter", True, "Run the DTG identification channel")
         p("dtg.prefilter_enabled", "Boolean", "parameter", True,
@@ -171,7 +202,7 @@ class Diagnoser(FacadeBase):
         p("dtg.prefilter_order", "Integer", "parameter", 6, "Butterworth order")
         _meta("dtg.prefilter_order", None, 1, 20)
         p("dtg.prefilter_cutoff_hz", "Real", "parameter", 50.0, "Butterworth cut-off")
-        _meta("dtg.prefilter_cutoff_hz", "Hz", 0.0)
+        _meta("dtg.prefilter_cutoff_hz", "Hz", POSITIVE)
         p("dtg.prefilter_highpass_hz", "Real", "parameter", 0.0,
           "High-pass corner cascaded with the low-pass (band-pass); 0: off (paper). "
           "Removes the slow torquer response to case rates, not in the regression")
@@ -183,9 +214,9 @@ class Diagnoser(FacadeBase):
         _meta("dtg.window", None, N_THETA)
         p("dtg.forgetting", "Real", "parameter", 0.999,
           "RLS forgetting factor (paper 0.99: false alarms on the DTG chain, docs/notes.md)")
-        _meta("dtg.forgetting", "1", 0.0, 1.0)
+        _meta("dtg.forgetting", "1", POSITIVE, 1.0)
         p("dtg.p0", "Real", "parameter", 1e6, "Initial RLS covariance scale")
-        _meta("dtg.p0", "1", 0.0)
+        _meta("dtg.p0", "1", POSITIVE)
         p("dtg.learn_theta0", "Boolean", "parameter", True,
           "Learn nominal theta0 from the learning window (else use dtg.theta0[i])")
         for i in range(1, N_THETA + 1):
@@ -195,11 +226,11 @@ class Diagnoser(FacadeBase):
           "Start of the theta0 learning window after the first sample")
         _meta("dtg.learn_start_s", "s", 0.0)
         p("dtg.learn_end_s", "Real", "parameter", 5.0, "End of the theta0 learning window")
-        _meta("dtg.learn_end_s", "s", 0.0)
+        _meta("dtg.learn_end_s", "s", POSITIVE)
         p("dtg.low", "Real", "parameter", 0.5, "Lower ratio threshold on eta")
-        _meta("dtg.low", "1", 0.0, 1.0)
+        _meta("dtg.low", "1", 0.0, 1.0 - POSITIVE)
         p("dtg.high", "Real", "parameter", 1.5, "Upper ratio threshold on eta")
-        _meta("dtg.high", "1", 1.0)
+        _meta("dtg.high", "1", 1.0 + POSITIVE)
         p("dtg.persistence_k", "Integer", "parameter", 1, "Alarm when k of the last n violate")
         _meta("dtg.persistence_k", None, 1)
         p("dtg.persistence_n", "Integer", "parameter", 1, "Persistence window n, samples")
@@ -272,8 +303,11 @@ class Diagnoser(FacadeBase):
               f"Nominal theta{i} in use (0 while learning)")
             _meta(f"dtg.theta0_used[{i}]", "1")
         for name, unit in zip(PHYSICAL_NAMES, PHYSICAL_UNITS, strict=True):
-            p(f"dtg.{name}", "Real", "output", 0.0, f"Identified {name}")
+            p(f"dtg.{name}", "Real", "output", 0.0,
+              f"Identified {name}; 0 while dtg.physical_valid is false")
             _meta(f"dtg.{name}", unit)
+        p("dtg.physical_valid", "Boolean", "output", False,
+          "The identified theta gives finite physical parameters")
         p("dtg.learning", "Boolean", "output", False, "Nominal theta0 still being learned")
         p("dtg.alarm", "Boolean", "output", False, "DTG parameter-ratio alarm")
         p("dtg.fault_code", "Integer", "output", 0,
@@ -297,17 +331,26 @@ class Diagnoser(FacadeBase):
           "(1 - e^a)(C - b/a)e^(-am), which collapses on a constant window as in the paper")
         _meta("grey.classic_evaluation", None, 0, 1)
         p("grey.threshold", "Real", "parameter", 0.05,
-          "Alarm threshold on |y - prediction|, signal units")
-        _meta("grey.threshold", None, 0.0)
+          "Alarm threshold on |y - prediction|, in the monitored signal's unit")
+        _meta("grey.threshold", GREY_UNIT, POSITIVE)
         p("grey.clear_after_s", "Real", "parameter", 20.0,
           "Clear an alarm this long after onset; <= 0: never")
         _meta("grey.clear_after_s", "s")
         p("grey.a_min", "Real", "parameter", 1e-6,
           "|a| below which the improved model predicts by the polynomial")
         _meta("grey.a_min", "1", 0.0)
-        p("grey.y", "Real", "input", 0.0, "Monitored signal")
-        p("grey.prediction", "Real", "output", 0.0, "One-step prediction of this sample")
-        p("grey.error", "Real", "output", 0.0, "y - prediction")
+        p("grey.y", "Real", "input", 0.0,
+          f"Monitored signal (declared in {GREY_UNIT}, the HRG output the channel was made "
+          "for; any signal works, its unit is then that of grey.threshold and the outputs)")
+        _meta("grey.y", GREY_UNIT)
+        p("grey.prediction", "Real", "output", 0.0,
+          "One-step prediction of this sample; 0 while grey.prediction_valid is false")
+        _meta("grey.prediction", GREY_UNIT)
+        p("grey.error", "Real", "output", 0.0,
+          "y - prediction; 0 while grey.prediction_valid or grey.valid is false")
+        _meta("grey.error", GREY_UNIT)
+        p("grey.prediction_valid", "Boolean", "output", False,
+          "A prediction exists for this sample (window filled)")
         p("grey.alarm", "Boolean", "output", False, "Grey prediction alarm")
         p("grey.valid", "Boolean", "output", True, "Last grey sample was finite")
         # Detection-filter channel
@@ -332,7 +375,8 @@ class Diagnoser(FacadeBase):
         out("dtg.reference_status", "Integer", 0,
             "0 learning, 1 valid, 2 change inside the learning window (reference from the "
             "segments before it), 3 mismatch with the nominal prior (prior in use), "
-            "4 not checked (paper classifier, too little data)")
+            "4 not checked (paper classifier, too little data), 5 no reference (no usable "
+            "data in the learning window: no alarm)")
         out("dtg.residual_alarm", "Boolean", False,
             "Pattern classifier: residual tests against the frozen reference in alarm")
         out("dtg.fault_type", "Integer", 0,
@@ -404,7 +448,7 @@ class Diagnoser(FacadeBase):
         for i in range(DF_N):
             p(f"df.eigenvalue[{i + 1}]", "Real", "parameter", -float(i + 1),
               f"Eigenvalue {i + 1} of A - KC (real, negative, distinct)")
-            _meta(f"df.eigenvalue[{i + 1}]", "1/s")
+            _meta(f"df.eigenvalue[{i + 1}]", "1/s", None, -POSITIVE)
             p(f"df.x0[{i + 1}]", "Real", "parameter", 0.0,
               f"Initial estimate of state {SEED.state_names[i]}")
             _meta(f"df.x0[{i + 1}]", SEED.state_units[i])
@@ -415,13 +459,13 @@ class Diagnoser(FacadeBase):
           "Start of the calibration window ignored (observer convergence)")
         _meta("df.burn_in_s", "s", 0.0)
         p("df.k_sigma", "Real", "parameter", 6.0, "Thresholds at k standard deviations")
-        _meta("df.k_sigma", "1", 0.0)
+        _meta("df.k_sigma", "1", POSITIVE)
         for i in range(DF_M):
             unit = SEED.output_units[i]
             p(f"df.threshold[{i + 1}]", "Real", "parameter", 1.0,
               f"Main residual threshold of sensor {SEED.output_names[i]} "
               "(used when df.calibrate_s = 0)")
-            _meta(f"df.threshold[{i + 1}]", unit)
+            _meta(f"df.threshold[{i + 1}]", unit, POSITIVE)
             p(f"df.noise_std[{i + 1}]", "Real", "parameter", -1.0,
               f"Noise std of sensor {SEED.output_names[i]}; < 0: threshold / k_sigma")
             _meta(f"df.noise_std[{i + 1}]", unit)
@@ -431,7 +475,8 @@ class Diagnoser(FacadeBase):
                   f"Threshold of observer {i + 1} (without sensor {i + 1}) on its "
                   f"residual {j + 1}, sensor {SEED.output_names[used[j]]} "
                   "(used when df.calibrate_s = 0)")
-                _meta(f"df.bank_threshold[{i + 1},{j + 1}]", SEED.output_units[used[j]])
+                _meta(f"df.bank_threshold[{i + 1},{j + 1}]", SEED.output_units[used[j]],
+                      POSITIVE)
         p("df.persistence_k", "Integer", "parameter", 3, "Residual alarm: k of the last n")
         _meta("df.persistence_k", None, 1)
         p("df.persistence_n", "Integer", "parameter", 5, "Residual alarm persistence n")
@@ -461,7 +506,12 @@ class Diagnoser(FacadeBase):
         p("df.fault_type", "Integer", "output", 0,
           "-1 unknown, 0 none, 1 bias, 2 gain, 3 stuck, 4 complete failure")
         p("df.fault_magnitude", "Real", "output", 0.0,
-          "Bias (sensor units), gain factor, stuck value or 0; NaN if unknown")
+          "Bias or stuck value (in the isolated sensor's unit), gain factor, or 0; declared "
+          "dimensionless because its unit follows the isolated sensor; 0 while "
+          "df.fault_magnitude_valid is false")
+        _meta("df.fault_magnitude", "1")
+        p("df.fault_magnitude_valid", "Boolean", "output", False,
+          "df.fault_magnitude holds an estimate (a fault of known type is isolated)")
         p("df.valid", "Boolean", "output", True, "Last u, y sample was finite")
 
     def _df_config(self, period: float) -> DFChannelConfig:
@@ -508,7 +558,9 @@ class Diagnoser(FacadeBase):
         v["df.detected"] = bool(out.detected)
         v["df.isolated_sensor"] = int(out.isolated_sensor)
         v["df.fault_type"] = int(out.fault_type)
-        v["df.fault_magnitude"] = float(out.magnitude)
+        magnitude_valid = math.isfinite(out.magnitude) and out.isolated_sensor > 0
+        v["df.fault_magnitude"] = float(out.magnitude) if magnitude_valid else 0.0
+        v["df.fault_magnitude_valid"] = magnitude_valid
         v["df.valid"] = bool(out.valid)
 
     # ------------------------------------------------------------------ lifecycle
@@ -527,6 +579,7 @@ class Diagnoser(FacadeBase):
                 self._copy_dtg(self._dtg.last_output)
             if self._df is not None:
                 self._copy_df(self._df.last_output)
+            self._guard_finite_outputs()
             self._ready = True
         except MissingPackageError as exc:
             self._ready = False
@@ -540,9 +593,10 @@ class Diagnoser(FacadeBase):
 
     def _build_channels(self) -> None:
         v = self.values
+        errors = self.range_errors(VARIABLE_META)
+        if errors:
+            raise ValueError("; ".join(errors))
         period = float(v["sample_period_s"])
-        if not (math.isfinite(period) and period > 0.0):
-            raise ValueError(f"sample_period_s must be > 0 s, got {period!r}")
         self._dtg = self._grey = self._df = None
         with _channel_context("dtg"):
             self._dtg = DTGChannel(self._dtg_config(period)) if v["dtg.enabled"] else None
@@ -552,6 +606,57 @@ class Diagnoser(FacadeBase):
             df_channel = _import_or_explain("gyrodiag.df_channel", "df.enabled")
             with _channel_context("df"):
                 self._df = df_channel.DFChannel(self._df_config(period))
+        self._applied = {n: v[n] for n in _TUNABLE_NAMES}
+
+    def _apply_tunables(self) -> bool:
+        """Rebuild the channels whose tunable parameters changed, keeping their state.
+
+        Returns False (with an error logged, the previous values restored) if a new
+        value is refused.
+        """
+        v = self.values
+        changed = [n for n in _TUNABLE_NAMES if v[n] != self._applied[n]]
+        if not changed:
+            return True
+        period = float(v["sample_period_s"])
+        rebuilt: dict[str, Any] = {}
+        try:
+            errors = self.range_errors(VARIABLE_META, changed)
+            if errors:
+                raise ValueError("; ".join(errors))
+            for channel, names in TUNABLE.items():
+                running = getattr(self, f"_{channel}")
+                if running is None or not any(n in changed for n in names):
+                    continue
+                with _channel_context(channel):
+                    fresh = (DTGChannel(self._dtg_config(period)) if channel == "dtg"
+                             else self._grey_detector(period))
+                fresh.set_state(running.get_state())
+                rebuilt[channel] = fresh
+        except (ValueError, TypeError) as exc:
+            kept = ", ".join(f"{n} = {self._applied[n]!r}" for n in sorted(changed))
+            for n in changed:
+                v[n] = self._applied[n]
+            self.report_error(f"{self.instance_name}: tunable parameter change refused: {exc}."
+                              f" Kept {kept}; the step was not taken")
+            return False
+        for channel, fresh in rebuilt.items():
+            setattr(self, f"_{channel}", fresh)
+        self._applied.update({n: v[n] for n in changed})
+        return True
+
+    def _guard_finite_outputs(self) -> None:
+        """Publish 0 for any non-finite Real output (outputs are always finite; the known
+        cases have validity outputs), with a warning once per variable."""
+        v = self.values
+        for name in self._real_outputs:
+            x = v[name]
+            if not math.isfinite(x):
+                v[name] = 0.0
+                if name not in self._nonfinite_reported:
+                    self._nonfinite_reported.add(name)
+                    self.report_warning(f"{self.instance_name}: output {name} was {x!r}; "
+                                        "published as 0 (outputs are always finite)")
 
     def _dtg_config(self, period: float) -> DTGChannelConfig:
         v = self.values
@@ -697,19 +802,37 @@ class Diagnoser(FacadeBase):
                 "(see the earlier error); fix the parameters and re-instantiate or reset"
             )
             return
+        if not self.check_step(h):
+            return
         period = float(self.values["sample_period_s"])
-        if abs(h - period) > 1e-6 * period:
+        n = samples_in_step(h, period)
+        if n is None:
             self.report_error(
-                f"{self.instance_name}: communication step {h!r} s differs from "
-                f"sample_period_s = {period!r} s; the Diagnoser is sampled-data and "
-                "processes one sample per step (set sample_period_s to the step)"
+                f"{self.instance_name}: communication step {h!r} s is not a whole multiple "
+                f"of sample_period_s = {period!r} s (relative tolerance {STEP_RTOL:g}); the "
+                "Diagnoser is sampled-data: a step of n sample periods processes n samples "
+                "with the inputs held. The step was not taken"
             )
             return
+        if not self._apply_tunables():
+            return
+        for i in range(n):
+            self._sample(t + i * period)
+        self._guard_finite_outputs()
+
+    def _sample(self, t: float) -> None:
+        """Process one sample of every enabled channel, taken at time ``t``."""
         v = self.values
         valid = True
         codes: list[int] = []
         if self._dtg is not None:
             out = self._dtg.update(*[v[key] for key in _DTG_INPUT_KEYS])
+            if self._dtg.reference_failed and not self._dtg_reference_warned:
+                self._dtg_reference_warned = True
+                self.report_warning(
+                    f"{self.instance_name}: dtg: no reference theta0 was learned between "
+                    "dtg.learn_start_s and dtg.learn_end_s (a zero entry: no excitation on "
+                    "the DTG inputs); the DTG channel will not alarm")
             if math.isnan(self._dtg_first_alarm_time) and not math.isnan(
                 out.first_alarm_time_s
             ):
@@ -721,8 +844,10 @@ class Diagnoser(FacadeBase):
                 codes.append(SUMMARY_CODE_BASE["dtg"] + (code if code > 0 else -1))
         if self._grey is not None:
             g = self._grey.update(float(v["grey.y"]), time_s=t)
-            v["grey.prediction"] = g.prediction
-            v["grey.error"] = g.error
+            prediction_valid = math.isfinite(g.prediction)
+            v["grey.prediction"] = g.prediction if prediction_valid else 0.0
+            v["grey.error"] = g.error if math.isfinite(g.error) else 0.0
+            v["grey.prediction_valid"] = prediction_valid
             v["grey.alarm"] = g.alarm
             v["grey.valid"] = g.valid
             valid &= g.valid
@@ -755,8 +880,11 @@ class Diagnoser(FacadeBase):
         theta0_values = [0.0] * N_THETA if theta0 is None else _as_list(theta0)
         for key, value in zip(_DTG_THETA0_KEYS, theta0_values, strict=True):
             v[key] = float(value)
-        for key, value in zip(_DTG_PHYSICAL_KEYS, _as_list(out.physical), strict=True):
-            v[key] = float(value)
+        physical = _as_list(out.physical)
+        physical_valid = all(math.isfinite(x) for x in physical)
+        for key, value in zip(_DTG_PHYSICAL_KEYS, physical, strict=True):
+            v[key] = float(value) if physical_valid else 0.0
+        v["dtg.physical_valid"] = physical_valid
         v["dtg.learning"] = bool(out.learning)
         v["dtg.alarm"] = bool(out.alarm)
         v["dtg.fault_code"] = int(out.fault_code) if out.alarm else 0

@@ -97,6 +97,19 @@ NAN_STEPS: dict[int, tuple[str, float]] = {
     1050: ("df.y[3]", float("nan")),   # DF in alarm
 }
 N_RESET = 300
+#: Tunable changes: applied from sample K_TUNE on; at K_BAD two refused changes (one
+#: outside the declared range, one the library refuses), then the run goes on.
+K_TUNE, K_BAD = 1000, 1500
+TUNED: dict[str, Any] = {"dtg.low": 0.8, "dtg.high": 1.25, "dtg.persistence_k": 2,
+                         "grey.threshold": 0.03, "grey.clear_after_s": 1.0}
+REFUSED_TUNES: tuple[tuple[str, Any], ...] = (("dtg.high", 0.9), ("dtg.persistence_k", 9))
+#: Multi-sample steps: samples per doStep, cycled over the "all" record, and the
+#: relative jitter put on each step size (inside the 1e-6 tolerance).
+MULTI_STEPS = (1, 3, 2, 5, 1, 4, 7, 2)
+MULTI_JITTER = (0.0, 4e-7, -4e-7, 9e-7)
+#: Refused steps at sample_period_s = 0.1 s: not a multiple, beyond the tolerance, zero,
+#: negative, non-finite.
+BAD_STEPS = (0.15, 0.05, 0.3 * (1 + 5e-6), 0.0, -0.1, float("nan"), float("inf"))
 N_INTERLEAVE = 600
 #: Invalid parameter sets: label → (parameters, strings).
 INVALID: dict[str, tuple[dict[str, Any], dict[str, str]]] = {
@@ -366,11 +379,55 @@ def run_scenarios(fmu_dir: Path, out: Path, inp: Path) -> None:
     res["invalid_step_status"] = np.array(step_status)
     res["invalid_step_log"] = np.array(step_log)
 
+    # -- tunable parameters changed during the run --------------------------------------
+    d = new("tune", ALL_PARAMS, h=ALL_H, start=ALL_START)
+    parts = [d.run(rec[:K_TUNE])]
+    for name, value in TUNED.items():
+        d.set(name, value)
+    parts.append(d.run(rec[K_TUNE:K_BAD]))
+    statuses, logs, kept = [], [], []
+    for name, value in REFUSED_TUNES:
+        d.log.clear()
+        d.set(name, value)
+        statuses.append(d.step(rec[K_BAD]))
+        d.k -= 1  # a refused step consumed no sample
+        logs.append("\n".join(m for _, m in d.log))
+        kept.append(d.get(name))
+    d.log.clear()
+    parts.append(d.run(rec[K_BAD:]))
+    res["tune"] = np.vstack(parts)
+    res["tune_refused_status"] = np.array(statuses)
+    res["tune_refused_log"] = np.array(logs)
+    res["tune_refused_kept"] = np.array(kept, dtype=float)
+    res["tune_after_log"] = np.array(len(d.log))
+    d.close()
+
+    # -- communication steps of several samples, and refused steps ---------------------
+    d = new("multi", ALL_PARAMS, h=ALL_H, start=ALL_START)
+    rows, counts, k, j = [], [], 0, 0
+    while k < len(rec):
+        n = min(MULTI_STEPS[j % len(MULTI_STEPS)], len(rec) - k)
+        h = n * ALL_H * (1.0 + MULTI_JITTER[j % len(MULTI_JITTER)])
+        d.fmu.setReal(d._in_vr, [float(x) for x in rec[k]])
+        status = d.call(d.fmu.doStep, ALL_START + k * ALL_H, h)
+        if status != 0:
+            raise RuntimeError(f"multi-sample doStep at k={k}, n={n}: {status} {d.log}")
+        rows.append(d.outputs())
+        counts.append(n)
+        k, j = k + n, j + 1
+    res["multi"], res["multi_n"] = np.array(rows), np.array(counts)
+    d.close()
+
     d = new("wrong_step", GREY_PARAMS, h=GREY_H)
-    d.h = 2 * GREY_H
-    res["wrong_step_status"] = np.array(d.step(data["grey"][0]))
-    res["wrong_step_log"] = np.array("\n".join(m for _, m in d.log))
-    d.h, d.k = GREY_H, 0
+    statuses, logs = [], []
+    for h in BAD_STEPS:
+        d.log.clear()
+        d.fmu.setReal(d._in_vr, [float(x) for x in data["grey"][0]])
+        statuses.append(d.call(d.fmu.doStep, 0.0, h))
+        logs.append("\n".join(m for _, m in d.log))
+    res["wrong_step_status"] = np.array(statuses)
+    res["wrong_step_log"] = np.array(logs)
+    d.k = 0
     d.log.clear()
     res["after_wrong_step"] = d.run(data["grey"][:20])
     res["after_wrong_step_log"] = np.array(len(d.log))

@@ -229,8 +229,10 @@ def _dtg_columns(ch: DTGChannel, samples: np.ndarray, start: float) -> dict[str,
                 put(f"dtg.eta_{axis}[{i + 1}]", o.eta[a, i])
         for i in range(N_THETA):
             put(f"dtg.theta0_used[{i + 1}]", 0.0 if ch.theta0 is None else ch.theta0[i])
+        physical_valid = bool(np.all(np.isfinite(o.physical)))  # else 0 (sentinel)
         for i, name in enumerate(PHYSICAL):
-            put(f"dtg.{name}", o.physical[i])
+            put(f"dtg.{name}", o.physical[i] if physical_valid else 0.0)
+        put("dtg.physical_valid", physical_valid)
         put("dtg.learning", o.learning)
         put("dtg.alarm", o.alarm)
         put("dtg.fault_code", o.fault_code)
@@ -248,9 +250,12 @@ def _grey_detector(model=1, window=10, threshold=0.02, clear=5.0, h=GREY_H):
 
 def _grey_columns(det, y, times) -> dict[str, np.ndarray]:
     outs = [det.update(float(v), time_s=float(t)) for v, t in zip(y, times, strict=True)]
-    return {
-        "grey.prediction": np.array([o.prediction for o in outs]),
-        "grey.error": np.array([o.error for o in outs]),
+    prediction = np.array([o.prediction for o in outs])
+    error = np.array([o.error for o in outs])
+    return {  # the FMU publishes 0 for a missing prediction or error (sentinels)
+        "grey.prediction": np.where(np.isfinite(prediction), prediction, 0.0),
+        "grey.error": np.where(np.isfinite(error), error, 0.0),
+        "grey.prediction_valid": np.isfinite(prediction).astype(float),
         "grey.alarm": np.array([o.alarm for o in outs], dtype=float),
         "grey.valid": np.array([o.valid for o in outs], dtype=float),
     }
@@ -270,6 +275,9 @@ def _df_columns(ch: DFChannel, u, y) -> dict[str, np.ndarray]:
                        ("isolated_sensor", "isolated_sensor"), ("fault_type", "fault_type"),
                        ("fault_magnitude", "magnitude"), ("valid", "valid")):
         cols[f"df.{name}"] = np.array([getattr(o, attr) for o in outs], dtype=float)
+    known = np.isfinite(cols["df.fault_magnitude"]) & (cols["df.isolated_sensor"] > 0)
+    cols["df.fault_magnitude"] = np.where(known, cols["df.fault_magnitude"], 0.0)
+    cols["df.fault_magnitude_valid"] = known.astype(float)
     return cols
 
 
@@ -487,10 +495,11 @@ def test_non_finite_input_skips_the_sample_and_the_channel_recovers(fmu, data):
                 expected[name] = col[idx]
         expected[f"{channel}.valid"] = np.array([k not in bad[channel] for k in range(n)],
                                                 dtype=float)
-    # grey at the skipped sample: no error, the pending prediction, the alarm held
+    # grey at the skipped sample: no error (0), the pending prediction, the alarm held
     (k_grey,) = bad["grey"]
-    expected["grey.error"][k_grey] = np.nan
+    expected["grey.error"][k_grey] = 0.0
     expected["grey.prediction"][k_grey] = lib["grey.prediction"][k_grey]
+    expected["grey.prediction_valid"][k_grey] = 1.0
     # the DTG first-alarm time is the host time of the alarming step: one period after
     # the time on the channel's valid-sample clock, since one sample was skipped before
     k_first = int(np.argmax(expected["dtg.alarm"]))
@@ -544,13 +553,100 @@ def test_invalid_parameter_is_fmi2error_naming_it(fmu, label):
     assert "initialisation did not succeed" in step_log
 
 
-def test_communication_step_must_equal_sample_period(fmu):
-    assert fmu["wrong_step_status"] == 3
-    log = str(fmu["wrong_step_log"])
-    assert "communication step 0.2 s" in log and "sample_period_s = 0.1 s" in log
-    # the refused step consumed no sample: the run continues as a fresh one
+def test_step_of_n_sample_periods_processes_n_samples_with_inputs_held(fmu, data):
+    """A doStep of n·sample_period_s (n = 1..7, sizes jittered inside the 1e-6
+    tolerance) equals the library fed the step's first input n times; the outputs after
+    the step are those of its last sample."""
+    counts = fmu["multi_n"]
+    assert set(counts.tolist()) >= {1, 2, 3, 4, 5, 7} and counts.sum() == len(data["all"])
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    held = np.repeat(data["all"][starts], counts, axis=0)
+    ref = _all_reference({"all": held})[0]
+    ref.update(_summary(ref, len(held)))
+    last = np.cumsum(counts) - 1
+    assert_columns(rows(fmu, "multi"), {name: col[last] for name, col in ref.items()})
+    # held inputs are not the record: the run differs from the one-sample-per-step run
+    got = rows(fmu, "multi")
+    assert not np.allclose(got["df.residual[3]"], rows(fmu, "all")["df.residual[3]"][last])
+    assert got["df.detected"][-1] == 1 and got["dtg.alarm"].any()
+
+
+@pytest.mark.parametrize(("index", "reason"), [
+    (0, "not a whole multiple"), (1, "not a whole multiple"), (2, "not a whole multiple"),
+    (3, "must be finite and > 0"), (4, "must be finite and > 0"),
+    (5, "must be finite and > 0"), (6, "must be finite and > 0"),
+])
+def test_other_steps_are_refused_with_the_reason(fmu, index, reason):
+    from _diagnoser_runner import BAD_STEPS
+
+    assert fmu["wrong_step_status"][index] == 3  # fmi2Error, the instance lives on
+    log = str(fmu["wrong_step_log"][index])
+    assert reason in log and f"{BAD_STEPS[index]!r} s" in log, log
+    if index < 3:
+        assert "sample_period_s = 0.1 s" in log and "relative tolerance 1e-06" in log
+
+
+def test_refused_steps_consume_no_sample(fmu):
     np.testing.assert_array_equal(fmu["after_wrong_step"], fmu["grey"][:20])
     assert fmu["after_wrong_step_log"] == 0
+
+
+# ---------------------------------------------------------------------------------------
+# tunable parameters
+# ---------------------------------------------------------------------------------------
+
+def _tuned_reference(data) -> dict[str, np.ndarray]:
+    """Library run of the "all" record where the tuned channels are rebuilt with the new
+    values at K_TUNE and take over the running channels' state."""
+    from _diagnoser_runner import K_TUNE, TUNED
+
+    rec = data["all"]
+    times = ALL_START + ALL_H * np.arange(len(rec))
+    dtg = _dtg_channel(ALL_H, cutoff_hz=20.0)
+    grey = _grey_detector(threshold=0.01, clear=3.0, h=ALL_H)
+    cols = {k: list(v) for k, v in _dtg_columns(dtg, rec[:K_TUNE, 0:4], ALL_START).items()}
+    for k, v in _grey_columns(grey, rec[:K_TUNE, 4], times[:K_TUNE]).items():
+        cols[k] = list(v)
+    dtg2 = _dtg_channel(ALL_H, cutoff_hz=20.0, low=TUNED["dtg.low"], high=TUNED["dtg.high"],
+                        persistence_k=TUNED["dtg.persistence_k"])
+    dtg2.set_state(dtg.get_state())
+    grey2 = _grey_detector(threshold=TUNED["grey.threshold"],
+                           clear=TUNED["grey.clear_after_s"], h=ALL_H)
+    grey2.set_state(grey.get_state())
+    for k, v in _dtg_columns(dtg2, rec[K_TUNE:, 0:4], ALL_START).items():
+        cols[k].extend(v)
+    for k, v in _grey_columns(grey2, rec[K_TUNE:, 4], times[K_TUNE:]).items():
+        cols[k].extend(v)
+    return {k: np.array(v, dtype=float) for k, v in cols.items()}
+
+
+def test_tunable_changes_apply_from_the_next_sample(fmu, data, all_reference):
+    from _diagnoser_runner import K_TUNE
+
+    got = rows(fmu, "tune")
+    ref = _tuned_reference(data)
+    assert_columns(got, ref)
+    # the detection filter is not tuned: as in the untuned run
+    assert_columns(got, {k: v for k, v in all_reference.items() if k.startswith("df.")})
+    untuned = rows(fmu, "all")
+    for name in ("dtg.alarm", "grey.alarm"):
+        np.testing.assert_array_equal(got[name][:K_TUNE], untuned[name][:K_TUNE])
+    # the narrower DTG band alarms more, the higher grey threshold less
+    assert got["dtg.alarm"][K_TUNE:].sum() > untuned["dtg.alarm"][K_TUNE:].sum()
+    assert got["grey.alarm"][K_TUNE:].sum() < untuned["grey.alarm"][K_TUNE:].sum()
+
+
+def test_refused_tunable_change_is_fmi2error_and_keeps_the_value_in_use(fmu):
+    from _diagnoser_runner import REFUSED_TUNES, TUNED
+
+    assert fmu["tune_refused_status"].tolist() == [3, 3]
+    high_log, k_log = (str(x) for x in fmu["tune_refused_log"])
+    assert "dtg.high = 0.9 is outside its range [1.000000001, inf]" in high_log
+    assert "dtg.persistence_k" in k_log and "Traceback" not in k_log
+    for log in (high_log, k_log):
+        assert "step was not taken" in log and "Kept" in log
+    assert fmu["tune_refused_kept"].tolist() == [TUNED[n] for n, _ in REFUSED_TUNES]
+    assert fmu["tune_after_log"] == 0
 
 
 # ---------------------------------------------------------------------------------------
@@ -576,9 +672,9 @@ def test_signature_file_absolute_and_in_resources_classify(fmu, data):
 # model description
 # ---------------------------------------------------------------------------------------
 
-#: Real variables without a unit: they carry the monitored signal's own unit (grey), or
-#: a quantity whose unit depends on the fault type (bias, gain factor or stuck value).
-UNITLESS = {"grey.threshold", "grey.y", "grey.prediction", "grey.error", "df.fault_magnitude"}
+#: Real variables without a unit: none (the grey channel is declared in V, the unit of
+#: the HRG output it was made for; df.fault_magnitude as dimensionless, see its text).
+UNITLESS: set[str] = set()
 
 
 def test_every_variable_has_a_description_and_every_real_a_unit(fmu_dir):
@@ -605,4 +701,4 @@ def test_every_variable_has_a_description_and_every_real_a_unit(fmu_dir):
     assert units["df.bank_threshold[3,3]"] == "rad"  # observer without q: 3rd is theta
     var = {sv.get("name"): sv for sv in svs}
     forgetting = var["dtg.forgetting"][0]
-    assert (forgetting.get("min"), forgetting.get("max")) == ("0", "1")
+    assert (forgetting.get("min"), forgetting.get("max")) == ("1e-09", "1")

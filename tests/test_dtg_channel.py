@@ -76,6 +76,25 @@ def test_unclassified_alarm_has_unknown_code():
     assert outs[-1].alarm and outs[-1].fault_code == UNKNOWN_CODE
 
 
+def test_no_excitation_while_learning_leaves_no_reference_and_no_alarm():
+    """Zero inputs (a host's default start values): θ stays 0, so θ0 would have zero
+    entries. The channel keeps no reference and never alarms, instead of failing every
+    sample from the end of learning on; a state round trip keeps that."""
+    cfg = DTGChannelConfig(sample_period_s=T, learn_start_s=0.1, learn_end_s=0.3, p0=1e8)
+    ch = DTGChannel(cfg)
+    outs = _run(ch, np.zeros((299, 4)))
+    assert outs[-1].learning and not ch.reference_failed
+    outs += _run(ch, np.zeros((3, 4)))
+    assert ch.reference_failed and ch.theta0 is None
+    assert not outs[-1].learning and not outs[-1].alarm
+    # excitation afterwards does not start a late reference: the window is over
+    outs += _run(ch, _record(STABLE_ROTOR, 500, seed=9))
+    assert ch.theta0 is None and not any(o.alarm for o in outs)
+    again = DTGChannel(cfg)
+    again.set_state(ch.get_state())
+    assert again.reference_failed
+
+
 def test_nan_sample_is_skipped_and_state_round_trip_is_exact():
     cfg = DTGChannelConfig(sample_period_s=T, learn_start_s=0.2, learn_end_s=0.5, p0=1e8)
     rec = _record(STABLE_ROTOR, 1500, seed=4, noise=1e-4)

@@ -94,8 +94,9 @@ def hrg_errors(r: RunResult, instance: str) -> tuple[float, float]:
     for a, b in HRG_FAULT_FREE_S:
         used |= (t >= a - 1e-9) & (t <= b + 1e-9)
     predicted = np.where(used, r.signal(f"{instance}.grey.prediction"), np.nan)
-    e = prediction_errors_percent(t, r.signal("inj_stuck.out_1"), predicted)
-    assert e.n_used > 0.9 * np.count_nonzero(used)  # NaN only during warm-up
+    e = prediction_errors_percent(t, r.signal("inj_stuck.out_1"), predicted,
+                                  valid=r.signal(f"{instance}.grey.prediction_valid"))
+    assert e.n_used > 0.9 * np.count_nonzero(used)  # no prediction only during warm-up
     return e.mean_percent, e.max_percent
 
 

@@ -75,6 +75,9 @@ CLASSIFIERS: tuple[ClassifierKind, ...] = ("paper", "pattern")
 BLOCK_S = 0.025
 #: Reference status when the guard could not run (paper classifier, too little data).
 STATUS_NOT_CHECKED = 4
+#: Reference status when learning ended without any usable reference (no excitation in
+#: the window, e.g. a host's default zero inputs): the channel never alarms.
+STATUS_FAILED = 5
 
 
 @dataclass
@@ -284,7 +287,9 @@ class DTGDiagnosis:
     reference_status : int
         :data:`~gyrodiag.dtg_reference.REFERENCE_STATUS` code (0 learning, 1 valid,
         2 change inside the learning window, 3 prior mismatch: prior in use), or
-        :data:`STATUS_NOT_CHECKED` (4, paper classifier with too little data).
+        :data:`STATUS_NOT_CHECKED` (4, paper classifier with too little data) or
+        :data:`STATUS_FAILED` (5, no usable data in the learning window: no reference,
+        no alarm).
     residual_alarm : bool
         The residual tests are in alarm (pattern classifier).
     class_name : str
@@ -521,9 +526,9 @@ class DTGChannel:
             self._learn(t, theta)
         if self.theta0 is None or self._decisions is None:
             self._last = DTGChannelOutput(
-                True, True, theta, np.ones((2, N_THETA)), _physical(th_x, th_y, self.T),
-                False, 0, np.zeros(N_THETA, dtype=np.int64), self._first_alarm_time,
-                self._diagnosis,
+                True, not self.reference_failed, theta, np.ones((2, N_THETA)),
+                _physical(th_x, th_y, self.T), False, 0, np.zeros(N_THETA, dtype=np.int64),
+                self._first_alarm_time, self._diagnosis,
             )
             return self._last
 
@@ -706,10 +711,14 @@ class DTGChannel:
             ref = learner.finish(None if c.theta0 is None else np.asarray(c.theta0, float),
                                  self._prior)
         except ValueError:
-            if self.pattern_mode:
-                raise
-            # the paper classifier does not need the reference: report it unchecked
             self._learner = None
+            if self.pattern_mode:
+                # no reference to test against: no alarm rather than a failure of every
+                # later sample (see reference_failed)
+                self._diagnosis = DTGDiagnosis(reference_status=STATUS_FAILED,
+                                               block=self._diagnosis.block + 1)
+                return
+            # the paper classifier does not need the reference: report it unchecked
             self._diagnosis = DTGDiagnosis(reference_status=STATUS_NOT_CHECKED,
                                            block=self._diagnosis.block + 1)
             return
@@ -733,13 +742,23 @@ class DTGChannel:
             self._learn_count += 1
         elif t >= c.learn_end_s and self._learn_count > 0:
             theta0 = self._learn_sum / self._learn_count
+            self._learn_count = 0
             if np.any(theta0 == 0.0):
-                raise ValueError(
-                    "learned theta0 has a zero entry (no excitation in the learning window?)"
-                    f": {list(theta0)}"
-                )
+                # No excitation in the learning window (e.g. a host's default zero
+                # inputs): no reference, so no ratios and no alarm, rather than a failure
+                # of every later sample. See reference_failed.
+                return
             self.theta0 = theta0
             self._decisions = self._make_decisions(theta0)
+
+    @property
+    def reference_failed(self) -> bool:
+        """True once the learning window has ended without a usable θ0 (a zero entry:
+        no excitation); the channel then never alarms."""
+        if self.pattern_mode:
+            return self._diagnosis.reference_status == STATUS_FAILED
+        return (self.theta0 is None and self._learn_count == 0
+                and self._n_samples * self.T > self.config.learn_end_s)
 
     # -- state ----------------------------------------------------------------
     def get_state(self) -> dict[str, Any]:

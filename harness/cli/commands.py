@@ -15,6 +15,7 @@
     python -m harness learn-signatures SCENARIO... [--out FILE.json] [--runs-out DIR]
                                        [--window-s S] [--saved] [--fmu-dir DIR]
     python -m harness export-csv RUN... [--out FILE]
+    python -m harness export-ssp SCENARIO --out FILE.ssp [--fmu-dir DIR] [--results DIR]
     python -m harness schema [--markdown] [--campaign]
 
 Every command takes ``-v`` (debug) and ``-q`` (warnings and errors only).
@@ -32,7 +33,8 @@ which sensor faults of the seed aircraft are detectable and isolable
 (:mod:`harness.verification.isolability`, analysis only).  ``learn-signatures`` runs DTG
 training scenarios and writes the fault-signature library that verification scenarios
 load through a ``files`` parameter (:mod:`harness.campaigns.signatures`).
-``export-csv`` writes a saved run's signals as CSV.  ``schema`` prints the JSON Schema
+``export-csv`` writes a saved run's signals as CSV.  ``export-ssp`` writes a scenario as
+an SSP package for other SSP tools (:mod:`harness.cosim.ssp`).  ``schema`` prints the JSON Schema
 of scenario files (for editors), or with ``--markdown`` the reference of
 ``docs/scenarios.md``.
 
@@ -57,7 +59,7 @@ import logging
 from collections.abc import Sequence
 from pathlib import Path
 
-from harness.cli import campaign, learn_signatures, pipeline
+from harness.cli import campaign, learn_signatures, pipeline, ssp
 from harness.cli.common import (
     DEFAULT_RESULTS_ROOT,
     EXIT_FAILED,
@@ -181,6 +183,7 @@ def _parser() -> argparse.ArgumentParser:
     learn_signatures.add_parser(sub)
     pipeline.add_parser(sub)
     campaign.add_parser(sub)
+    ssp.add_parser(sub)
     for p in sub.choices.values():
         add_verbosity(p)
     return parser
