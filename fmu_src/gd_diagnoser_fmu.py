@@ -68,6 +68,8 @@ if TYPE_CHECKING:  # imported when the channel is built: it needs SciPy (design 
 MAX_SIGNATURES = 8
 #: Fault codes of the summary output ``fault_code``.
 SUMMARY_CODE_BASE = {"dtg": 100, "grey": 200, "df": 300}
+#: Summary code offsets of the detection filter beyond a sensor number.
+DF_NOT_ISOLATED, DF_MULTIPLE = -1, -2
 
 SEED = seed_aircraft()
 #: Detection-filter dimensions: states, inputs, sensors (those of the seed aircraft).
@@ -109,6 +111,15 @@ _DF_Y_KEYS = tuple(f"df.y[{i + 1}]" for i in range(DF_M))
 _DF_RESIDUAL_KEYS = tuple(f"df.residual[{i + 1}]" for i in range(DF_M))
 _DF_ALARM_KEYS = tuple(f"df.alarm[{i + 1}]" for i in range(DF_M))
 _DF_THRESHOLD_KEYS = tuple(f"df.threshold_in_use[{i + 1}]" for i in range(DF_M))
+_DF_STATISTIC_KEYS = tuple(f"df.statistic[{i + 1}]" for i in range(DF_M))
+_DF_SENSOR_TYPE_KEYS = tuple(f"df.sensor_fault_type[{i + 1}]" for i in range(DF_M))
+_DF_OFFSET_KEYS = tuple(f"df.fault_offset[{i + 1}]" for i in range(DF_M))
+_DF_GAIN_KEYS = tuple(f"df.fault_gain[{i + 1}]" for i in range(DF_M))
+_DF_RATE_KEYS = tuple(f"df.fault_rate[{i + 1}]" for i in range(DF_M))
+_DF_NOISE_RATIO_KEYS = tuple(f"df.noise_ratio[{i + 1}]" for i in range(DF_M))
+_DF_NOISE_STD_KEYS = tuple(f"df.noise_std_in_use[{i + 1}]" for i in range(DF_M))
+#: df.sensor_fault_type codes whose size goes to each per-sensor output.
+_OFFSET_TYPES, _GAIN_TYPES, _RATE_TYPES, _NOISE_TYPES = {1, 3, 4, 7}, {2}, {6}, {5}
 
 #: SI exponents of the seed aircraft's signal units (for the units of A, B, C entries).
 _UNIT_EXPONENTS: dict[str, dict[str, int]] = {
@@ -168,6 +179,7 @@ class Diagnoser(FacadeBase):
         self._dtg: DTGChannel | None = None
         self._grey: GreyFaultDetector | None = None
         self._df: DFChannel | None = None
+        self._df_copied: tuple[bool, Any, Any] | None = None
         self._ready = False
         self._start_time = 0.0
         # Host time of the first DTG alarm: the channel's own clock counts valid samples
@@ -339,6 +351,34 @@ class Diagnoser(FacadeBase):
         p("grey.a_min", "Real", "parameter", 1e-6,
           "|a| below which the improved model predicts by the polynomial")
         _meta("grey.a_min", "1", 0.0)
+        p("grey.residual_order", "Integer", "parameter", 2,
+          "Improved model: degree of the residual polynomial (paper: 2)")
+        _meta("grey.residual_order", None, 0, 4)
+        p("grey.calibrate_s", "Real", "parameter", 0.0,
+          "> 0: calibrated detector: after the warm-up window, this long of fault-free "
+          "one-step prediction errors gives their standard deviation sigma_e, and "
+          "grey.threshold becomes the smallest threshold allowed; 0: fixed threshold "
+          "(paper)")
+        _meta("grey.calibrate_s", "s", 0.0)
+        p("grey.k_sigma", "Real", "parameter", 5.0,
+          "Calibrated: alarm when |y - prediction| > k_sigma * sigma_e")
+        _meta("grey.k_sigma", "1", POSITIVE)
+        p("grey.sequential", "Boolean", "parameter", False,
+          "Calibrated: alarm by a two-sided CUSUM on the error / sigma_e (threshold for "
+          "grey.false_alarm_rate) instead of the k-sigma test")
+        p("grey.false_alarm_rate", "Real", "parameter", 1e-3,
+          "Calibrated, sequential: design false-alarm rate (per hour)")
+        _meta("grey.false_alarm_rate", "1/h", 1e-9, 3600.0)
+        p("grey.cusum_k", "Real", "parameter", 1.5,
+          "Calibrated, sequential: CUSUM reference in sigma_e")
+        _meta("grey.cusum_k", "1", 0.05, 5.0)
+        p("grey.suspicion_sigma", "Real", "parameter", 3.0,
+          "Calibrated: a sample off its prediction by more than this many sigma_e is "
+          "not fed to the predictor until the test decides")
+        _meta("grey.suspicion_sigma", "1", POSITIVE)
+        p("grey.auto_order", "Boolean", "parameter", False,
+          "Calibrated, improved model: also run residual orders 1 and 0 during the "
+          "calibration and keep the one with the least error (noise favours low orders)")
         p("grey.y", "Real", "input", 0.0,
           f"Monitored signal (declared in {GREY_UNIT}, the HRG output the channel was made "
           "for; any signal works, its unit is then that of grey.threshold and the outputs)")
@@ -352,6 +392,15 @@ class Diagnoser(FacadeBase):
         p("grey.prediction_valid", "Boolean", "output", False,
           "A prediction exists for this sample (window filled)")
         p("grey.alarm", "Boolean", "output", False, "Grey prediction alarm")
+        p("grey.calibrating", "Boolean", "output", False,
+          "Calibrated detector: warm-up or calibration window in progress (no alarm)")
+        p("grey.sigma", "Real", "output", 0.0,
+          "Calibrated: standard deviation of the fault-free prediction error in use "
+          "(signal units); 0 before it is learned and with a fixed threshold")
+        _meta("grey.sigma", GREY_UNIT, 0.0)
+        p("grey.statistic", "Real", "output", 0.0,
+          "Alarm statistic in units of its threshold (alarm at 1)")
+        _meta("grey.statistic", "1", 0.0)
         p("grey.valid", "Boolean", "output", True, "Last grey sample was finite")
         # Detection-filter channel
         self._declare_df()
@@ -359,7 +408,8 @@ class Diagnoser(FacadeBase):
         p("any_alarm", "Boolean", "output", False, "Any enabled channel in alarm")
         p("fault_code", "Integer", "output", 0,
           "0 none; 100+j DTG signature j (99 unknown); 200 grey alarm; "
-          "300+i sensor i isolated by the detection filter (299 not isolated)")
+          "300+i sensor i isolated by the detection filter (299 not isolated, "
+          "298 several sensors)")
         p("inputs_valid", "Boolean", "output", True, "All enabled channels' inputs finite")
 
     def _declare_dtg_diagnosis(self) -> None:
@@ -452,13 +502,48 @@ class Diagnoser(FacadeBase):
             p(f"df.x0[{i + 1}]", "Real", "parameter", 0.0,
               f"Initial estimate of state {SEED.state_names[i]}")
             _meta(f"df.x0[{i + 1}]", SEED.state_units[i])
+        p("df.decision", "Integer", "parameter", 1,
+          "Decision rule: 0 paper (k-sigma per sample, k-of-n, latched, observer-bank "
+          "isolation), 1 sequential (whitened residual, CUSUM for df.false_alarm_rate, "
+          "isolation of one or two sensors, fault typing, episodes)")
+        _meta("df.decision", None, 0, 1)
+        p("df.false_alarm_rate", "Real", "parameter", 1e-3,
+          "Sequential: design false-alarm rate of the detection (per hour)")
+        _meta("df.false_alarm_rate", "1/h", 1e-9, 3600.0)
+        p("df.cusum_k", "Real", "parameter", 0.5,
+          "Sequential: CUSUM reference in sigma of the whitened residual (optimal for "
+          "mean shifts of 2k)")
+        _meta("df.cusum_k", "1", 0.05, 5.0)
+        p("df.variance_ratio", "Real", "parameter", 4.0,
+          "Sequential: variance increase the variance CUSUMs are designed for (> 1)")
+        _meta("df.variance_ratio", "1", 1.0 + 1e-9, 1e6)
+        p("df.max_faults", "Integer", "parameter", 2,
+          "Sequential: simultaneously faulty sensors to isolate (1 or 2)")
+        _meta("df.max_faults", None, 1, 2)
+        p("df.history_s", "Real", "parameter", 4.0,
+          "Sequential: samples kept to start the isolation before a change")
+        _meta("df.history_s", "s", POSITIVE, 600.0)
+        p("df.memory_s", "Real", "parameter", 10.0,
+          "Sequential: the isolation keeps running this long after a fault episode")
+        _meta("df.memory_s", "s", 0.0)
+        p("df.input_delay_samples", "Integer", "parameter", 0,
+          "Alignment: y(k) is paired with u(k - d) (d < 0: with a later u, outputs then "
+          "describe the sample |d| steps back); the chosen one if df.align_auto")
+        _meta("df.input_delay_samples", None, -50, 50)
+        p("df.align_auto", "Boolean", "parameter", True,
+          "Choose the alignment on the calibration window (least residual variance over "
+          "d in [-df.align_max, df.align_max]); the master's coupling order needs no setting")
+        p("df.align_max", "Integer", "parameter", 2, "Largest |d| tried by df.align_auto")
+        _meta("df.align_max", None, 0, 50)
         p("df.calibrate_s", "Real", "parameter", 10.0,
-          "Fault-free calibration window for the thresholds; 0: use df.threshold[i]")
+          "Fault-free calibration window for the alignment, noise and thresholds; 0: "
+          "none (paper rule: df.threshold[i]; sequential rule: df.noise_std[i])")
         _meta("df.calibrate_s", "s", 0.0)
         p("df.burn_in_s", "Real", "parameter", 2.0,
           "Start of the calibration window ignored (observer convergence)")
         _meta("df.burn_in_s", "s", 0.0)
-        p("df.k_sigma", "Real", "parameter", 6.0, "Thresholds at k standard deviations")
+        p("df.k_sigma", "Real", "parameter", 6.0,
+          "Paper rule: thresholds at k standard deviations")
         _meta("df.k_sigma", "1", POSITIVE)
         for i in range(DF_M):
             unit = SEED.output_units[i]
@@ -467,7 +552,8 @@ class Diagnoser(FacadeBase):
               "(used when df.calibrate_s = 0)")
             _meta(f"df.threshold[{i + 1}]", unit, POSITIVE)
             p(f"df.noise_std[{i + 1}]", "Real", "parameter", -1.0,
-              f"Noise std of sensor {SEED.output_names[i]}; < 0: threshold / k_sigma")
+              f"Noise std of sensor {SEED.output_names[i]}; < 0 on any sensor: learned "
+              "from the calibration window (paper rule without one: threshold / k_sigma)")
             _meta(f"df.noise_std[{i + 1}]", unit)
             used = [k for k in range(DF_M) if k != i]
             for j in range(DF_M - 1):
@@ -496,22 +582,63 @@ class Diagnoser(FacadeBase):
             p(f"df.alarm[{i + 1}]", "Boolean", "output", False,
               f"Residual alarm of sensor {SEED.output_names[i]}")
             p(f"df.threshold_in_use[{i + 1}]", "Real", "output", 0.0,
-              f"Residual threshold in use for sensor {SEED.output_names[i]} "
-              "(learned or given; 0 while calibrating)")
+              f"Paper rule: residual threshold in use for sensor {SEED.output_names[i]} "
+              "(learned or given); 0 while calibrating and with the sequential rule")
             _meta(f"df.threshold_in_use[{i + 1}]", SEED.output_units[i])
-        p("df.calibrating", "Boolean", "output", False, "Thresholds still being learned")
-        p("df.detected", "Boolean", "output", False, "Sensor fault detected (latched)")
+            p(f"df.statistic[{i + 1}]", "Real", "output", 0.0,
+              f"Alarm statistic of sensor {SEED.output_names[i]} in units of its "
+              "threshold (alarm at 1): largest CUSUM / threshold (sequential), "
+              "|residual| / threshold (paper)")
+            _meta(f"df.statistic[{i + 1}]", "1", 0.0)
+            p(f"df.noise_std_in_use[{i + 1}]", "Real", "output", 0.0,
+              f"Noise std of sensor {SEED.output_names[i]} in use (given or learned); 0 "
+              "while calibrating")
+            _meta(f"df.noise_std_in_use[{i + 1}]", SEED.output_units[i], 0.0)
+            p(f"df.sensor_fault_type[{i + 1}]", "Integer", "output", 0,
+              f"Fault type of sensor {SEED.output_names[i]} (codes of df.fault_type; 0 "
+              "when not isolated)")
+            unit = SEED.output_units[i]
+            p(f"df.fault_offset[{i + 1}]", "Real", "output", 0.0,
+              f"Sensor {SEED.output_names[i]}: bias, intermittent amplitude or stuck value "
+              "(0 for a failure or another type)")
+            _meta(f"df.fault_offset[{i + 1}]", unit)
+            p(f"df.fault_gain[{i + 1}]", "Real", "output", 1.0,
+              f"Sensor {SEED.output_names[i]}: gain factor of a gain fault (1 otherwise)")
+            _meta(f"df.fault_gain[{i + 1}]", "1")
+            p(f"df.fault_rate[{i + 1}]", "Real", "output", 0.0,
+              f"Sensor {SEED.output_names[i]}: drift rate of a ramp fault (0 otherwise)")
+            _meta(f"df.fault_rate[{i + 1}]", f"{unit}/s" if unit != "m/s" else "m/s2")
+            p(f"df.noise_ratio[{i + 1}]", "Real", "output", 1.0,
+              f"Sensor {SEED.output_names[i]}: noise std over nominal of a noise-increase "
+              "fault (1 otherwise)")
+            _meta(f"df.noise_ratio[{i + 1}]", "1")
+        p("df.calibrating", "Boolean", "output", False,
+          "Calibration window still being recorded")
+        p("df.detected", "Boolean", "output", False,
+          "Sensor fault detected: latched (paper rule); a fault episode in progress, "
+          "cleared when the fault clears (sequential rule)")
+        p("df.episodes", "Integer", "output", 0, "Fault episodes since the start")
         p("df.isolated_sensor", "Integer", "output", 0,
-          "1-based index of the isolated sensor; 0 none; -1 detected, not isolated")
+          "1-based index of the isolated sensor (the current or, between episodes, the "
+          "last diagnosis); 0 none; -1 detected, not isolated; -2 several sensors "
+          "(df.isolated_mask says which, 0 if they cannot be told apart)")
+        p("df.isolated_mask", "Integer", "output", 0,
+          "Bit i-1 set for each isolated sensor i (e.g. 6: sensors 2 and 3)")
         p("df.fault_type", "Integer", "output", 0,
-          "-1 unknown, 0 none, 1 bias, 2 gain, 3 stuck, 4 complete failure")
+          "-1 unknown, 0 none, 1 bias, 2 gain, 3 stuck, 4 complete failure, 5 noise "
+          "increase, 6 ramp, 7 intermittent (of the isolated sensor; two sensors: their "
+          "common type, else -1)")
         p("df.fault_magnitude", "Real", "output", 0.0,
-          "Bias or stuck value (in the isolated sensor's unit), gain factor, or 0; declared "
-          "dimensionless because its unit follows the isolated sensor; 0 while "
-          "df.fault_magnitude_valid is false")
+          "Size of the isolated sensor's fault in the unit of its type: bias / stuck "
+          "value / intermittent amplitude (sensor units), gain factor, ramp rate (per s), "
+          "noise std ratio; declared dimensionless because its unit follows the isolated "
+          "sensor and type; 0 for a failure or when df.fault_magnitude_valid is false. The "
+          "per-sensor outputs df.fault_offset/gain/rate, df.noise_ratio carry units")
         _meta("df.fault_magnitude", "1")
         p("df.fault_magnitude_valid", "Boolean", "output", False,
           "df.fault_magnitude holds an estimate (a fault of known type is isolated)")
+        p("df.input_delay_in_use", "Integer", "output", 0,
+          "Alignment d in use (chosen on the calibration window with df.align_auto)")
         p("df.valid", "Boolean", "output", True, "Last u, y sample was finite")
 
     def _df_config(self, period: float) -> DFChannelConfig:
@@ -527,9 +654,13 @@ class Diagnoser(FacadeBase):
             return np.array([float(v[f"df.{name}[{i + 1}]"]) for i in range(size)])
 
         noise = vector("noise_std", DF_M)
+        decision = _named_int(v, "df.decision")
+        if decision not in (0, 1):
+            raise ValueError(f"df.decision must be 0 (paper) or 1 (sequential), got {decision}")
         return DFChannelConfig(
             A=matrix("A", DF_N, DF_N), B=matrix("B", DF_N, DF_P), C=matrix("C", DF_M, DF_N),
             eigenvalues=vector("eigenvalue", DF_N), sample_period_s=period,
+            decision=("paper", "sequential")[decision],
             calibrate_s=float(v["df.calibrate_s"]), burn_in_s=float(v["df.burn_in_s"]),
             k_sigma=float(v["df.k_sigma"]), main_thresholds=vector("threshold", DF_M),
             bank_thresholds=matrix("bank_threshold", DF_M, DF_M - 1),
@@ -537,6 +668,12 @@ class Diagnoser(FacadeBase):
             persistence_k=_named_int(v, "df.persistence_k"),
             persistence_n=_named_int(v, "df.persistence_n"),
             confirm_samples=_named_int(v, "df.confirm_samples"),
+            false_alarms_per_h=float(v["df.false_alarm_rate"]),
+            cusum_k=float(v["df.cusum_k"]), variance_ratio=float(v["df.variance_ratio"]),
+            max_faults=_named_int(v, "df.max_faults"),
+            history_s=float(v["df.history_s"]), memory_s=float(v["df.memory_s"]),
+            input_delay_samples=_named_int(v, "df.input_delay_samples"),
+            align_auto=bool(v["df.align_auto"]), align_max=_named_int(v, "df.align_max"),
             x0=vector("x0", DF_N),
         )
 
@@ -546,22 +683,44 @@ class Diagnoser(FacadeBase):
             v[key] = float(value)
         for key, value in zip(_DF_ALARM_KEYS, _as_list(out.alarms), strict=True):
             v[key] = bool(value)
-        assert self._df is not None
-        thresholds = self._df.thresholds
-        if thresholds is None:
-            for key in _DF_THRESHOLD_KEYS:
-                v[key] = 0.0
-        else:
-            for key, value in zip(_DF_THRESHOLD_KEYS, _as_list(thresholds[0]), strict=True):
-                v[key] = float(value)
+        for key, value in zip(_DF_STATISTIC_KEYS, _as_list(out.statistic), strict=True):
+            v[key] = float(value)
         v["df.calibrating"] = bool(out.calibrating)
         v["df.detected"] = bool(out.detected)
+        v["df.episodes"] = int(out.episodes)
         v["df.isolated_sensor"] = int(out.isolated_sensor)
+        v["df.isolated_mask"] = int(out.isolated_mask)
         v["df.fault_type"] = int(out.fault_type)
-        magnitude_valid = math.isfinite(out.magnitude) and out.isolated_sensor > 0
+        magnitude_valid = bool(out.magnitude_valid) and math.isfinite(out.magnitude)
         v["df.fault_magnitude"] = float(out.magnitude) if magnitude_valid else 0.0
         v["df.fault_magnitude_valid"] = magnitude_valid
+        v["df.input_delay_in_use"] = int(out.input_delay)
         v["df.valid"] = bool(out.valid)
+        # the diagnosis and the calibration results change rarely: copy them on change
+        # (the channel hands over the same arrays while they do not change)
+        prev = self._df_copied
+        if (prev is not None and prev[0] == out.calibrating
+                and prev[1] is out.sensor_fault_type and prev[2] is out.sensor_magnitude):
+            return
+        self._df_copied = (out.calibrating, out.sensor_fault_type, out.sensor_magnitude)
+        assert self._df is not None
+        thresholds = self._df.thresholds
+        for k, value in zip(_DF_THRESHOLD_KEYS, [0.0] * DF_M if thresholds is None
+                            else _as_list(thresholds[0]), strict=True):
+            v[k] = float(value)
+        noise = self._df.noise_std
+        for k, value in zip(_DF_NOISE_STD_KEYS, [0.0] * DF_M if noise is None
+                            else _as_list(noise), strict=True):
+            v[k] = float(value)
+        types = _as_list(out.sensor_fault_type)
+        sizes = _as_list(out.sensor_magnitude)
+        for i in range(DF_M):
+            kind, size = int(types[i]), float(sizes[i])
+            v[_DF_SENSOR_TYPE_KEYS[i]] = kind
+            v[_DF_OFFSET_KEYS[i]] = size if kind in _OFFSET_TYPES else 0.0
+            v[_DF_GAIN_KEYS[i]] = size if kind in _GAIN_TYPES and size != 0.0 else 1.0
+            v[_DF_RATE_KEYS[i]] = size if kind in _RATE_TYPES else 0.0
+            v[_DF_NOISE_RATIO_KEYS[i]] = size if kind in _NOISE_TYPES and size else 1.0
 
     # ------------------------------------------------------------------ lifecycle
     def setup_experiment(self, start_time: float, stop_time: float | None = None,
@@ -598,6 +757,7 @@ class Diagnoser(FacadeBase):
             raise ValueError("; ".join(errors))
         period = float(v["sample_period_s"])
         self._dtg = self._grey = self._df = None
+        self._df_copied = None
         with _channel_context("dtg"):
             self._dtg = DTGChannel(self._dtg_config(period)) if v["dtg.enabled"] else None
         with _channel_context("grey"):
@@ -774,12 +934,34 @@ class Diagnoser(FacadeBase):
                 raise ValueError("grey.window = 0 (whole record) is only available for the "
                                  "classic model (grey.model = 0); the improved model needs "
                                  "a moving window >= 4")
-            predictor = ImprovedGreyPredictor(window, a_min=float(v["grey.a_min"]))
+            predictor = ImprovedGreyPredictor(
+                window, a_min=float(v["grey.a_min"]),
+                residual_order=_named_int(v, "grey.residual_order"))
         else:
             raise ValueError(f"grey.model must be 0 (classic) or 1 (improved), got {model}")
         clear = float(v["grey.clear_after_s"])
+        calibrate_s = float(v["grey.calibrate_s"])
+        if not (math.isfinite(calibrate_s) and calibrate_s >= 0.0):
+            raise ValueError(f"grey.calibrate_s must be >= 0 s, got {calibrate_s!r}")
+        calibrate = round(calibrate_s / period)
+        candidates: list[Any] = []
+        if bool(v["grey.auto_order"]):
+            if model != 1 or not calibrate:
+                raise ValueError("grey.auto_order needs the improved model (grey.model = "
+                                 "1) and a calibration window (grey.calibrate_s > 0)")
+            candidates = [ImprovedGreyPredictor(window, a_min=float(v["grey.a_min"]),
+                                                residual_order=order)
+                          for order in (1, 0) if order != int(v["grey.residual_order"])]
+        if calibrate and calibrate < 10:
+            raise ValueError(f"grey.calibrate_s must hold at least 10 samples "
+                             f"({10 * period:g} s), got {calibrate_s!r}")
         return GreyFaultDetector(
-            predictor, float(v["grey.threshold"]), period, None if clear <= 0 else clear
+            predictor, float(v["grey.threshold"]), period, None if clear <= 0 else clear,
+            calibrate_samples=calibrate, k_sigma=float(v["grey.k_sigma"]),
+            sequential=bool(v["grey.sequential"]) and calibrate > 0,
+            false_alarms_per_h=float(v["grey.false_alarm_rate"]),
+            cusum_k=float(v["grey.cusum_k"]), suspicion_sigma=float(v["grey.suspicion_sigma"]),
+            candidates=candidates,
         )
 
     def reset(self) -> None:  # pythonfmu re-creates the instance on fmi2Reset
@@ -850,6 +1032,10 @@ class Diagnoser(FacadeBase):
             v["grey.prediction_valid"] = prediction_valid
             v["grey.alarm"] = g.alarm
             v["grey.valid"] = g.valid
+            v["grey.calibrating"] = g.calibrating
+            v["grey.statistic"] = g.statistic
+            sigma = self._grey.sigma
+            v["grey.sigma"] = sigma if sigma == sigma else 0.0
             valid &= g.valid
             if g.alarm:
                 codes.append(SUMMARY_CODE_BASE["grey"])
@@ -862,7 +1048,8 @@ class Diagnoser(FacadeBase):
             valid &= df_out.valid
             if df_out.alarm:
                 iso = df_out.isolated_sensor
-                codes.append(SUMMARY_CODE_BASE["df"] + (iso if iso > 0 else -1))
+                codes.append(SUMMARY_CODE_BASE["df"] + (iso if iso > 0 else (
+                    DF_MULTIPLE if iso == DF_MULTIPLE else DF_NOT_ISOLATED)))
         v["any_alarm"] = bool(codes)
         v["fault_code"] = codes[0] if codes else 0
         v["inputs_valid"] = bool(valid)
@@ -985,7 +1172,10 @@ _PARAMETER_NAMES: dict[str, dict[str, str]] = {
     },
     "grey": {
         "window": "grey.window", "threshold": "grey.threshold", "a_min": "grey.a_min",
-        "clear_after_s": "grey.clear_after_s",
+        "clear_after_s": "grey.clear_after_s", "residual_order": "grey.residual_order",
+        "k_sigma": "grey.k_sigma", "false_alarms_per_h": "grey.false_alarm_rate",
+        "cusum_k": "grey.cusum_k", "suspicion_sigma": "grey.suspicion_sigma",
+        "calibrate_samples": "grey.calibrate_s",
     },
     "df": {
         "eigenvalues": "df.eigenvalue[1..5]", "calibrate_s": "df.calibrate_s",
@@ -993,7 +1183,12 @@ _PARAMETER_NAMES: dict[str, dict[str, str]] = {
         "main_thresholds": "df.threshold[1..6]", "bank_thresholds": "df.bank_threshold[i,j]",
         "noise_std": "df.noise_std[1..6]", "persistence_k": "df.persistence_k",
         "persistence_n": "df.persistence_n", "confirm_samples": "df.confirm_samples",
-        "x0": "df.x0[1..5]",
+        "x0": "df.x0[1..5]", "decision": "df.decision",
+        "false_alarms_per_h": "df.false_alarm_rate", "cusum_k": "df.cusum_k",
+        "variance_ratio": "df.variance_ratio", "max_faults": "df.max_faults",
+        "history_s": "df.history_s", "memory_s": "df.memory_s",
+        "input_delay_samples": "df.input_delay_samples", "align_auto": "df.align_auto",
+        "align_max": "df.align_max",
     },
 }
 

@@ -97,7 +97,7 @@ def bad_bytes(inst: Instance, good: bytes, foreign: bytes) -> dict[str, bytes]:
         internal = broken["payload"]["internal"]["__dict__"]
         for pair in internal:
             if pair[0] == "df":
-                pair[1]["__dict__"] = [kv for kv in pair[1]["__dict__"] if kv[0] != "iso"]
+                pair[1]["__dict__"] = [kv for kv in pair[1]["__dict__"] if kv[0] != "monitor"]
         cases["forged_broken_channel_state"] = frame(guid, json.dumps(broken).encode())
     return cases
 

@@ -258,6 +258,8 @@ def _grey_columns(det, y, times) -> dict[str, np.ndarray]:
         "grey.prediction_valid": np.isfinite(prediction).astype(float),
         "grey.alarm": np.array([o.alarm for o in outs], dtype=float),
         "grey.valid": np.array([o.valid for o in outs], dtype=float),
+        "grey.calibrating": np.array([o.calibrating for o in outs], dtype=float),
+        "grey.statistic": np.array([o.statistic for o in outs], dtype=float),
     }
 
 
@@ -271,11 +273,18 @@ def _df_columns(ch: DFChannel, u, y) -> dict[str, np.ndarray]:
     cols = {f"df.residual[{i + 1}]": np.array([o.residual[i] for o in outs]) for i in range(6)}
     cols.update({f"df.alarm[{i + 1}]": np.array([o.alarms[i] for o in outs], dtype=float)
                  for i in range(6)})
+    cols.update({f"df.statistic[{i + 1}]": np.array([o.statistic[i] for o in outs])
+                 for i in range(6)})
+    cols.update({f"df.sensor_fault_type[{i + 1}]": np.array(
+        [o.sensor_fault_type[i] for o in outs], dtype=float) for i in range(6)})
     for name, attr in (("calibrating", "calibrating"), ("detected", "detected"),
                        ("isolated_sensor", "isolated_sensor"), ("fault_type", "fault_type"),
-                       ("fault_magnitude", "magnitude"), ("valid", "valid")):
+                       ("fault_magnitude", "magnitude"), ("valid", "valid"),
+                       ("episodes", "episodes"), ("isolated_mask", "isolated_mask"),
+                       ("fault_magnitude_valid", "magnitude_valid"),
+                       ("input_delay_in_use", "input_delay")):
         cols[f"df.{name}"] = np.array([getattr(o, attr) for o in outs], dtype=float)
-    known = np.isfinite(cols["df.fault_magnitude"]) & (cols["df.isolated_sensor"] > 0)
+    known = np.isfinite(cols["df.fault_magnitude"]) & (cols["df.fault_magnitude_valid"] > 0)
     cols["df.fault_magnitude"] = np.where(known, cols["df.fault_magnitude"], 0.0)
     cols["df.fault_magnitude_valid"] = known.astype(float)
     return cols
@@ -296,7 +305,7 @@ def _summary(cols: dict[str, np.ndarray], n: int) -> dict[str, np.ndarray]:
         elif grey_alarm[k]:
             code[k] = 200
         elif df_alarm[k]:
-            code[k] = 300 + (iso[k] if iso[k] > 0 else -1)
+            code[k] = 300 + (iso[k] if iso[k] > 0 else (-2 if iso[k] == -2 else -1))
     return {"any_alarm": (dtg_alarm | grey_alarm | df_alarm).astype(float), "fault_code": code}
 
 

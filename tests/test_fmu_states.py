@@ -36,7 +36,7 @@ EXPECTED: dict[str, tuple[str, tuple[str, ...]]] = {
     "forged_bad_json": ("set", ("truncated or corrupt", "JSONDecodeError")),
     "forged_missing_variable": ("set", ("does not fit this instance", "missing")),
     "forged_other_format": ("set", ("foreign FMU state (format 'x/9'",)),
-    "forged_broken_channel_state": ("set", ("does not fit this instance", "'iso'")),
+    "forged_broken_channel_state": ("set", ("does not fit this instance", "'monitor'")),
     "pointer_of_other_fmu": ("set", ("foreign FMU state", "not a live state of this FMU")),
     "freed_pointer": ("set", ("foreign FMU state", "not a live state of this FMU")),
     "null_pointer": ("set", ("the FMU state is NULL",)),

@@ -28,22 +28,29 @@ skips every id that has a record (``--retry-failed`` re-runs the failed ones).
 What a run records
 ------------------
 Not the signals: a small record (:func:`simulate_run`) with, for the channel's alarm
-``A(t)`` (detection filter: any main-residual alarm ``diag.df.alarm[i]``, k-of-n,
-unlatched; DTG: ``diag.dtg.alarm``):
+``A(t)`` (detection filter with the paper's rule, ``df.decision = 0``: any main-residual
+alarm ``diag.df.alarm[i]``, k-of-n, unlatched; with the sequential rule (the default):
+``diag.df.detected``, a fault episode; DTG: ``diag.dtg.alarm``):
 
 * ``detected`` / ``delay_s``: ``A`` on at some sample at or after the onset, delay from
   the onset to the first such sample;
 * ``false_alarms`` / ``fault_free_s``: rising edges of ``A`` in the fault-free time from
   the end of calibration (DF) or learning (DTG) to the onset (the whole run if nominal);
-* ``diagnosed``: isolated sensor (``diag.df.isolated_sensor``) or DTG fault code at the
-  end of the run, and ``injected``, what it should be;
+* ``diagnosed``: isolated sensor (``diag.df.isolated_sensor``; several isolated sensors
+  joined by "+", e.g. "alpha+q", from ``diag.df.isolated_mask``) or DTG fault code at the
+  end of the run, and ``injected``, what it should be (a sweep's ``also`` faults make it
+  a pair); sequential DF also ``typed`` (fault type at the end), ``expected_type``,
+  ``size``, ``episodes`` and ``input_delay`` (the alignment it chose);
 * the threshold sweep: the alarm statistic ``s(t)`` in threshold units is rebuilt from the
   recorded outputs, so that ``A_T(t) = s(t) > T`` reproduces the alarm at any threshold
   ``T``, and detection, delay and false alarms are evaluated on the class's threshold
   grid.  DF: ``s(t) = max_i kth_largest(|r_i - mu_i| / sigma_i over the last n
   samples)`` with ``mu_i``, ``sigma_i`` (ddof 1) re-estimated from the recorded main
   residuals over the calibration window after the burn-in, exactly as the channel does;
-  ``T`` is in standard deviations (the FMU uses ``df.k_sigma``).  DTG: ``s(t) =
+  ``T`` is in standard deviations (the FMU uses ``df.k_sigma``); sequential DF: the
+  recorded ``diag.df.statistic[i]`` (CUSUM over its threshold, capped at 1), so only
+  ``T <= 1`` is meaningful and the alarm ``df.detected`` (episode logic) differs from
+  ``s > 1`` after the first alarm (``sweep_mismatch`` shows how much).  DTG: ``s(t) =
   max |eta - 1|`` over the monitored ratios of both axes after learning; ``T`` is the
   half-width of a band symmetric about 1 (the paper's 0.5/1.5 is ``T = 0.5``).
   ``sweep_mismatch`` is the fraction of samples where ``s > T_config`` disagrees with the
@@ -145,6 +152,10 @@ class Sweep(_Strict):
     #: these magnitudes (e.g. a DTG signal loss that leaves more noise than the signal
     #: had is a noise fault for every statistic: ``accept = ["utx_noise"]``).
     accept: list[str] = Field(default_factory=list)
+    #: Further faults from the same onset in every run of the sweep (two faulty sensors at
+    #: once): injector fault tables without ``name``/``injector``/``start_s``, e.g.
+    #: ``{ channel = 2, type = "bias", magnitude = 0.005 }``.
+    also: list[dict[str, float | int | str]] = Field(default_factory=list)
 
     model_config = ConfigDict(extra="forbid", populate_by_name=True)
 
@@ -159,6 +170,9 @@ class Sweep(_Strict):
         if needs is not None and not has_mag:
             raise ValueError(f"magnitudes: fault type {self.type!r} needs magnitudes "
                              f"(they set its {needs!r})")
+        for i, other in enumerate(self.also):
+            if other.get("type") not in FAULT_TYPE_PARAMETERS or "channel" not in other:
+                raise ValueError(f"also[{i}]: needs a known 'type' and a 'channel'")
         return self
 
 
@@ -247,6 +261,7 @@ class RunSpec(_Strict):
     target: int | None = None          # injector channel
     injected: str | None = None        # diagnosis that counts as right
     accepted: list[str] = Field(default_factory=list)  # also right (merged classes)
+    also: list[dict[str, Any]] = Field(default_factory=list)  # further simultaneous faults
     thresholds: list[float]
     fmu_dir: str | None = None
     results_dir: str | None = None
@@ -283,6 +298,8 @@ def expand_runs(spec: CampaignSpec, base_dir: Path, out_dir: Path | None = None)
         ident = {"class": cls_name, "scenario": os.path.relpath(scenario, base_dir),
                  "kind": kind, "duration_s": duration, "fault": fault,
                  "replicate": replicate, "base_seed": spec.base_seed}
+        if meta.get("also"):
+            ident["also"] = meta["also"]
         seed = _seed(spec.base_seed, json.dumps(ident, sort_keys=True))
         thresholds = list(c.thresholds or DEFAULT_THRESHOLDS[c.channel])
         ident.update(seed_parameters=c.seed_parameters, thresholds=thresholds,
@@ -308,9 +325,13 @@ def expand_runs(spec: CampaignSpec, base_dir: Path, out_dir: Path | None = None)
                         fault[MAGNITUDE_PARAMETER[sw.type]] = mag
                     duration = (onset + sw.post_onset_s if sw.post_onset_s is not None
                                 else sw.duration_s or _base_duration(base_dir / c.scenario))
+                    also = [{"name": f"campaign_fault_{j + 2}", "injector": c.injector,
+                             "start_s": onset, **other} for j, other in enumerate(sw.also)]
                     if c.channel == "df":
-                        injected = (AIRCRAFT_SENSORS[ch - 1] if ch <= len(AIRCRAFT_SENSORS)
-                                    else str(ch))
+                        chans = sorted({ch, *(int(o["channel"]) for o in sw.also)})
+                        injected = "+".join(AIRCRAFT_SENSORS[k - 1]
+                                            if k <= len(AIRCRAFT_SENSORS) else str(k)
+                                            for k in chans)
                     else:
                         injected = sw.label or sw.type
                     for r in range(sw.seeds):
@@ -318,7 +339,7 @@ def expand_runs(spec: CampaignSpec, base_dir: Path, out_dir: Path | None = None)
                                          fault_type=sw.label or sw.type,
                                          magnitude=None if math.isnan(mag) else mag,
                                          onset_s=onset, target=ch, injected=injected,
-                                         accepted=list(sw.accept)))
+                                         accepted=list(sw.accept), also=also))
     for nom in spec.nominal:
         for r in range(nom.runs):
             runs.append(make(nom.cls, "nominal", nom.duration_s, str(r), None))
@@ -340,7 +361,10 @@ def _signals(run: RunSpec) -> list[str]:
     if run.channel == "df":
         return ([f"{d}.df.residual[{i}]" for i in range(1, 7)]
                 + [f"{d}.df.alarm[{i}]" for i in range(1, 7)]
-                + [f"{d}.df.detected", f"{d}.df.isolated_sensor", f"{d}.df.calibrating"])
+                + [f"{d}.df.statistic[{i}]" for i in range(1, 7)]
+                + [f"{d}.df.detected", f"{d}.df.isolated_sensor", f"{d}.df.calibrating",
+                   f"{d}.df.isolated_mask", f"{d}.df.fault_type", f"{d}.df.fault_magnitude",
+                   f"{d}.df.episodes", f"{d}.df.input_delay_in_use"])
     return ([f"{d}.dtg.eta_{ax}[{i}]" for ax in "xy" for i in range(1, 6)]
             + [f"{d}.dtg.alarm", f"{d}.dtg.learning", f"{d}.dtg.fault_code",
                f"{d}.dtg.fault_axis", f"{d}.dtg.reference_status"]
@@ -357,7 +381,7 @@ def build_scenario(run: RunSpec) -> Any:
     data = tomllib.loads(path.read_text(encoding="utf-8"))
     data["name"] = run.run_id
     data["duration_s"] = run.duration_s
-    data["faults"] = [run.fault] if run.fault is not None else []
+    data["faults"] = ([run.fault, *run.also] if run.fault is not None else [])
     data["expect"] = []
     data["record"] = {"variables": _signals(run)}
     data.pop("training", None)
@@ -391,6 +415,16 @@ def alarm_statistic(run: RunSpec, scenario: Any, t: np.ndarray,
     which the channel judges (end of calibration / learning) and its configured
     threshold."""
     d = run.diagnoser
+    if run.channel == "df" and _df_sequential(scenario, d):
+        # the channel's own statistic: the largest CUSUM per sensor over its threshold
+        # (capped at 1), so thresholds T <= 1 of the sweep are exact up to the first
+        # alarm; the alarm itself is df.detected (an episode, cleared when the fault is)
+        stat = np.column_stack([sig[f"{d}.df.statistic[{i}]"] for i in range(1, 7)])
+        ready = np.flatnonzero(sig[f"{d}.df.calibrating"] < 0.5)
+        ready = ready[ready > 0]
+        t_ready = float(t[ready[0]]) if ready.size else float(t[-1])
+        s = np.where(t >= t_ready, stat.max(axis=1), 0.0)
+        return s, t_ready, 1.0
     if run.channel == "df":
         period = float(_param(scenario, d, "sample_period_s", scenario.step_s))
         cal_s = float(_param(scenario, d, "df.calibrate_s", 10.0))
@@ -455,6 +489,19 @@ def _pattern_statistic(scenario: Any, d: str, t: np.ndarray, sig: dict[str, np.n
     ready = np.flatnonzero(ready_mask)
     t_ready = float(t[ready[0]]) if ready.size else float(t[-1])
     return s, t_ready, 1.0
+def _df_sequential(scenario: Any, diagnoser: str) -> bool:
+    """The detection-filter channel decides sequentially (``df.decision`` = 1, the
+    default) rather than by the paper's rule (0)."""
+    return int(_param(scenario, diagnoser, "df.decision", 1)) == 1
+
+
+#: Fault type name the detection filter should report, per injector fault type.
+EXPECTED_DF_TYPE = {"bias": "bias", "step": "bias", "gain": "gain", "stuck_last": "stuck",
+                    "stuck_value": "stuck", "failure": "failure", "noise": "noise",
+                    "ramp": "ramp", "intermittent": "intermittent"}
+#: df.fault_type codes.
+DF_TYPE_NAMES = {-1: "unknown", 0: "none", 1: "bias", 2: "gain", 3: "stuck", 4: "failure",
+                 5: "noise", 6: "ramp", 7: "intermittent"}
 
 
 def _rising_edges(on: np.ndarray) -> np.ndarray:
@@ -516,14 +563,32 @@ def simulate_run(run_dict: dict[str, Any]) -> dict[str, Any]:
     if result.error is not None:
         raise RuntimeError(f"co-simulation failed: {result.error}")
     t, sig, d = result.time, result.signals, run.diagnoser
+    extra: dict[str, Any] = {}
     if run.channel == "df":
-        alarm = np.any(np.column_stack([sig[f"{d}.df.alarm[{i}]"] > 0.5
-                                        for i in range(1, 7)]), axis=1)
+        sequential = _df_sequential(scenario, d)
+        if sequential:
+            alarm = sig[f"{d}.df.detected"] > 0.5
+        else:
+            alarm = np.any(np.column_stack([sig[f"{d}.df.alarm[{i}]"] > 0.5
+                                            for i in range(1, 7)]), axis=1)
         diagnosed_value = int(np.rint(sig[f"{d}.df.isolated_sensor"][-1]))
-        diagnosed = (AIRCRAFT_SENSORS[diagnosed_value - 1]
-                     if 1 <= diagnosed_value <= len(AIRCRAFT_SENSORS)
-                     else {0: "none", -1: "not isolated"}.get(diagnosed_value,
-                                                              str(diagnosed_value)))
+        mask = int(np.rint(sig[f"{d}.df.isolated_mask"][-1]))
+        if 1 <= diagnosed_value <= len(AIRCRAFT_SENSORS):
+            diagnosed = AIRCRAFT_SENSORS[diagnosed_value - 1]
+        elif diagnosed_value == -2:
+            diagnosed = ("+".join(name for k, name in enumerate(AIRCRAFT_SENSORS)
+                                  if mask >> k & 1) or "multiple")
+        else:
+            diagnosed = {0: "none", -1: "not isolated"}.get(diagnosed_value,
+                                                             str(diagnosed_value))
+        if sequential:
+            code = int(np.rint(sig[f"{d}.df.fault_type"][-1]))
+            extra = {"typed": DF_TYPE_NAMES.get(code, str(code)),
+                     "expected_type": (EXPECTED_DF_TYPE.get(run.fault_type or "")
+                                       if not run.also else None),
+                     "size": float(sig[f"{d}.df.fault_magnitude"][-1]),
+                     "episodes": int(np.rint(sig[f"{d}.df.episodes"][-1])),
+                     "input_delay": int(np.rint(sig[f"{d}.df.input_delay_in_use"][-1]))}
     else:
         alarm = sig[f"{d}.dtg.alarm"] > 0.5
         code = int(np.rint(sig[f"{d}.dtg.fault_code"][-1]))

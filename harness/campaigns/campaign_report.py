@@ -123,6 +123,10 @@ def summarize(records: list[dict[str, Any]], n_planned: int | None = None) -> di
         axes = [_axis_right(r) for r in rs]
         if all(a is not None for a in axes):
             row["axis_right"] = sum(bool(a) for a in axes)
+        typed = [r for r in rs if r.get("expected_type")]
+        if typed:  # channels that type the fault (sequential detection filter)
+            row["typed"] = sum(r.get("typed") == r["expected_type"] for r in typed)
+            row["n_typed"] = len(typed)
         detection.append(row)
 
     false_alarms: dict[str, dict[str, Any]] = {}
@@ -340,10 +344,11 @@ def markdown_summary(summary: dict[str, Any], title: str = "campaign") -> str:
     lines += _md_table(["channel", "false alarms / h (95 % upper)", "detected",
                         "delay median / p95 / max, s", "isolated right"], rows)
     lines += _md_table(["class", "fault", "magnitude", "detected", "isolated right",
-                        "axis right"],
+                        "axis right", "typed right"],
                        [[r["class"], r["fault_type"], r["magnitude"],
                          f"{r['detected']} of {r['n']}", f"{r.get('isolated', '–')} of {r['n']}",
-                         f"{r['axis_right']} of {r['n']}" if "axis_right" in r else "–"]
+                         f"{r['axis_right']} of {r['n']}" if "axis_right" in r else "–",
+                         f"{r['typed']} of {r['n_typed']}" if "typed" in r else "–"]
                         for r in summary["detection"]])
     for key, sw in summary["threshold_sweep"].items():
         lines.append(f"Threshold sweep, {key} (configured {sw['configured_threshold']}):")
