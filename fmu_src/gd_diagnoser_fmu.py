@@ -92,7 +92,9 @@ POSITIVE = 1e-9
 #: (the channel is rebuilt with the new value and takes over the old one's state).
 TUNABLE = {
     "dtg": ("dtg.low", "dtg.high", "dtg.persistence_k", "dtg.latch", "dtg.max_distance",
-            *(f"dtg.monitored[{i}]" for i in range(1, N_THETA + 1))),
+            *(f"dtg.monitored[{i}]" for i in range(1, N_THETA + 1)),
+            # the pattern classifier's residual tests (the monitor is rebuilt with them)
+            "dtg.level_threshold", "dtg.var_threshold", "dtg.long_var_threshold"),
     "grey": ("grey.threshold", "grey.clear_after_s"),
 }
 _TUNABLE_NAMES = frozenset(n for names in TUNABLE.values() for n in names)
@@ -275,26 +277,26 @@ class Diagnoser(FacadeBase):
         p("dtg.window_s", "Real", "parameter", 0.5,
           "Pattern classifier: window of the residual level and variance tests, and the "
           "shortest classification window")
-        _meta("dtg.window_s", "s", 0.0)
+        _meta("dtg.window_s", "s", POSITIVE)
         p("dtg.long_window_s", "Real", "parameter", 2.0,
           "Pattern classifier: window of the long variance test and the longest "
           "classification window (>= dtg.window_s)")
-        _meta("dtg.long_window_s", "s", 0.0)
+        _meta("dtg.long_window_s", "s", POSITIVE)
         p("dtg.level_threshold", "Real", "parameter", 6.0,
           "Pattern classifier: alarm when a residual's window mean exceeds this many "
           "block-mean spreads / sqrt(blocks) (held down to 2/3 of it)")
-        _meta("dtg.level_threshold", "1", 0.0)
+        _meta("dtg.level_threshold", "1", POSITIVE)
         p("dtg.var_threshold", "Real", "parameter", 4.0,
           "Pattern classifier: alarm when a residual's window variance exceeds this "
           "multiple of its nominal (held down to its 2/3 power)")
-        _meta("dtg.var_threshold", "1", 1.0)
+        _meta("dtg.var_threshold", "1", 1.0 + 1e-9)
         p("dtg.long_var_threshold", "Real", "parameter", 2.0,
           "Pattern classifier: the same over the long window")
-        _meta("dtg.long_var_threshold", "1", 1.0)
+        _meta("dtg.long_var_threshold", "1", 1.0 + 1e-9)
         p("dtg.theta_spread_threshold", "Real", "parameter", 30.0,
           "Learning guard: largest spread of a learning segment's theta against the "
           "segments before it, in units of its least-squares covariance")
-        _meta("dtg.theta_spread_threshold", "1", 0.0)
+        _meta("dtg.theta_spread_threshold", "1", POSITIVE)
         p("dtg.clear_after_s", "Real", "parameter", 0.5,
           "Pattern classifier: a residual alarm clears this long after the last block "
           "with a test above its hold threshold")

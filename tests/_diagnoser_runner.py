@@ -101,6 +101,7 @@ N_RESET = 300
 #: outside the declared range, one the library refuses), then the run goes on.
 K_TUNE, K_BAD = 1000, 1500
 TUNED: dict[str, Any] = {"dtg.low": 0.8, "dtg.high": 1.25, "dtg.persistence_k": 2,
+                         "dtg.level_threshold": 1.5, "dtg.var_threshold": 1.3,
                          "grey.threshold": 0.03, "grey.clear_after_s": 1.0}
 REFUSED_TUNES: tuple[tuple[str, Any], ...] = (("dtg.high", 0.9), ("dtg.persistence_k", 9))
 #: Multi-sample steps: samples per doStep, cycled over the "all" record, and the
@@ -388,7 +389,7 @@ def run_scenarios(fmu_dir: Path, out: Path, inp: Path) -> None:
     res["invalid_step_log"] = np.array(step_log)
 
     # -- tunable parameters changed during the run --------------------------------------
-    d = new("tune", ALL_PARAMS, h=ALL_H, start=ALL_START)
+    d = new("tune", all_params, h=ALL_H, start=ALL_START)
     parts = [d.run(rec[:K_TUNE])]
     for name, value in TUNED.items():
         d.set(name, value)
@@ -411,7 +412,7 @@ def run_scenarios(fmu_dir: Path, out: Path, inp: Path) -> None:
     d.close()
 
     # -- communication steps of several samples, and refused steps ---------------------
-    d = new("multi", ALL_PARAMS, h=ALL_H, start=ALL_START)
+    d = new("multi", all_params, h=ALL_H, start=ALL_START)
     rows, counts, k, j = [], [], 0, 0
     while k < len(rec):
         n = min(MULTI_STEPS[j % len(MULTI_STEPS)], len(rec) - k)

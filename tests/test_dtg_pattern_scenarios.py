@@ -1,10 +1,12 @@
 """DTG pattern classifier end to end: the pattern training set learned through the CLI,
 then the ``dtg_pattern_*`` verification scenarios, in subprocesses (DESIGN §6.11).
 
-* ``learn-signatures`` on the 54 training runs (two workers);
-* ``verify`` of the 9 verification scenarios against that library (two workers).
+* the pytest plugin's session learns the library from the 54 training runs (as for the
+  scenario items of ``scenarios/``; the CLI's ``learn-signatures`` calls the same
+  ``learn_pattern_library``);
+* the 9 verification scenarios run through the session's run cache.
 
-The tests assert exit 0, zero JUnit failures and figures read back from the saved runs:
+The tests assert every expectation passes and figures read back from the runs:
 the learned library, detection delays and classes on both axes, alarm memory (held 64 s),
 the clearing time of an intermittent fault, the learning guard (fault inside and before
 the learning window) and the physical class. Fast checks: the training set's structure,
@@ -14,11 +16,7 @@ and its seeds disjoint from every evaluation seed.
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 import time
-import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +26,7 @@ from harness.campaigns.campaign import expand_runs, load_campaign
 from harness.campaigns.signatures import check_training_scenarios
 from harness.cosim.results import RunResult
 from harness.cosim.scenario import load_scenario
+from harness.verification.expectations import verify_results
 from harness.verification.metrics import detection_delay_s
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -39,40 +38,25 @@ CLASSES = ["utx_step", "uty_step", "ux_step", "uy_step", "utx_noise", "uty_noise
 CODE = {n: i + 1 for i, n in enumerate(CLASSES)}
 
 
-def _cmd(*args: str) -> list[str]:
-    return [sys.executable, "-m", "harness", *args]
-
-
-def _env() -> dict[str, str]:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
-    return env
-
-
 @pytest.fixture(scope="module")
-def pattern_runs(fmu_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> dict:
-    out = tmp_path_factory.mktemp("dtg_patterns")
-    fmu = ["--fmu-dir", str(fmu_dir), "--no-progress", "--workers", "2"]
+def pattern_runs(gyrodiag_run, gyrodiag_results: Path) -> dict:
+    """The 9 verification scenarios through the session's run cache; the plugin learns
+    ``dtg_patterns.json`` from the 54 training runs first (once per session, shared with
+    the scenario items)."""
     t0 = time.perf_counter()
-    learn = subprocess.run(_cmd("learn-signatures", str(TRAINING), "--out",
-                                str(out / "dtg_patterns.json"), *fmu),
-                           cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=3600)
-    scen = sorted(str(p) for p in SCEN.glob("dtg_pattern_*.toml"))
-    verify = subprocess.run(_cmd("verify", *scen, "--out", str(out), *fmu),
-                            cwd=ROOT, env=_env(), capture_output=True, text=True,
-                            timeout=3600)
-    return {"out": out, "learn": learn, "verify": verify,
-            "wall_s": time.perf_counter() - t0}
+    scenarios = [load_scenario(p) for p in sorted(SCEN.glob("dtg_pattern_*.toml"))]
+    results = gyrodiag_run.many(scenarios)
+    return {"library": gyrodiag_results / "dtg_patterns.json",
+            "runs": {r.scenario: r for r in results}, "scenarios": scenarios,
+            "results": results, "wall_s": time.perf_counter() - t0}
 
 
 def _run(runs: dict, name: str) -> RunResult:
-    return RunResult.load(runs["out"] / name)
+    return runs["runs"][name]
 
 
 def test_training_runs_and_the_library(pattern_runs, capsys):
-    learn = pattern_runs["learn"]
-    assert learn.returncode == 0, learn.stdout[-3000:] + learn.stderr[-3000:]
-    lib = json.loads((pattern_runs["out"] / "dtg_patterns.json").read_text())
+    lib = json.loads(pattern_runs["library"].read_text())
     pat = lib["patterns"]
     assert [c["name"] for c in pat["classes"]] == CLASSES
     assert lib["codes"] == CODE
@@ -97,10 +81,12 @@ def test_training_runs_and_the_library(pattern_runs, capsys):
 
 
 def test_verification_scenarios_pass(pattern_runs):
-    v = pattern_runs["verify"]
-    assert v.returncode == 0, v.stdout[-5000:] + v.stderr[-3000:]
-    root = ET.parse(pattern_runs["out"] / "junit.xml").getroot()
-    assert (root.get("failures"), root.get("errors")) == ("0", "0")
+    assert all(r.error is None for r in pattern_runs["results"])
+    verdicts = verify_results(pattern_runs["results"], pattern_runs["scenarios"])
+    assert len(verdicts) == 9
+    failed = {v.scenario: [e.message for e in v.expectations if not e.passed]
+              for v in verdicts if not v.passed}
+    assert not failed, failed
 
 
 def test_both_axes_slow_drifts_and_sizes(pattern_runs):
