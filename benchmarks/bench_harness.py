@@ -92,29 +92,35 @@ def build_fmus() -> None:
                        cwd=ROOT, check=True, capture_output=True)
 
 
-def _learn_signatures(results: Path) -> None:
+#: Run-time files the seed scenarios read through ``${out}/``, and the training set each
+#: is learned from.
+RECIPES = {"dtg_signatures.json": ROOT / "scenarios" / "training",
+           "dtg_patterns.json": ROOT / "scenarios" / "training" / "patterns"}
+
+
+def _learn_signatures(results: Path, name: str = "dtg_signatures.json") -> None:
     subprocess.run([sys.executable, "-m", "harness", "learn-signatures",
-                    str(ROOT / "scenarios" / "training"), "--out",
-                    str(results / "dtg_signatures.json"), "--fmu-dir", str(FMU_DIR),
-                    "--no-progress", "-q"], cwd=ROOT, check=True)
+                    str(RECIPES[name]), "--out", str(results / name), "--fmu-dir",
+                    str(FMU_DIR), "--no-progress", "-q"], cwd=ROOT, check=True)
 
 
 def prepare_results(paths: list[str], results: Path,
-                    learn: Callable[[Path], None] = _learn_signatures) -> None:
+                    learn: Callable[[Path, str], None] = _learn_signatures) -> None:
     """Provide in ``results`` the run-time files that the scenarios name through
-    ``${out}/`` (the DTG signature library, learned from scenarios/training)."""
+    ``${out}/`` (the DTG signature and pattern libraries, learned from
+    scenarios/training and scenarios/training/patterns)."""
     from harness.cosim.scenario import RESULTS_PREFIX, load_scenario
 
     needed = {spec[len(RESULTS_PREFIX):] for p in paths
               for inst in load_scenario(p).fmus.values() for spec in inst.files.values()
               if spec.startswith(RESULTS_PREFIX)}
-    unknown = needed - {"dtg_signatures.json"}
+    unknown = needed - set(RECIPES)
     if unknown:
         raise RuntimeError(f"no recipe for the run-time files {sorted(unknown)}")
-    if needed:
+    for name in sorted(needed):
         t0 = time.perf_counter()
-        learn(results)
-        print(f"(DTG signatures learned for the fault scenarios in "
+        learn(results, name)
+        print(f"({name} learned for the scenarios that read it in "
               f"{time.perf_counter() - t0:.0f} s)")
 
 

@@ -27,8 +27,10 @@ fmi2Error (never fmi2Fatal): the status shim in the FMU binary maps the logged e
 NaN/Inf on a channel's input clears that channel's ``valid`` output, leaves its state
 untouched, and the channel resumes on the next valid sample: its outputs are then those
 of a run without that sample (the channels' own clocks count valid samples, e.g. for the
-learning and calibration windows). Reported times (``dtg.first_alarm_time``) are
-simulation times.
+learning and calibration windows). One exception: the DTG channel remembers the gap and
+leaves the regression rows that span it, and the prefilter's ringing after it, out of
+its reference statistics (a one-sample jump in the signals would look like a noise
+burst). Reported times (``dtg.first_alarm_time``) are simulation times.
 """
 
 from __future__ import annotations
@@ -48,7 +50,15 @@ from pythonfmu import DefaultExperiment
 from gyrodiag.aircraft import seed_aircraft
 from gyrodiag.decision import UNKNOWN_CODE
 from gyrodiag.dtg import N_THETA
-from gyrodiag.dtg_channel import ESTIMATOR_KINDS, DTGChannel, DTGChannelConfig
+from gyrodiag.dtg_channel import (
+    CLASSIFIERS,
+    ESTIMATOR_KINDS,
+    DTGChannel,
+    DTGChannelConfig,
+    DTGChannelOutput,
+)
+from gyrodiag.dtg_patterns import PatternLibrary
+from gyrodiag.dtg_reference import CHANNELS, N_CHANNELS
 from gyrodiag.grey import ClassicGreyPredictor, GreyFaultDetector, ImprovedGreyPredictor
 
 if TYPE_CHECKING:  # imported when the channel is built: it needs SciPy (design time)
@@ -66,6 +76,8 @@ SEED = seed_aircraft()
 DF_N, DF_P, DF_M = SEED.A.shape[0], SEED.B.shape[1], SEED.C.shape[0]
 
 PHYSICAL_NAMES = ("c_over_J", "k_over_J", "L_over_J", "lambda_over_J", "Ku_over_KT_J")
+#: Units of the DTG statistics channels (Utx, Uty, Ux, Uy, ex, ey).
+CHANNEL_TEXT = "Utx, Uty, Ux, Uy, residual x, residual y"
 PHYSICAL_UNITS = ("1/s", "1/s2", "rad/s", "1/s2", "1/s2")
 #: Declared unit of the grey channel's signal (the HRG output voltage it was made for).
 GREY_UNIT = "V"
@@ -80,7 +92,9 @@ POSITIVE = 1e-9
 #: (the channel is rebuilt with the new value and takes over the old one's state).
 TUNABLE = {
     "dtg": ("dtg.low", "dtg.high", "dtg.persistence_k", "dtg.latch", "dtg.max_distance",
-            *(f"dtg.monitored[{i}]" for i in range(1, N_THETA + 1))),
+            *(f"dtg.monitored[{i}]" for i in range(1, N_THETA + 1)),
+            # the pattern classifier's residual tests (the monitor is rebuilt with them)
+            "dtg.level_threshold", "dtg.var_threshold", "dtg.long_var_threshold"),
     "grey": ("grey.threshold", "grey.clear_after_s"),
 }
 _TUNABLE_NAMES = frozenset(n for names in TUNABLE.values() for n in names)
@@ -173,6 +187,7 @@ class Diagnoser(FacadeBase):
         # Host time of the first DTG alarm: the channel's own clock counts valid samples
         # only, so after a skipped NaN sample it would lag the simulation time.
         self._dtg_first_alarm_time = math.nan
+        self._dtg_block_copied = -1
         self._dtg_reference_warned = False
         # tunable values the running channels were built with
         self._applied: dict[str, Any] = {}
@@ -211,7 +226,8 @@ class Diagnoser(FacadeBase):
         _meta("dtg.estimator", None, 0, 2)
         p("dtg.window", "Integer", "parameter", 500, "Batch LS window, samples")
         _meta("dtg.window", None, N_THETA)
-        p("dtg.forgetting", "Real", "parameter", 0.99, "RLS forgetting factor")
+        p("dtg.forgetting", "Real", "parameter", 0.999,
+          "RLS forgetting factor (paper 0.99: false alarms on the DTG chain, docs/notes.md)")
         _meta("dtg.forgetting", "1", POSITIVE, 1.0)
         p("dtg.p0", "Real", "parameter", 1e6, "Initial RLS covariance scale")
         _meta("dtg.p0", "1", POSITIVE)
@@ -251,9 +267,40 @@ class Diagnoser(FacadeBase):
           "Eq. 7 distance beyond which a fault is unknown (code -1); < 0: no limit")
         _meta("dtg.max_distance", "1")
         p("dtg.classify_window_s", "Real", "parameter", 0.5,
-          "An alarm is classified by the median feature of its samples in this last "
-          "window (the signature-learning rule); 0: each sample alone (paper)")
+          "Paper classifier: an alarm is classified by the median feature of its samples "
+          "in this last window (the signature-learning rule); 0: each sample alone (paper)")
         _meta("dtg.classify_window_s", "s", 0.0)
+        p("dtg.classifier", "String", "parameter", "pattern",
+          "'pattern': frozen checked reference, residual tests with alarm memory and "
+          "classification by learned response patterns (type, signal, axis, size); "
+          "'paper': the paper's ratio band and decade signatures")
+        p("dtg.window_s", "Real", "parameter", 0.5,
+          "Pattern classifier: window of the residual level and variance tests, and the "
+          "shortest classification window")
+        _meta("dtg.window_s", "s", POSITIVE)
+        p("dtg.long_window_s", "Real", "parameter", 2.0,
+          "Pattern classifier: window of the long variance test and the longest "
+          "classification window (>= dtg.window_s)")
+        _meta("dtg.long_window_s", "s", POSITIVE)
+        p("dtg.level_threshold", "Real", "parameter", 6.0,
+          "Pattern classifier: alarm when a residual's window mean exceeds this many "
+          "block-mean spreads / sqrt(blocks) (held down to 2/3 of it)")
+        _meta("dtg.level_threshold", "1", POSITIVE)
+        p("dtg.var_threshold", "Real", "parameter", 4.0,
+          "Pattern classifier: alarm when a residual's window variance exceeds this "
+          "multiple of its nominal (held down to its 2/3 power)")
+        _meta("dtg.var_threshold", "1", 1.0 + 1e-9)
+        p("dtg.long_var_threshold", "Real", "parameter", 2.0,
+          "Pattern classifier: the same over the long window")
+        _meta("dtg.long_var_threshold", "1", 1.0 + 1e-9)
+        p("dtg.theta_spread_threshold", "Real", "parameter", 30.0,
+          "Learning guard: largest spread of a learning segment's theta against the "
+          "segments before it, in units of its least-squares covariance")
+        _meta("dtg.theta_spread_threshold", "1", POSITIVE)
+        p("dtg.clear_after_s", "Real", "parameter", 0.5,
+          "Pattern classifier: a residual alarm clears this long after the last block "
+          "with a test above its hold threshold")
+        _meta("dtg.clear_after_s", "s", 0.0)
         for name in ("Utx", "Uty", "Ux", "Uy"):
             p(f"dtg.{name}", "Real", "input", 0.0, f"DTG signal {name}")
             _meta(f"dtg.{name}", "V")
@@ -283,6 +330,7 @@ class Diagnoser(FacadeBase):
           "Simulation time of the first DTG alarm (its sample's time), -1 if none")
         _meta("dtg.first_alarm_time", "s")
         p("dtg.valid", "Boolean", "output", True, "Last DTG sample was finite")
+        self._declare_dtg_diagnosis()
         # Grey channel
         p("grey.enabled", "Boolean", "parameter", True, "Run the grey-prediction channel")
         p("grey.model", "Integer", "parameter", 1,
@@ -365,6 +413,68 @@ class Diagnoser(FacadeBase):
           "300+i sensor i isolated by the detection filter (299 not isolated, "
           "298 several sensors)")
         p("inputs_valid", "Boolean", "output", True, "All enabled channels' inputs finite")
+
+    def _declare_dtg_diagnosis(self) -> None:
+        """Outputs of the reference, residual tests and pattern classification."""
+
+        def out(name: str, kind: str, start: Any, text: str, unit: str | None = None) -> None:
+            self.add_variable(name, kind, "output", start, text, variability="discrete")
+            if unit is not None:
+                _meta(name, unit)
+
+        out("dtg.reference_valid", "Boolean", False,
+            "The learned nominal reference passed its checks (false while learning)")
+        out("dtg.reference_status", "Integer", 0,
+            "0 learning, 1 valid, 2 change inside the learning window (reference from the "
+            "segments before it), 3 mismatch with the nominal prior (prior in use), "
+            "4 not checked (paper classifier, too little data), 5 no reference (no usable "
+            "data in the learning window: no alarm)")
+        out("dtg.residual_alarm", "Boolean", False,
+            "Pattern classifier: residual tests against the frozen reference in alarm")
+        out("dtg.fault_type", "Integer", 0,
+            "0 none, 1 step, 2 noise, 3 loss, 4 drift, 5 spin slow-down, 6 torquer scale, "
+            "-1 unknown")
+        out("dtg.fault_signal", "Integer", 0,
+            "0 none or physical, 1 Utx, 2 Uty, 3 Ux, 4 Uy, -1 unknown")
+        out("dtg.fault_axis", "Integer", 0, "0 none, 1 x, 2 y, 3 both, -1 unknown")
+        out("dtg.class_distance", "Real", -1.0,
+            "Chi-square per channel of the class fitted to the statistics; -1 if none",
+            "1")
+        out("dtg.fault_size", "Real", 0.0,
+            "Estimated fault size: step offset, noise std, noise left by a loss, current "
+            "drift offset (V); 0 if undefined (dtg.fault_size_valid)", "V")
+        out("dtg.fault_size_valid", "Boolean", False, "dtg.fault_size is defined")
+        out("dtg.fault_rate", "Real", 0.0, "Estimated drift rate; 0 unless a drift", "V/s")
+        out("dtg.fault_ratio", "Real", 1.0,
+            "Physical classes: estimated parameter ratio (spin Omega/Omega_nom, torquer "
+            "Ku/Ku_nom); 1 otherwise", "1")
+        for i, ch in enumerate(CHANNELS, start=1):
+            out(f"dtg.level[{i}]", "Real", 0.0,
+                f"{ch}: window mean minus nominal, in nominal block-mean spreads (test "
+                "window; classification window in alarm)", "1")
+            out(f"dtg.log_var_ratio[{i}]", "Real", 0.0,
+                f"{ch}: log10 of window variance / nominal (detrended)", "1")
+        out("dtg.level_growth", "Real", 0.0,
+            "Growth of the residual level across the window (drift witness)", "1")
+        out("dtg.stat_window_s", "Real", 0.0,
+            "Length of the window of dtg.level / dtg.log_var_ratio", "s")
+        for i, axis in enumerate("xy", start=1):
+            out(f"dtg.residual_level_z[{i}]", "Real", 0.0,
+                f"Level test statistic of the {axis} residual", "1")
+            out(f"dtg.residual_var_ratio[{i}]", "Real", 0.0,
+                f"Short-window variance ratio of the {axis} residual", "1")
+            out(f"dtg.residual_long_var_ratio[{i}]", "Real", 0.0,
+                f"Long-window variance ratio of the {axis} residual", "1")
+        for i in range(1, N_THETA + 1):
+            out(f"dtg.ref_theta0[{i}]", "Real", 0.0,
+                f"Reference theta{i} of the residuals (0 before the reference)", "1")
+        for key, unit, text in (("ref_mean", "V", "nominal mean"),
+                                ("ref_block_std", "V", "nominal spread of block means"),
+                                ("ref_var_short", "V2", "nominal variance, short window"),
+                                ("ref_var_long", "V2", "nominal variance, long window")):
+            for i, ch in enumerate(CHANNELS, start=1):
+                out(f"dtg.{key}[{i}]", "Real", 0.0,
+                    f"{ch}: {text} (0 before the reference)", unit)
 
     def _declare_df(self) -> None:
         p = self.add_variable
@@ -625,6 +735,7 @@ class Diagnoser(FacadeBase):
             self._dtg_first_alarm_time = math.nan
             # Outputs at the start time (before the first step) describe the channels'
             # initial state, e.g. df.calibrating and dtg.learning are already true.
+            self._dtg_block_copied = -1
             if self._dtg is not None:
                 self._copy_dtg(self._dtg.last_output)
             if self._df is not None:
@@ -715,6 +826,11 @@ class Diagnoser(FacadeBase):
         if kind not in range(len(ESTIMATOR_KINDS)):
             raise ValueError(f"dtg.estimator must be 0, 1 or 2, got {kind}")
         max_distance = float(v["dtg.max_distance"])
+        classifier = str(v["dtg.classifier"]).strip()
+        if classifier not in CLASSIFIERS:
+            raise ValueError(f"dtg.classifier must be one of {', '.join(CLASSIFIERS)}, got "
+                             f"{classifier!r}")
+        signatures, patterns = self._dtg_library(classifier, period)
         return DTGChannelConfig(
             sample_period_s=period,
             prefilter_enabled=bool(v["dtg.prefilter_enabled"]),
@@ -738,38 +854,68 @@ class Diagnoser(FacadeBase):
             persistence_n=_named_int(v, "dtg.persistence_n"),
             latch=bool(v["dtg.latch"]),
             monitored=[bool(v[f"dtg.monitored[{i}]"]) for i in range(1, N_THETA + 1)],
-            signatures=self._signatures(),
+            signatures=signatures,
             max_distance=None if max_distance < 0 else max_distance,
             classify_window_s=float(v["dtg.classify_window_s"]),
+            classifier=classifier,  # type: ignore[arg-type]
+            patterns=patterns,
+            window_s=float(v["dtg.window_s"]),
+            long_window_s=float(v["dtg.long_window_s"]),
+            level_threshold=float(v["dtg.level_threshold"]),
+            var_threshold=float(v["dtg.var_threshold"]),
+            long_var_threshold=float(v["dtg.long_var_threshold"]),
+            theta_spread_threshold=float(v["dtg.theta_spread_threshold"]),
+            clear_after_s=float(v["dtg.clear_after_s"]),
         )
 
-    def _signatures(self) -> dict[str, list[float]]:
+    def _dtg_library(self, classifier: str, period: float
+                     ) -> tuple[dict[str, list[float]], PatternLibrary | None]:
+        """(decade signatures, pattern library) from dtg.signature_file or the table."""
         v = self.values
         path_text = str(v["dtg.signature_file"]).strip()
-        if path_text:
-            path = Path(path_text)
-            if not path.is_absolute() and self.resources:
-                path = Path(self.resources) / path
-            try:
-                data = json.loads(path.read_text(encoding="utf-8"))
-            except (OSError, json.JSONDecodeError) as exc:
-                raise ValueError(
-                    f"dtg.signature_file {str(path)!r} cannot be read: {exc}"
-                ) from None
-            sigs = data.get("signatures") if isinstance(data, dict) else None
-            if not isinstance(sigs, dict) or not sigs:
-                raise ValueError(
-                    f"dtg.signature_file {str(path)!r} must hold a non-empty object "
-                    "'signatures': {name: [C1, ..., C5]}"
-                )
-            return {str(k): list(s) for k, s in sigs.items()}
         n = int(v["dtg.n_signatures"])
         if not 0 <= n <= MAX_SIGNATURES:
             raise ValueError(f"dtg.n_signatures must be in [0, {MAX_SIGNATURES}], got {n}")
-        return {
-            f"signature_{j}": [float(v[f"dtg.signature[{j},{i}]"]) for i in range(1, N_THETA + 1)]
-            for j in range(1, n + 1)
-        }
+        if classifier == "pattern" and n > 0 and not path_text:
+            raise ValueError(
+                f"dtg.n_signatures = {n}: the signature table holds decade signatures of "
+                "dtg.classifier = paper; the pattern classifier reads a pattern library "
+                "from dtg.signature_file")
+        if not path_text:
+            table = {
+                f"signature_{j}": [float(v[f"dtg.signature[{j},{i}]"])
+                                   for i in range(1, N_THETA + 1)]
+                for j in range(1, n + 1)
+            }
+            return (table if classifier == "paper" else {}), None
+        path = Path(path_text)
+        if not path.is_absolute() and self.resources:
+            path = Path(self.resources) / path
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError) as exc:
+            raise ValueError(f"dtg.signature_file {str(path)!r} cannot be read: {exc}") from None
+        if not isinstance(data, dict):
+            raise ValueError(f"dtg.signature_file {str(path)!r} must hold a JSON object")
+        if classifier == "pattern":
+            if "patterns" not in data:
+                raise ValueError(
+                    f"dtg.signature_file {str(path)!r} holds no 'patterns' library (decade "
+                    "signatures are for dtg.classifier = paper; learn patterns with "
+                    "python -m harness learn-signatures on pattern training scenarios)")
+            try:
+                return {}, PatternLibrary.from_dict(data["patterns"])
+            except (ValueError, TypeError) as exc:
+                raise ValueError(f"dtg.signature_file {str(path)!r}: {exc}") from None
+        sigs = data.get("signatures")
+        if not isinstance(sigs, dict) or not sigs:
+            raise ValueError(
+                f"dtg.signature_file {str(path)!r} must hold a non-empty object "
+                "'signatures': {name: [C1, ..., C5]} for dtg.classifier = paper"
+                + (" (it holds a pattern library: set dtg.classifier = pattern)"
+                   if "patterns" in data else "")
+            )
+        return {str(k): list(s) for k, s in sigs.items()}, None
 
     def _grey_detector(self, period: float) -> GreyFaultDetector:
         v = self.values
@@ -936,6 +1082,48 @@ class Diagnoser(FacadeBase):
         first = self._dtg_first_alarm_time
         v["dtg.first_alarm_time"] = -1.0 if math.isnan(first) else first
         v["dtg.valid"] = bool(out.valid)
+        d = out.diagnosis
+        if d.block != self._dtg_block_copied:  # block-rate outputs change at block ends
+            self._copy_dtg_diagnosis(out)
+            self._dtg_block_copied = d.block
+        if not out.alarm and v["dtg.fault_type"] != 0:
+            self._copy_dtg_diagnosis(out)
+
+    def _copy_dtg_diagnosis(self, out: DTGChannelOutput) -> None:
+        """Reference, residual tests and class (sentinels instead of NaN)."""
+        v = self.values
+        d = out.diagnosis
+        v["dtg.reference_status"] = int(d.reference_status)
+        v["dtg.reference_valid"] = d.reference_status == 1
+        v["dtg.residual_alarm"] = bool(d.residual_alarm)
+        alarm = bool(out.alarm)
+        v["dtg.fault_type"] = int(d.fault_type) if alarm else 0
+        v["dtg.fault_signal"] = int(d.fault_signal) if alarm else 0
+        v["dtg.fault_axis"] = int(d.fault_axis) if alarm else 0
+        v["dtg.class_distance"] = _finite_or(d.distance, -1.0) if alarm else -1.0
+        size_ok = alarm and math.isfinite(d.size)
+        v["dtg.fault_size"] = float(d.size) if size_ok else 0.0
+        v["dtg.fault_size_valid"] = size_ok
+        v["dtg.fault_rate"] = _finite_or(d.rate, 0.0) if alarm else 0.0
+        v["dtg.fault_ratio"] = _finite_or(d.ratio, 1.0) if alarm else 1.0
+        for i in range(N_CHANNELS):
+            v[f"dtg.level[{i + 1}]"] = _finite_or(float(d.level[i]), 0.0)
+            v[f"dtg.log_var_ratio[{i + 1}]"] = _finite_or(float(d.log_variance[i]), 0.0)
+        v["dtg.level_growth"] = _finite_or(d.growth, 0.0)
+        v["dtg.stat_window_s"] = float(d.window_s)
+        for a in range(2):
+            v[f"dtg.residual_level_z[{a + 1}]"] = _finite_or(float(d.tests[a]), 0.0)
+            v[f"dtg.residual_var_ratio[{a + 1}]"] = _finite_or(float(d.tests[2 + a]), 0.0)
+            v[f"dtg.residual_long_var_ratio[{a + 1}]"] = _finite_or(float(d.tests[4 + a]),
+                                                                    0.0)
+        assert self._dtg is not None
+        ref = self._dtg.reference
+        for i in range(N_THETA):
+            v[f"dtg.ref_theta0[{i + 1}]"] = 0.0 if ref is None else float(ref.theta0[i])
+        for key, attr in (("ref_mean", "mean"), ("ref_block_std", "block_std"),
+                          ("ref_var_short", "var_short"), ("ref_var_long", "var_long")):
+            for i in range(N_CHANNELS):
+                v[f"dtg.{key}[{i + 1}]"] = 0.0 if ref is None else float(getattr(ref, attr)[i])
 
     # ------------------------------------------------------------------ state
     def _capture_state(self) -> dict[str, Any]:
@@ -955,6 +1143,7 @@ class Diagnoser(FacadeBase):
         self._ready = bool(state["ready"])
         self._start_time = float(state["start_time"])
         self._dtg_first_alarm_time = float(state["dtg_first_alarm_time"])
+        self._dtg_block_copied = -1  # the restored values are complete; recopy at the next block
         for name, channel in (("dtg", self._dtg), ("grey", self._grey), ("df", self._df)):
             sub = state[name]
             if (sub is None) != (channel is None):
@@ -976,7 +1165,12 @@ _PARAMETER_NAMES: dict[str, dict[str, str]] = {
         "persistence_k": "dtg.persistence_k", "persistence_n": "dtg.persistence_n",
         "monitored": "dtg.monitored[1..5]", "classify_window_s": "dtg.classify_window_s",
         "signatures": "signatures (dtg.signature[j,i] or dtg.signature_file)",
-        "max_distance": "dtg.max_distance",
+        "max_distance": "dtg.max_distance", "classifier": "dtg.classifier",
+        "window_s": "dtg.window_s", "long_window_s": "dtg.long_window_s",
+        "level_threshold": "dtg.level_threshold", "var_threshold": "dtg.var_threshold",
+        "long_var_threshold": "dtg.long_var_threshold",
+        "theta_spread_threshold": "dtg.theta_spread_threshold",
+        "clear_after_s": "dtg.clear_after_s", "patterns": "dtg.signature_file",
     },
     "grey": {
         "window": "grey.window", "threshold": "grey.threshold", "a_min": "grey.a_min",
@@ -1030,6 +1224,11 @@ def _channel_context(prefix: str) -> Iterator[None]:
         raise ValueError(
             f"channel {prefix!r} (parameters {prefix}.*): {text}"
         ) from None
+
+
+def _finite_or(value: float, fallback: float) -> float:
+    """``value`` if finite, else the documented sentinel (outputs never carry NaN)."""
+    return float(value) if math.isfinite(value) else fallback
 
 
 def _as_list(values: Any) -> list:

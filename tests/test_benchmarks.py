@@ -53,11 +53,11 @@ def test_bench_harness_provides_the_files_the_seed_scenarios_need(tmp_path, fmu_
         preflight(load_scenario(needing[0]), fmu_dir, tmp_path)
     learned = []
 
-    def learn(results: Path) -> None:  # stands for the learn-signatures run
-        learned.append(results)
-        (results / "dtg_signatures.json").write_text("{}")
+    def learn(results: Path, name: str) -> None:  # stands for the learn-signatures run
+        learned.append((results, name))
+        (results / name).write_text("{}")
 
     bench.prepare_results(paths, tmp_path, learn=learn)
-    assert learned == [tmp_path]
+    assert learned == [(tmp_path, "dtg_patterns.json"), (tmp_path, "dtg_signatures.json")]
     for p in scenario_files([Path(x) for x in paths]):
         preflight(load_scenario(p), fmu_dir, tmp_path)

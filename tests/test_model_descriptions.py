@@ -65,11 +65,14 @@ CONTINUOUS_OUTPUTS: dict[str, set[str]] = {
 #: the bound itself is not always reachable.
 COUPLED_BOUNDS: dict[str, dict[str, str]] = {
     "Diagnoser": {"dtg.learn_end_s": "must exceed dtg.learn_start_s by a sample period",
+                  "dtg.n_signatures": "> 0 only with dtg.classifier = paper",
+                  "dtg.long_window_s": "must be >= dtg.window_s",
                   "df.calibrate_s": "0 only with df.noise_std given (sequential rule)"},
 }
 #: Safe-to-change parameters that must be tunable.
 MUST_BE_TUNABLE: dict[str, set[str]] = {
     "Diagnoser": {"dtg.low", "dtg.high", "dtg.persistence_k", "dtg.latch", "dtg.max_distance",
+                  "dtg.level_threshold", "dtg.var_threshold", "dtg.long_var_threshold",
                   "grey.threshold", "grey.clear_after_s"}
     | {f"dtg.monitored[{i}]" for i in range(1, 6)},
     "FaultInjector": {f"fault_type_{i}" for i in range(1, 9)},

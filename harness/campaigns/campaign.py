@@ -148,6 +148,10 @@ class Sweep(_Strict):
     duration_s: float | None = Field(default=None, gt=0)
     post_onset_s: float | None = Field(default=None, gt=0)
     extra: dict[str, float] = Field(default_factory=dict)
+    #: Other diagnoses that count as right, for classes that cannot be told apart at
+    #: these magnitudes (e.g. a DTG signal loss that leaves more noise than the signal
+    #: had is a noise fault for every statistic: ``accept = ["utx_noise"]``).
+    accept: list[str] = Field(default_factory=list)
     #: Further faults from the same onset in every run of the sweep (two faulty sensors at
     #: once): injector fault tables without ``name``/``injector``/``start_s``, e.g.
     #: ``{ channel = 2, type = "bias", magnitude = 0.005 }``.
@@ -194,9 +198,10 @@ class CampaignSpec(_Strict):
     #: What ``${out}/`` stands for in the base scenarios' ``files`` (default: the
     #: campaign's output folder).
     results_dir: str | None = None
-    #: DTG training scenarios: learned into ``<results_dir>/dtg_signatures.json`` first
-    #: when that file is missing.
+    #: DTG training scenarios: learned into ``<results_dir>/<signatures_file>`` first
+    #: when that file is missing (a pattern training set gives a pattern library).
     signatures_training: str | None = None
+    signatures_file: str = Field(default="dtg_signatures.json", pattern=r"^[\w.-]+\.json$")
     classes: dict[str, FaultClass] = Field(min_length=1)
     sweeps: list[Sweep] = Field(default_factory=list)
     nominal: list[Nominal] = Field(default_factory=list)
@@ -255,6 +260,7 @@ class RunSpec(_Strict):
     onset_s: float | None = None
     target: int | None = None          # injector channel
     injected: str | None = None        # diagnosis that counts as right
+    accepted: list[str] = Field(default_factory=list)  # also right (merged classes)
     also: list[dict[str, Any]] = Field(default_factory=list)  # further simultaneous faults
     thresholds: list[float]
     fmu_dir: str | None = None
@@ -333,7 +339,7 @@ def expand_runs(spec: CampaignSpec, base_dir: Path, out_dir: Path | None = None)
                                          fault_type=sw.label or sw.type,
                                          magnitude=None if math.isnan(mag) else mag,
                                          onset_s=onset, target=ch, injected=injected,
-                                         also=also))
+                                         accepted=list(sw.accept), also=also))
     for nom in spec.nominal:
         for r in range(nom.runs):
             runs.append(make(nom.cls, "nominal", nom.duration_s, str(r), None))
@@ -360,7 +366,10 @@ def _signals(run: RunSpec) -> list[str]:
                    f"{d}.df.isolated_mask", f"{d}.df.fault_type", f"{d}.df.fault_magnitude",
                    f"{d}.df.episodes", f"{d}.df.input_delay_in_use"])
     return ([f"{d}.dtg.eta_{ax}[{i}]" for ax in "xy" for i in range(1, 6)]
-            + [f"{d}.dtg.alarm", f"{d}.dtg.learning", f"{d}.dtg.fault_code"])
+            + [f"{d}.dtg.alarm", f"{d}.dtg.learning", f"{d}.dtg.fault_code",
+               f"{d}.dtg.fault_axis", f"{d}.dtg.reference_status"]
+            + [f"{d}.dtg.residual_{name}[{a}]" for name in
+               ("level_z", "var_ratio", "long_var_ratio") for a in (1, 2)])
 
 
 def build_scenario(run: RunSpec) -> Any:
@@ -445,15 +454,41 @@ def alarm_statistic(run: RunSpec, scenario: Any, t: np.ndarray,
     learning = sig[f"{d}.dtg.learning"] > 0.5
     dev = np.abs(eta - 1.0)
     dev = np.where(np.isfinite(dev), dev, np.inf)
-    s = np.where(learning, 0.0, dev.max(axis=1))
-    ready = np.flatnonzero(~learning & (t > 0))
-    t_ready = float(t[ready[0]]) if ready.size else float(t[-1])
     if not math.isclose(1.0 - low, high - 1.0, rel_tol=1e-9):
         raise ValueError(f"{d}: dtg.low/dtg.high ({low}, {high}) are not symmetric about 1: "
                          "the threshold sweep needs a symmetric band")
+    if str(_param(scenario, d, "dtg.classifier", "pattern")) == "pattern":
+        return _pattern_statistic(scenario, d, t, sig, dev.max(axis=1) / (high - 1.0))
+    s = np.where(learning, 0.0, dev.max(axis=1))
+    ready = np.flatnonzero(~learning & (t > 0))
+    t_ready = float(t[ready[0]]) if ready.size else float(t[-1])
     return s, t_ready, high - 1.0
 
 
+def _pattern_statistic(scenario: Any, d: str, t: np.ndarray, sig: dict[str, np.ndarray],
+                       band: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """Pattern classifier: the largest raise statistic in units of its threshold —
+    residual level z / dtg.level_threshold, log variance ratios / log of their
+    thresholds, and the ratio band's |η − 1| / (high − 1). ``T = 1`` is the configured
+    setting; the FMU's alarm also holds below the raise thresholds (hold thresholds,
+    ``dtg.clear_after_s``), which ``sweep_mismatch`` shows."""
+    z_thr = float(_param(scenario, d, "dtg.level_threshold", 6.0))
+    v_thr = float(_param(scenario, d, "dtg.var_threshold", 4.0))
+    vl_thr = float(_param(scenario, d, "dtg.long_var_threshold", 2.0))
+    parts = [band]
+    for a in (1, 2):
+        parts.append(sig[f"{d}.dtg.residual_level_z[{a}]"] / z_thr)
+        parts.append(np.log10(np.maximum(sig[f"{d}.dtg.residual_var_ratio[{a}]"], 1e-12))
+                     / math.log10(v_thr))
+        parts.append(np.log10(np.maximum(sig[f"{d}.dtg.residual_long_var_ratio[{a}]"],
+                                         1e-12)) / math.log10(vl_thr))
+    s = np.max(np.column_stack(parts), axis=1)
+    # judged from the first sample with a reference (status >= 1), as the channel
+    ready_mask = (sig[f"{d}.dtg.reference_status"] > 0.5) & (t > 0)
+    s = np.where(ready_mask, s, 0.0)
+    ready = np.flatnonzero(ready_mask)
+    t_ready = float(t[ready[0]]) if ready.size else float(t[-1])
+    return s, t_ready, 1.0
 def _df_sequential(scenario: Any, diagnoser: str) -> bool:
     """The detection-filter channel decides sequentially (``df.decision`` = 1, the
     default) rather than by the paper's rule (0)."""
@@ -521,6 +556,7 @@ def simulate_run(run_dict: dict[str, Any]) -> dict[str, Any]:
     from harness.cosim.master import run_scenario
 
     run = RunSpec.model_validate(run_dict)
+    extra: dict[str, Any] = {}
     scenario = build_scenario(run)
     result = run_scenario(scenario, fmu_dir=run.fmu_dir, progress=False,
                           results_dir=run.results_dir)
@@ -559,6 +595,8 @@ def simulate_run(run_dict: dict[str, Any]) -> dict[str, Any]:
         names = _signature_names(scenario, run)
         diagnosed = (names[code - 1] if 1 <= code <= len(names)
                      else {0: "none", -1: "unknown"}.get(code, f"code {code}"))
+        axis = f"{d}.dtg.fault_axis"
+        extra["diagnosed_axis"] = int(np.rint(sig[axis][-1])) if axis in sig else None
     stat, t_ready, t_config = alarm_statistic(run, scenario, t, sig)
     detected, delay, n_false, free = judge(t, alarm, t_ready, run.onset_s)
     judged = t >= t_ready
@@ -583,13 +621,17 @@ def simulate_run(run_dict: dict[str, Any]) -> dict[str, Any]:
 
 
 def _signature_names(scenario: Any, run: RunSpec) -> list[str]:
+    """Class names in code order: of the decade signatures, or of a pattern library."""
     from harness.cosim.scenario import resolve_file_parameters
 
     files = resolve_file_parameters(scenario, run.results_dir, must_exist=False)
     path = files.get(run.diagnoser, {}).get("dtg.signature_file")
     if path is None or not Path(path).is_file():
         return []
-    return list(json.loads(Path(path).read_text(encoding="utf-8"))["signatures"])
+    data = json.loads(Path(path).read_text(encoding="utf-8"))
+    if "patterns" in data:
+        return [c["name"] for c in data["patterns"]["classes"]]
+    return list(data["signatures"])
 
 
 # --------------------------------------------------------------------------- guard
@@ -855,7 +897,7 @@ def prepare(spec: CampaignSpec, base_dir: Path, out_dir: Path) -> None:
     if spec.signatures_training is None:
         return
     results = (base_dir / spec.results_dir).resolve() if spec.results_dir else out_dir
-    target = results / "dtg_signatures.json"
+    target = results / spec.signatures_file
     if target.is_file():
         return
     training = (base_dir / spec.signatures_training).resolve()

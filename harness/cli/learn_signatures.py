@@ -15,6 +15,8 @@ from harness.campaigns.signatures import (
     DEFAULT_WINDOW_S,
     SignatureLibrary,
     check_training_scenarios,
+    is_pattern_training,
+    learn_pattern_library,
     learn_signatures,
 )
 from harness.cli.common import (
@@ -86,6 +88,8 @@ def cmd_learn_signatures(args: argparse.Namespace) -> int:
             log.warning("stopped by %s: no library written; training runs saved in %s",
                         stop.reason, runs_dir)
             return EXIT_INTERRUPTED
+    if is_pattern_training(scenarios):
+        return _write_patterns(scenarios, results, target)
     try:
         lib = learn_signatures(scenarios, results, args.window_s)
     except (ValueError, KeyError) as exc:
@@ -94,6 +98,30 @@ def cmd_learn_signatures(args: argparse.Namespace) -> int:
     lib.write(target)
     _print_library(lib)
     log.info("signature library: %s", target)
+    return EXIT_OK
+
+
+def _write_patterns(scenarios: Any, results: Any, out: Path) -> int:
+    """Learn and write a pattern library (pattern training set)."""
+    import json
+
+    try:
+        lib, content = learn_pattern_library(scenarios, results)
+    except (ValueError, KeyError) as exc:
+        log.error("%s", exc)
+        return EXIT_FAILED
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(content, indent=1) + "\n", encoding="utf-8")
+    for run in content["training"]["runs"]:
+        mark = "" if run["classified"] == run["class"] else f"  <- classified {run['classified']!r}"
+        log.info("  run %s: class %s, size %g, distance %.2f%s", run["scenario"], run["class"],
+                 run["size"], run["distance"], mark)
+    for i, c in enumerate(lib.classes, start=1):
+        log.info("class %d %s (%s, %s): response %s", i, c.name, c.type,
+                 c.signal or "physical", ", ".join(f"{v:.3g}" for v in c.response))
+    log.info("growth threshold %.3f, max distance %s", lib.growth_threshold,
+             None if lib.max_distance is None else round(lib.max_distance, 2))
+    log.info("pattern library: %s", out)
     return EXIT_OK
 
 

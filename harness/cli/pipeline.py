@@ -6,8 +6,10 @@ is ``--out`` or a new ``results/all-<time>/``, with ``results/latest`` pointing 
 
 1. ``build_fmu.py --out FMU_DIR`` in a fresh process (skipped with ``--no-build``);
 2. ``learn-signatures`` on ``SCENARIOS/training`` → ``OUT/dtg_signatures.json`` (the
-   DTG fault scenarios load it through their ``${out}/dtg_signatures.json`` file
-   parameter);
+   DTG fault scenarios of the paper's rule load it through their
+   ``${out}/dtg_signatures.json`` file parameter), and on ``SCENARIOS/training/patterns``
+   → ``OUT/dtg_patterns.json`` (the pattern classifier's library, read by the
+   ``dtg_pattern_*`` scenarios);
 3. ``verify`` of every ``SCENARIOS/*.toml`` → ``OUT/<name>/``, ``OUT/junit.xml``,
    ``OUT/report.html``;
 4. the seed aircraft's isolability report → ``OUT/isolability.html`` and ``.txt``.
@@ -20,6 +22,7 @@ SIGTERM (during verification the report is written with what was saved).
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import subprocess
 import sys
@@ -27,7 +30,11 @@ import time
 from pathlib import Path
 from typing import Any
 
-from harness.campaigns.signatures import check_training_scenarios, learn_signatures
+from harness.campaigns.signatures import (
+    check_training_scenarios,
+    learn_pattern_library,
+    learn_signatures,
+)
 from harness.cli.common import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
@@ -83,6 +90,10 @@ def cmd_all(args: argparse.Namespace) -> int:
     training = load_all([training_dir]) if training_dir.is_dir() else []
     if training:
         check_training_scenarios(training)
+    patterns_dir = training_dir / "patterns"
+    patterns = load_all([patterns_dir]) if patterns_dir.is_dir() else []
+    if patterns:
+        check_training_scenarios(patterns)
     scenarios = load_all([args.scenarios])
     out: Path = args.out if args.out is not None else new_results_folder("all")
     out.mkdir(parents=True, exist_ok=True)
@@ -115,6 +126,27 @@ def cmd_all(args: argparse.Namespace) -> int:
         library.write(out / "dtg_signatures.json")
         for name, sig in library.signatures.items():
             log.info("  signature %s %s: C = %s", library.codes[name], name, sig.tolist())
+    if patterns:
+        log.info("== learning the DTG fault patterns from %s", patterns_dir)
+        try:
+            runs = run_all(patterns, out / "training", args.fmu_dir, progress,
+                           workers=args.workers, results_dir=out)
+        except BatchInterrupted as stop:
+            log.warning("stopped by %s while learning the patterns; training runs saved "
+                        "in %s", stop.reason, out / "training")
+            return EXIT_INTERRUPTED
+        if any(r.error is not None for r in runs):
+            log.error("a pattern training run failed")
+            return EXIT_FAILED
+        try:
+            _, content = learn_pattern_library(patterns, runs)
+        except (ValueError, KeyError) as exc:
+            log.error("learning the patterns failed: %s", exc)
+            return EXIT_FAILED
+        (out / "dtg_patterns.json").write_text(json.dumps(content, indent=1) + "\n",
+                                               encoding="utf-8")
+        log.info("  %d classes -> %s", len(content["patterns"]["classes"]),
+                 out / "dtg_patterns.json")
 
     log.info("== verifying the seed scenarios in %s", args.scenarios)
     stop: BatchInterrupted | None = None

@@ -475,16 +475,51 @@ class Training(_Strict):
     Read by ``python -m harness learn-signatures`` (:mod:`harness.campaigns.signatures`), ignored by
     the other commands.  ``signature`` names the fault class, ``code`` is its fault code
     (1-based position in the learned library, i.e. the ``dtg.fault_code`` the Diagnoser
-    reports for it), ``diagnoser`` the Diagnoser instance whose ``dtg.eta_x``/``dtg.eta_y``
-    outputs give the feature vector.
+    reports for it), ``diagnoser`` the Diagnoser instance whose outputs are read.
+
+    ``classifier = "paper"`` (default): decade signatures from ``dtg.eta_x``/``dtg.eta_y``.
+    ``classifier = "pattern"``: response patterns (:mod:`harness.campaigns.pattern_learning`);
+    then ``type`` (step, drift, noise, loss, spin, torquer or nominal), ``signal`` (Utx,
+    Uty, Ux, Uy; signal faults) and ``fault`` (the ``[[faults]]`` entry giving the size
+    and the onset; default the only one) describe the example. A ``nominal`` run (code
+    0) only feeds the noise model and the nominal prior.
     """
 
     signature: str = Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")
-    """Fault class name (an identifier)."""
-    code: int = Field(ge=1)
-    """Its fault code: position in the learned library (``dtg.fault_code``)."""
+    """Fault class name (an identifier; ``nominal`` for a nominal pattern run)."""
+    code: int = Field(ge=0)
+    """Its fault code: position in the learned library (``dtg.fault_code``); 0 for a
+    nominal pattern training run."""
     diagnoser: str = "diag"
-    """Diagnoser instance whose ``dtg.eta_x``/``dtg.eta_y`` give the feature vector."""
+    """Diagnoser instance whose outputs are read."""
+    classifier: Literal["paper", "pattern"] = "paper"
+    """Which classifier the run trains: decade signatures or response patterns."""
+    type: Literal["step", "drift", "noise", "loss", "spin", "torquer", "nominal"] | None = None
+    """Pattern training: the fault type of the example."""
+    signal: Literal["Utx", "Uty", "Ux", "Uy"] | None = None
+    """Pattern training: the faulty signal (signal faults)."""
+    fault: str | None = None
+    """Pattern training: the ``[[faults]]`` entry giving the size and the onset (default:
+    the only one)."""
+
+    @model_validator(mode="after")
+    def _pattern_fields(self) -> Training:
+        if (self.code == 0) != (self.type == "nominal"):
+            raise ValueError("code must be >= 1 for a fault class, and 0 for a nominal "
+                             "(type = 'nominal') pattern training run")
+        if self.classifier == "paper":
+            if self.type is not None or self.signal is not None or self.fault is not None:
+                raise ValueError("type, signal and fault describe pattern training "
+                                 "(classifier = 'pattern')")
+            return self
+        if self.type is None:
+            raise ValueError("classifier 'pattern' needs type (step, drift, noise, loss, "
+                             "spin, torquer or nominal)")
+        if self.type in ("step", "drift", "noise", "loss") and self.signal is None:
+            raise ValueError(f"type {self.type!r} needs signal (Utx, Uty, Ux or Uy)")
+        if self.type in ("spin", "torquer", "nominal") and self.signal is not None:
+            raise ValueError(f"type {self.type!r} takes no signal")
+        return self
 
 
 class Scenario(_Strict):

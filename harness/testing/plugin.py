@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import fcntl
 import importlib.util
+import json
 import os
 import subprocess
 import sys
@@ -51,7 +52,11 @@ from typing import Any
 
 import pytest
 
-from harness.campaigns.signatures import check_training_scenarios, learn_signatures
+from harness.campaigns.signatures import (
+    check_training_scenarios,
+    learn_pattern_library,
+    learn_signatures,
+)
 from harness.cosim.batch import load_all
 from harness.cosim.results import RunResult
 from harness.cosim.scenario import FMU_DIR_ENV, Scenario, ScenarioError, load_scenario
@@ -60,6 +65,7 @@ from harness.testing.runs import RunCache
 __all__ = ["ScenarioFile", "ScenarioItem", "ScenarioRuns"]
 
 SIGNATURES = "dtg_signatures.json"
+PATTERNS = "dtg_patterns.json"
 #: Plant FMUs that name a channel marker.
 CHANNEL_OF_FMU = {"Aircraft": "aircraft", "DTG": "dtg", "HRG": "hrg"}
 MARKERS = {
@@ -179,18 +185,24 @@ class _Session:
         return self.runs.run_many(scenarios)
 
     def ensure_files(self, scenario: Scenario) -> None:
-        """Learn the DTG signature library once per session if the scenario reads it."""
+        """Learn the DTG libraries once per session if the scenario reads them: the
+        signature library (``training/``) and the pattern library (``training/patterns``)."""
         specs = [s for inst in scenario.fmus.values() for s in inst.files.values()]
-        if f"${{out}}/{SIGNATURES}" not in specs or (self.results / SIGNATURES).is_file():
-            return
+        for name, sub in ((SIGNATURES, ""), (PATTERNS, "patterns")):
+            if f"${{out}}/{name}" in specs and not (self.results / name).is_file():
+                self._learn(scenario, name, sub)
+
+    def _learn(self, scenario: Scenario, name: str, sub: str) -> None:
         training = self.config.getoption("gyrodiag_training")
         folder = Path(training) if training else (
             scenario.path.parent / "training" if scenario.path is not None else None)
+        if folder is not None and sub:
+            folder = folder / sub
         if folder is None or not folder.is_dir():
             return  # the run's own check names the missing file
-        with open(self.results / f".{SIGNATURES}.lock", "w") as lock:
+        with open(self.results / f".{name}.lock", "w") as lock:
             fcntl.flock(lock, fcntl.LOCK_EX)   # one process learns, the others wait
-            if (self.results / SIGNATURES).is_file():
+            if (self.results / name).is_file():
                 return
             scenarios = load_all([folder])
             check_training_scenarios(scenarios)
@@ -198,9 +210,13 @@ class _Session:
             failed = [r.scenario for r in runs if r.error is not None]
             if failed:
                 raise ScenarioError(str(folder), [("", f"training runs failed: {failed}")])
-            tmp = self.results / f".{SIGNATURES}.{os.getpid()}"
-            learn_signatures(scenarios, runs).write(tmp)
-            os.replace(tmp, self.results / SIGNATURES)
+            tmp = self.results / f".{name}.{os.getpid()}"
+            if name == PATTERNS:
+                _, content = learn_pattern_library(scenarios, runs)
+                tmp.write_text(json.dumps(content, indent=1) + "\n", encoding="utf-8")
+            else:
+                learn_signatures(scenarios, runs).write(tmp)
+            os.replace(tmp, self.results / name)
 
 
 def _build_fmus(out: Path) -> Path:
