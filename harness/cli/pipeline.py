@@ -130,7 +130,8 @@ def cmd_all(args: argparse.Namespace) -> int:
         log.info("== learning the DTG fault patterns from %s", patterns_dir)
         try:
             runs = run_all(patterns, out / "training", args.fmu_dir, progress,
-                           workers=args.workers, results_dir=out)
+                           workers=args.workers, results_dir=out,
+                           precision=signals_precision(args))
         except BatchInterrupted as stop:
             log.warning("stopped by %s while learning the patterns; training runs saved "
                         "in %s", stop.reason, out / "training")
