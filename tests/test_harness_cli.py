@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -39,22 +40,24 @@ def test_run_writes_signals_and_meta_per_scenario(tmp_path, fmu_dir):
     assert r.error is None and r.stop_time_s == 2.0 and r.step_s == 0.01
     np.testing.assert_allclose(r.time[[0, -1]], [0.0, 2.0])
     assert [w.name for w in r.fault_windows] == ["q_bias"]
-    # saved by default with the Real signals rounded to float32, the rest exact
+    # saved by default "compact": the one signal the expectation reads is an Integer
+    # (exact), the Real signals, there for plots, are rounded to 13 significant bits
     meta = json.loads((out / "closed_loop" / "run.json").read_text())
-    assert meta["signals_precision"] == "float32"
-    assert r.rounded_signals == {"aircraft.y_q", "aircraft.x_theta", "injector.out_3",
-                                 "controller.elevator"}
+    assert meta["signals_precision"] == "compact"
+    assert r.rounded_signals == dict.fromkeys(["aircraft.y_q", "aircraft.x_theta",
+                                               "injector.out_3", "controller.elevator"],
+                                              2.0**-13)
     assert meta["signal_storage"]["injector.fault_active_3"] == "int8"
     np.testing.assert_array_equal(r.signal("injector.fault_active_3"), r.time > 1.005)
     # the q bias reaches the injector output from t = 1.01 s on; before, both are the
-    # same float64 and so the same float32; after, each is within 2**-24 of its value
+    # same float64 and so round alike; after, each is within 2**-13 of its value
     out3, y_q = r.signal("injector.out_3"), r.signal("aircraft.y_q")
     diff = out3 - y_q
     assert np.all(diff[r.time < 1.005] == 0.0)
     after = r.time > 1.005
-    bound = 2.0**-24 * (np.abs(out3) + np.abs(y_q))[after] + 1e-15
+    bound = 2.0**-13 * (np.abs(out3) + np.abs(y_q))[after] + 1e-15
     assert np.all(np.abs(diff[after] - 0.1) <= bound)
-    assert np.abs(diff[after] - 0.1).max() > 1e-12  # rounded indeed, not float64
+    assert np.abs(diff[after] - 0.1).max() > 2.0**-24  # rounded indeed, not float32
 
 
 def test_list_shows_name_duration_fmus_and_expectations():
@@ -165,16 +168,18 @@ def test_export_csv_writes_the_saved_signals_exactly(tmp_path, fmu_dir):
     table = np.loadtxt(csv_file, delimiter=",", skiprows=1)
     assert header == ["time", *saved.signals]
     # up to 17 significant digits: the CSV holds every bit of the exact signals; the
-    # float32-rounded ones with the shortest digits that give their float32 back
+    # ones rounded to 13 bits with 5 digits, which round back to the stored value
     assert np.array_equal(table[:, 0], saved.time)
-    assert saved.rounded_signals
+    assert set(saved.rounded_signals.values()) == {2.0**-13}
     for j, name in enumerate(saved.signals, start=1):
         if name in saved.rounded_signals:
-            assert np.array_equal(table[:, j].astype(np.float32),
-                                  saved.signals[name].astype(np.float32)), name
+            back = table[:, j].copy()
+            mantissa, exponent = np.frexp(back)  # back to 13 significant bits
+            back = np.ldexp(np.round(mantissa * 2.0**13) / 2.0**13, exponent)
+            assert np.array_equal(back, saved.signals[name]), name
             digits = [len(row.split(",")[j].lstrip("-").split("e")[0].replace(".", "")
                           .lstrip("0")) for row in lines[1:]]
-            assert max(digits) <= 9, name
+            assert max(digits) <= 5, name
         else:
             assert np.array_equal(table[:, j], saved.signals[name]), name
     # --exact-signals: every bit in the store and in the CSV
@@ -190,7 +195,7 @@ def test_export_csv_writes_the_saved_signals_exactly(tmp_path, fmu_dir):
         assert np.array_equal(table[:, j], full.signals[name]), name
         rel = np.abs(saved.signals[name] - full.signals[name]) \
             / np.maximum(np.abs(full.signals[name]), 1e-300)
-        assert rel.max() <= 2.0**-24, name
+        assert rel.max() <= saved.rounded_signals.get(name, 0.0), name
     single = harness("export-csv", str(out / "closed_loop"), "--out", str(tmp_path / "x.csv"))
     assert single.returncode == 0 and (tmp_path / "x.csv").read_text() == csv_file.read_text()
     bad = harness("export-csv", str(tmp_path / "nothing"))
@@ -224,3 +229,50 @@ min = -1
     assert "5 expectations not evaluated" in proc.stdout
     html = (tmp_path / "r" / "report.html").read_text()
     assert html.count("ValueError: command_source must be") == 1
+
+
+def test_all_keeps_only_run_json_of_its_training_runs(tmp_path, fmu_dir):
+    # two DTG training runs (codes 1, 2) and one scenario: the main job in small
+    scenarios = tmp_path / "scenarios"
+    (scenarios / "training").mkdir(parents=True)
+    for name, code in (("dtg_train_utx_step_t1", 1), ("dtg_train_ux_drift_t1", 2)):
+        text = (ROOT / "scenarios" / "training" / f"{name}.toml").read_text()
+        text = re.sub(r"(?m)^code = \d+$", f"code = {code}", text)
+        (scenarios / "training" / f"{name}.toml").write_text(text)
+    (scenarios / "closed_loop.toml").write_text((DATA / "closed_loop.toml").read_text())
+
+    def main_job(out: Path, *extra: str) -> subprocess.CompletedProcess[str]:
+        proc = harness("all", "--no-build", "--scenarios", str(scenarios), "--fmu-dir",
+                       str(fmu_dir), "--out", str(out), "--no-progress", *extra)
+        assert proc.returncode == 0, proc.stdout + proc.stderr
+        return proc
+
+    proc = main_job(tmp_path / "out")
+    assert "training runs: signals not kept" in proc.stdout
+    training = tmp_path / "out" / "training"
+    for name in ("dtg_train_utx_step_t1", "dtg_train_ux_drift_t1"):
+        assert sorted(p.name for p in (training / name).iterdir()) == ["run.json"]
+        meta = json.loads((training / name / "run.json").read_text())
+        assert meta["error"] is None and "diag.dtg.eta_x[3]" in meta["signals"]
+        with pytest.raises(FileNotFoundError, match="the signals of this run were not kept"):
+            RunResult.load(training / name)
+    library = json.loads((tmp_path / "out" / "dtg_signatures.json").read_text())
+    assert [r["scenario"] for r in library["runs"]] == ["dtg_train_utx_step_t1",
+                                                        "dtg_train_ux_drift_t1"]
+    assert (tmp_path / "out" / "closed_loop" / "signals.npz").is_file()
+    # export-csv of the whole folder passes over them; learn-signatures --saved says why
+    exported = harness("export-csv", str(tmp_path / "out"))
+    assert exported.returncode == 0, exported.stderr
+    assert "2 run(s) without signals passed over" in exported.stdout
+    saved = harness("learn-signatures", str(scenarios / "training"), "--saved", "--runs-out",
+                    str(training), "--out", str(tmp_path / "again.json"))
+    assert saved.returncode == 2 and "the signals of this run were not kept" in saved.stderr
+    # --keep-training-signals: the same library, learned again from the saved runs
+    main_job(tmp_path / "kept", "--keep-training-signals")
+    kept = tmp_path / "kept" / "training"
+    assert (kept / "dtg_train_utx_step_t1" / "signals.npz").is_file()
+    again = harness("learn-signatures", str(scenarios / "training"), "--saved", "--runs-out",
+                    str(kept), "--out", str(tmp_path / "again.json"))
+    assert again.returncode == 0, again.stderr
+    learned = json.loads((tmp_path / "again.json").read_text())
+    assert learned["signatures"] == library["signatures"]

@@ -28,9 +28,10 @@ new folder ``results/<command>-<YYYYmmdd-HHMMSS>/`` and point ``results/latest``
 so that no command overwrites another one's results; ``report`` reads and writes
 ``results/latest`` unless told otherwise.  ``run`` writes ``<out>/<name>/signals.npz``
 and ``run.json`` per scenario and logs one line per scenario; Real signals are saved
-rounded to float32 (relative error <= 2**-24) unless the scenario's
-``record.precision`` or ``--exact-signals`` asks for float64 (every bit); time, integer,
-Boolean and constant signals are always exact (:mod:`harness.cosim.results`).
+rounded (what an expectation reads to float32, relative error <= 2**-24, the rest to
+13 significant bits, <= 2**-13) unless the scenario's ``record.precision`` or
+``--exact-signals`` asks for more; time, integer, Boolean and constant signals are
+always exact (:mod:`harness.cosim.results`).
 ``verify`` runs the scenarios, evaluates their ``[[expect]]`` tables on the runs at full
 precision and writes a JUnit XML and an HTML report (default ``<out>/junit.xml``,
 ``<out>/report.html``).  ``report`` does the same from runs saved earlier in ``<out>``
@@ -83,7 +84,7 @@ from harness.cli.common import (
 )
 from harness.cosim.batch import load_all, preflight_all, run_all
 from harness.cosim.interrupt import BatchInterrupted
-from harness.cosim.results import META_FILE, RunResult
+from harness.cosim.results import META_FILE, RunResult, signals_dropped
 from harness.cosim.scenario import Scenario, ScenarioError, load_scenario
 
 DEFAULT_SCENARIO_DIR = "scenarios"
@@ -286,7 +287,12 @@ def cmd_export_csv(args: argparse.Namespace) -> int:
             found = sorted(m.parent for m in p.rglob(META_FILE))
             if not found:
                 raise FileNotFoundError(f"{p}: no saved run in this folder")
-            runs += found
+            kept = [r for r in found if signals_dropped(r) is None]
+            if len(kept) < len(found):
+                log.info("%s: %d run(s) without signals passed over (e.g. %s: %s)", p,
+                         len(found) - len(kept), next(r for r in found if r not in kept),
+                         signals_dropped(next(r for r in found if r not in kept)))
+            runs += kept
         else:
             raise FileNotFoundError(f"{p}: not a run folder (no {META_FILE})")
     if args.out is not None and len(runs) != 1:

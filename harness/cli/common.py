@@ -85,8 +85,8 @@ def add_exact_signals(p: argparse.ArgumentParser) -> None:
     """``--exact-signals`` (save every signal bit-exactly, float64)."""
     p.add_argument("--exact-signals", action="store_true",
                    help="save every signal with all its bits (float64) instead of "
-                        "rounding Real signals to float32 (each scenario's "
-                        "record.precision; about 3x the disk space)")
+                        "rounding Real signals as each scenario's record.precision "
+                        "says (about 6x the disk space of the default)")
 
 
 def signals_precision(args: argparse.Namespace) -> str | None:

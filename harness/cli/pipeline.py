@@ -1,15 +1,19 @@
 """The main job: build the FMUs, learn the DTG signatures, verify every seed scenario.
 
 ``python -m harness all [--out DIR] [--scenarios scenarios] [--fmu-dir build/fmus]
-[--no-build] [--workers N] [--exact-signals] [--no-progress]`` does, in order (``OUT``
-is ``--out`` or a new ``results/all-<time>/``, with ``results/latest`` pointing to it):
+[--no-build] [--workers N] [--exact-signals] [--keep-training-signals] [--no-progress]``
+does, in order (``OUT`` is ``--out`` or a new ``results/all-<time>/``, with
+``results/latest`` pointing to it):
 
 1. ``build_fmu.py --out FMU_DIR`` in a fresh process (skipped with ``--no-build``);
 2. ``learn-signatures`` on ``SCENARIOS/training`` → ``OUT/dtg_signatures.json`` (the
    DTG fault scenarios of the paper's rule load it through their
    ``${out}/dtg_signatures.json`` file parameter), and on ``SCENARIOS/training/patterns``
    → ``OUT/dtg_patterns.json`` (the pattern classifier's library, read by the
-   ``dtg_pattern_*`` scenarios);
+   ``dtg_pattern_*`` scenarios).  The training runs are learned from in memory; once
+   the libraries are written only their ``run.json`` stays in ``OUT/training/`` (each
+   run's feature is in the library; their signals, 66 runs at 1 kHz, would be more than
+   all the rest of the results), unless ``--keep-training-signals``;
 3. ``verify`` of every ``SCENARIOS/*.toml`` → ``OUT/<name>/``, ``OUT/junit.xml``,
    ``OUT/report.html``;
 4. the seed aircraft's isolability report → ``OUT/isolability.html`` and ``.txt``.
@@ -47,6 +51,7 @@ from harness.cli.common import (
 )
 from harness.cosim.batch import load_all, run_all
 from harness.cosim.interrupt import BatchInterrupted
+from harness.cosim.results import SIGNALS_FILE, drop_signals
 from harness.verification.isolability import render, seed_isolability_report, write
 
 log = logging.getLogger("harness.cli")
@@ -69,6 +74,9 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--no-build", action="store_true", help="use the FMUs already built")
     add_workers(p)
     add_exact_signals(p)
+    p.add_argument("--keep-training-signals", action="store_true",
+                   help="keep the signals of the DTG training runs in OUT/training/ "
+                        "(default: only their run.json once the libraries are learned)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_all)
 
@@ -81,6 +89,21 @@ def build_fmus(fmu_dir: Path) -> int:
         return 1
     return subprocess.run([sys.executable, str(script), "--out", str(fmu_dir)],
                           cwd=REPO_ROOT).returncode
+
+
+def _drop_training_signals(folder: Path, scenarios: list[Any]) -> None:
+    """Keep only run.json of the training runs the libraries were learned from."""
+    reason = ("harness all learned the DTG libraries from this run in memory and keeps "
+              "only its outcome (the library records the run's feature); "
+              "--keep-training-signals or learn-signatures --runs-out DIR keep signals")
+    freed = 0
+    for s in scenarios:
+        run = folder / s.name
+        if (run / SIGNALS_FILE).is_file():
+            freed += (run / SIGNALS_FILE).stat().st_size
+            drop_signals(run, reason)
+    log.info("  training runs: signals not kept (%.1f MB; --keep-training-signals keeps "
+             "them), run.json of each in %s", freed / 1e6, folder)
 
 
 def cmd_all(args: argparse.Namespace) -> int:
@@ -148,6 +171,9 @@ def cmd_all(args: argparse.Namespace) -> int:
                                                encoding="utf-8")
         log.info("  %d classes -> %s", len(content["patterns"]["classes"]),
                  out / "dtg_patterns.json")
+
+    if (training or patterns) and not args.keep_training_signals:
+        _drop_training_signals(out / "training", [*training, *patterns])
 
     log.info("== verifying the seed scenarios in %s", args.scenarios)
     stop: BatchInterrupted | None = None

@@ -148,7 +148,7 @@ def run_all(scenarios: Sequence[Scenario], out: Path, fmu_dir: Path | None = Non
         Runs at the same time, >= 1; None: :func:`default_workers`.
     results_dir : Path, optional
         What ``${out}/`` stands for in ``files`` parameters (default ``out``).
-    precision : {"float32", "float64"}, optional
+    precision : {"compact", "float32", "float64"}, optional
         How the saved files store Real signals (:meth:`RunResult.save`); default each
         scenario's ``record.precision``.
 

@@ -429,7 +429,7 @@ def run_scenario(scenario: Scenario | Path | str, fmu_dir: Path | str | None = N
     results_dir : path, optional
         Results folder of the command: what ``${out}/`` stands for in the instances'
         ``files`` (:func:`harness.cosim.scenario.resolve_file_parameters`).
-    precision : {"float32", "float64"}, optional
+    precision : {"compact", "float32", "float64"}, optional
         How the saved file stores Real signals (:meth:`RunResult.save`); default the
         scenario's ``record.precision``.  The returned run keeps full precision.
 
@@ -465,10 +465,18 @@ def run_scenario(scenario: Scenario | Path | str, fmu_dir: Path | str | None = N
         run = _Run(scenario, resolve_fmu_dir(scenario, fmu_dir), files)
         result = run.execute(progress)
         if out_dir is not None:
-            result.save(Path(out_dir), precision)
+            result.save(Path(out_dir), precision, judged=judged_signals(scenario, result))
     if result.interrupted:
         raise RunInterrupted(stop_requested() or "interrupted", result)
     return result
+
+
+def judged_signals(scenario: Scenario, result: RunResult) -> set[str]:
+    """What is judged from a run: the signals its expectations read, and every recorded
+    signal of a training scenario (the signature and pattern learners read them all)."""
+    if scenario.training is not None:
+        return set(result.signals)
+    return {q for e in scenario.expect for q in expected_signals(e)}
 
 
 def preflight(scenario: Scenario, fmu_dir: Path | str | None = None,

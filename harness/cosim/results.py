@@ -20,13 +20,22 @@ A run directory holds two files:
 
   ``time`` is always float64.  A signal whose values are all integers (Booleans,
   Integers, codes), one constant value, or float32 numbers is stored exactly in the
-  smallest of these.  Any other Real signal is rounded to float32 (round to nearest:
-  ``|stored − value| ≤ 2⁻²⁴·|value|`` ≈ 6e-8 relative, NaN and ±inf kept) when the
-  scenario's ``[record] precision`` is ``"float32"`` (the default) and its magnitudes
-  fit float32's normal range (1.2e-38 … 3.4e38), else it stays float64.  ``run.json``
-  lists the rounded signals (``rounded_signals``) and the bound
-  (``rounded_max_relative_error``).  The main job's runs take 6.0 MB this way instead
-  of 16.4 MB as float64 byte planes (format 2) and 72 MB as text (docs/notes.md).
+  smallest of these.  Any other Real signal is rounded (to nearest) as the
+  ``precision`` of the save asks (the scenario's ``[record] precision``):
+
+  ========= ===================================================================
+  compact   (default) signals an expectation of the scenario reads (every signal of
+            a training scenario): float32, ``|stored − value| ≤ 2⁻²⁴·|value|``
+            (6e-8); the other Real signals, recorded for plots and inspection: 13
+            significant bits, ``≤ 2⁻¹³·|value|`` (1.2e-4, about 4 significant digits)
+  float32   every Real signal to float32 (≤ 2⁻²⁴)
+  float64   nothing rounded
+  ========= ===================================================================
+
+  Rounding keeps NaN, ±inf and the sign of zeros; a signal whose magnitudes leave
+  float32's normal range (1.2e-38 … 3.4e38) stays float64.  ``run.json`` maps each
+  rounded signal to its bound (``rounded_signals``).  The main job's scenario runs take
+  about a sixth of the space of float64 this way (docs/notes.md).
 
   Verdicts do not depend on this: a command that runs scenarios judges the run it
   holds in memory at full precision (:func:`harness.cosim.batch.run_all` hands each
@@ -38,7 +47,9 @@ A run directory holds two files:
 * ``run.json`` — everything else: scenario name, base step, planned duration, wall time,
   error text (``null`` when the run completed), whether a stop request interrupted it,
   fault windows (an open end is written as ``null`` because JSON has no infinity), the
-  signal names in column order and how each is stored.
+  signal names in column order and how each is stored.  A run whose signals were not
+  kept (:func:`drop_signals`: the DTG training runs of ``harness all``) has only this
+  file, and ``signals_dropped`` says why.
 
 Runs saved by earlier versions still load: format 2 (every column as float64 byte
 planes, lossless) and format 1 (``signals.csv``).
@@ -57,6 +68,7 @@ import os
 import tempfile
 import zipfile
 import zlib
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -71,14 +83,19 @@ _TIME_KEY = "time"
 _ENCODING = "per-signal"                 # format 3: storage chosen per column
 _V2_ENCODING = "float64-byte-planes"     # format 2: every column float64
 
-#: How Real signals that are not exactly representable otherwise may be stored:
-#: ``"float32"`` (rounded, relative error <= :data:`FLOAT32_MAX_RELATIVE_ERROR`) or
-#: ``"float64"`` (every bit).
-PRECISIONS = ("float32", "float64")
-DEFAULT_PRECISION = "float32"
+#: How Real signals that no exact compact form fits are stored (module doc):
+#: ``"compact"`` (what expectations read as float32, the rest to
+#: :data:`CONTEXT_SIGNIFICANT_BITS`), ``"float32"`` (all float32) or ``"float64"``.
+PRECISIONS = ("compact", "float32", "float64")
+DEFAULT_PRECISION = "compact"
 #: Bound of ``|stored - value| / |value|`` for a signal rounded to float32: half a unit
 #: in the last place of float32's 24-bit significand.
 FLOAT32_MAX_RELATIVE_ERROR = 2.0 ** -24
+#: Significant bits (implicit leading bit included) of a Real signal that ``"compact"``
+#: stores for plots and inspection only (no expectation reads it).
+CONTEXT_SIGNIFICANT_BITS = 13
+#: Bound of ``|stored - value| / |value|`` for such a signal (about 4 significant digits).
+CONTEXT_MAX_RELATIVE_ERROR = 2.0 ** -CONTEXT_SIGNIFICANT_BITS
 
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
 _FLOAT32_TINY = float(np.finfo(np.float32).tiny)  # smallest normal: below it the bound fails
@@ -153,10 +170,11 @@ class RunResult:
     interrupted : bool
         True if a stop request (Ctrl-C, SIGTERM) ended the run early; ``error`` then
         says by what and where.
-    rounded_signals : frozenset of str
-        Signals whose samples were rounded to float32 when the run was saved (a loaded
-        run): each sample is within :data:`FLOAT32_MAX_RELATIVE_ERROR` (relative) of the
-        value the FMU gave.  Empty for a run held in memory since it ran.
+    rounded_signals : dict of str to float
+        Signals whose samples were rounded when the run was saved (a loaded run), each
+        mapped to the bound of ``|stored - value| / |value|`` for its samples
+        (:data:`FLOAT32_MAX_RELATIVE_ERROR` or :data:`CONTEXT_MAX_RELATIVE_ERROR`).
+        Empty for a run held in memory since it ran.
     """
 
     scenario: str
@@ -169,7 +187,7 @@ class RunResult:
     stop_time_s: float = 0.0
     manoeuvre_windows: list[FaultWindow] = field(default_factory=list)
     interrupted: bool = False
-    rounded_signals: frozenset[str] = frozenset()
+    rounded_signals: dict[str, float] = field(default_factory=dict)
 
     @property
     def completed(self) -> bool:
@@ -216,18 +234,23 @@ class RunResult:
                 raise ValueError(f"signal {name!r} has shape {col.shape}, time has ({n_rows},)")
         return names, columns
 
-    def save(self, directory: Path | str, precision: str = DEFAULT_PRECISION) -> None:
+    def save(self, directory: Path | str, precision: str = DEFAULT_PRECISION,
+             judged: Collection[str] = ()) -> None:
         """Write ``signals.npz`` and ``run.json`` into ``directory`` (created if needed).
 
         Parameters
         ----------
         directory : path
             The run's folder.
-        precision : {"float32", "float64"}
-            How to store a Real signal that no exact compact storage fits (see the
-            module's doc): rounded to float32 (relative error <= 2**-24), or float64
-            with every bit.  ``time``, integer-valued, constant and float32-exact
-            signals are stored exactly either way.
+        precision : {"compact", "float32", "float64"}
+            How to store a Real signal that no exact compact storage fits (module doc):
+            ``"compact"`` rounds the signals in ``judged`` to float32 (relative error
+            <= 2**-24) and the others to 13 significant bits (<= 2**-13),
+            ``"float32"`` rounds every one to float32, ``"float64"`` keeps every bit.
+            ``time``, integer-valued, constant and float32-exact signals are stored
+            exactly in any case.
+        judged : collection of str
+            Signals that an expectation reads (kept to float32 by ``"compact"``).
 
         Each file is written under a temporary name and renamed, so that an interrupted
         save never leaves a truncated file under the real name.
@@ -235,17 +258,21 @@ class RunResult:
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {', '.join(map(repr, PRECISIONS))}, "
                              f"got {precision!r}")
+        if isinstance(judged, str):
+            raise TypeError("judged must be a collection of signal names, not a string")
+        judged = set(judged)
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
         names, columns = self._columns()
         arrays = {_TIME_KEY: _byte_planes(columns[0], "<f8")}
         storage = {_TIME_KEY: "float64"}
-        rounded = set(self.rounded_signals) & set(names)
+        rounded = {n: b for n, b in self.rounded_signals.items() if n in names}
         for name, column in zip(names, columns[1:], strict=True):
-            kind, array, exact = _encode(column, precision)
+            bits = _significant_bits(precision, name in judged)
+            kind, array, bound = _encode(column, bits)
             arrays[name], storage[name] = array, kind
-            if not exact:
-                rounded.add(name)
+            if bound > rounded.get(name, 0.0):
+                rounded[name] = bound
         _atomic_write(directory / SIGNALS_FILE, lambda fh: np.savez_compressed(fh, **arrays))
         stale_csv = directory / CSV_FILE
         if stale_csv.exists():  # an export of an earlier run would no longer match
@@ -261,10 +288,9 @@ class RunResult:
             "n_samples": len(columns[0]),
             "signals_encoding": _ENCODING,
             "signals_precision": precision,
-            "rounded_signals": [n for n in names if n in rounded],
-            "rounded_max_relative_error": FLOAT32_MAX_RELATIVE_ERROR,
             "signals": names,
             "signal_storage": storage,
+            "rounded_signals": {n: rounded[n] for n in names if n in rounded},
             "fault_windows": [w.to_json() for w in self.fault_windows],
             "manoeuvre_windows": [w.to_json() for w in self.manoeuvre_windows],
         }
@@ -275,16 +301,16 @@ class RunResult:
         """Write the signals as CSV: header ``time,<instance.variable>,...``, one row per
         recorded point, ``nan`` / ``inf`` / ``-inf`` for non-finite values.
 
-        Numbers are the shortest decimals that read back as the stored value: up to 17
-        significant digits (float64) in general, up to 9 for the signals in
-        :attr:`rounded_signals` (the float32 they hold: parse as float32, or as float64
-        and round to float32, to get the stored value back; digits beyond would only
-        show the rounding)."""
+        Numbers carry the digits their stored precision has: exact signals the shortest
+        decimal that reads back as the same float64 (up to 17 significant digits);
+        signals in :attr:`rounded_signals` the shortest that reads back as the same
+        float32 (up to 9) when rounded to float32, 5 significant digits when rounded to
+        13 bits (parsed and rounded to 13 bits again, they give the stored value)."""
         path = Path(path)
         names, columns = self._columns()
         path.parent.mkdir(parents=True, exist_ok=True)
-        texts = [_texts(columns[0], False)]
-        texts += [_texts(c, n in self.rounded_signals)
+        texts = [_texts(columns[0], None)]
+        texts += [_texts(c, self.rounded_signals.get(n))
                   for n, c in zip(names, columns[1:], strict=True)]
 
         def write(fh: Any) -> None:
@@ -308,7 +334,11 @@ class RunResult:
         if version > _FORMAT_VERSION:
             raise ValueError(f"{meta_path}: format_version {version} is newer than this "
                              f"harness reads ({_FORMAT_VERSION}); update gyrodiag")
-        rounded: list[str] = []
+        rounded: dict[str, float] = {}
+        if meta.get("signals_dropped"):
+            raise FileNotFoundError(f"{directory}: the signals of this run were not kept "
+                                    f"({meta['signals_dropped']}); only {META_FILE} is "
+                                    f"there")
         if version >= 2:
             encoding = meta.get("signals_encoding", _V2_ENCODING)
             names = list(meta.get("signals", []))
@@ -316,7 +346,11 @@ class RunResult:
                 storage = meta.get("signal_storage")
                 if not isinstance(storage, dict):
                     raise ValueError(f"{meta_path}: no signal_storage table (format 3)")
-                rounded = [str(n) for n in meta.get("rounded_signals", [])]
+                table = meta.get("rounded_signals", {})
+                if not isinstance(table, dict):
+                    raise ValueError(f"{meta_path}: rounded_signals must map signal names "
+                                     f"to relative error bounds")
+                rounded = {str(n): float(b) for n, b in table.items()}
             elif encoding == _V2_ENCODING:
                 storage = dict.fromkeys([_TIME_KEY, *names], "float64")
             else:
@@ -337,8 +371,34 @@ class RunResult:
             wall_time_s=float(meta.get("wall_time_s", 0.0)),
             stop_time_s=float(meta.get("stop_time_s", 0.0)),
             interrupted=bool(meta.get("interrupted", False)),
-            rounded_signals=frozenset(n for n in rounded if n in signals),
+            rounded_signals={n: b for n, b in rounded.items() if n in signals},
         )
+
+
+def drop_signals(directory: Path | str, reason: str) -> None:
+    """Delete a saved run's ``signals.npz``, keeping its ``run.json`` with the reason.
+
+    :meth:`RunResult.load` of the run then raises FileNotFoundError quoting ``reason``;
+    ``export-csv`` of a folder passes over it.
+    """
+    directory = Path(directory)
+    meta_path = directory / META_FILE
+    meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    meta["signals_dropped"] = reason
+    text = json.dumps(meta, indent=2) + "\n"
+    _atomic_write(meta_path, lambda fh: fh.write(text.encode("utf-8")))
+    (directory / SIGNALS_FILE).unlink(missing_ok=True)
+    (directory / CSV_FILE).unlink(missing_ok=True)
+
+
+def signals_dropped(directory: Path | str) -> str | None:
+    """Why the run saved in ``directory`` has no signals (None: it has them)."""
+    meta_path = Path(directory) / META_FILE
+    try:
+        reason = json.loads(meta_path.read_text(encoding="utf-8")).get("signals_dropped")
+    except (OSError, ValueError):
+        return None
+    return str(reason) if reason else None
 
 
 def _byte_planes(column: np.ndarray, dtype: str) -> np.ndarray:
@@ -352,26 +412,56 @@ def _same_values(a: np.ndarray, b: np.ndarray) -> bool:
                 and np.array_equal(np.signbit(a), np.signbit(b)))
 
 
-def _encode(column: np.ndarray, precision: str) -> tuple[str, np.ndarray, bool]:
-    """Storage kind, npz entry and whether it is exact, for one float64 column."""
+def _significant_bits(precision: str, judged: bool) -> int | None:
+    """Significant bits to round a Real signal to (None: keep float64)."""
+    if precision == "float64":
+        return None
+    if precision == "float32" or judged:
+        return 24
+    return CONTEXT_SIGNIFICANT_BITS
+
+
+def _round_to_bits(column: np.ndarray, bits: int) -> np.ndarray:
+    # round to nearest (ties away from zero) on the float64 bit pattern: clearing the low
+    # 53 - bits significand bits after adding half of the last kept one; a carry into the
+    # exponent is the right result, and finite values stay finite within float32's range
+    drop = 53 - bits
+    pattern = np.ascontiguousarray(column, dtype="<f8").view("<u8")
+    finite = np.isfinite(column)
+    rounded = pattern.copy()
+    rounded[finite] = ((pattern[finite] + np.uint64(1 << (drop - 1))) >> np.uint64(drop)) \
+        << np.uint64(drop)
+    return rounded.view("<f8")
+
+
+def _encode(column: np.ndarray, bits: int | None) -> tuple[str, np.ndarray, float]:
+    """Storage kind, npz entry and relative error bound (0: exact) of a float64 column
+    whose Real values may be rounded to ``bits`` significant bits (None: not at all)."""
     n = len(column)
     if n and _same_values(column, np.full(n, column[0])):
-        return "constant", column[:1].copy(), True
+        return "constant", column[:1].copy(), 0.0
     if n and np.isfinite(column).all() and not np.signbit(column[column == 0]).any() \
             and np.array_equal(column, np.trunc(column)):
         lo, hi = column.min(), column.max()
         for kind in _INTEGER_TYPES:
             half = 2.0 ** (np.iinfo(kind).bits - 1)  # exact as a float, unlike iinfo.max
             if -half <= lo and hi < half:
-                return kind, column.astype(kind), True
+                return kind, column.astype(kind), 0.0
     finite = np.abs(column[np.isfinite(column)])
-    if not (finite.size and (finite.max() > _FLOAT32_MAX
-                             or finite[finite > 0].min(initial=1.0) < _FLOAT32_TINY)):
-        as32 = column.astype("<f4")
-        exact = _same_values(as32.astype(float), column)
-        if exact or precision == "float32":
-            return "float32", _byte_planes(as32, "<f4"), exact
-    return "float64", _byte_planes(column, "<f8"), True
+    if finite.size and (finite.max() > _FLOAT32_MAX
+                        or finite[finite > 0].min(initial=1.0) < _FLOAT32_TINY):
+        return "float64", _byte_planes(column, "<f8"), 0.0
+    as32 = column.astype("<f4")
+    if _same_values(as32.astype(float), column):
+        return "float32", _byte_planes(as32, "<f4"), 0.0
+    if bits is None:
+        return "float64", _byte_planes(column, "<f8"), 0.0
+    if bits < 24:
+        narrow = _round_to_bits(column, bits)
+        if np.abs(narrow[np.isfinite(narrow)]).max(initial=0.0) > _FLOAT32_MAX:
+            return _encode(column, 24)  # rounded up past float32's largest
+        return "float32", _byte_planes(narrow.astype("<f4"), "<f4"), 2.0 ** -bits
+    return "float32", _byte_planes(as32, "<f4"), FLOAT32_MAX_RELATIVE_ERROR
 
 
 def _decode(entry: np.ndarray, kind: str, n_rows: int | None, path: Path,
@@ -479,12 +569,17 @@ def _load_csv(csv_path: Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     return table[:, 0].copy(), signals
 
 
-def _texts(column: np.ndarray, as_float32: bool) -> list[str]:
+def _texts(column: np.ndarray, bound: float | None) -> list[str]:
     # repr of a Python float / str of a numpy float32 is the shortest string that reads
-    # back as the same float64 / float32
-    if as_float32:
+    # back as the same float64 / float32; a p-bit number needs 1 + ceil(p log10 2)
+    # significant digits to be told from its neighbours
+    if bound is None:
+        return [repr(v) for v in column.tolist()]
+    bits = round(-math.log2(bound))
+    if bits >= 24:
         return [str(v) for v in column.astype(np.float32)]
-    return [repr(v) for v in column.tolist()]
+    digits = 1 + math.ceil(bits * math.log10(2.0))
+    return [f"{v:.{digits}g}" for v in column.tolist()]
 
 
 def _missing_signal_message(name: str, known: list[str]) -> str:

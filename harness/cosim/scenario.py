@@ -428,14 +428,17 @@ class Record(_Strict):
     every FMU); what an expectation reads is always recorded too."""
     decimation: int = Field(default=1, ge=1)
     """Record every ``decimation`` base steps."""
-    precision: Literal["float32", "float64"] = "float32"
+    precision: Literal["compact", "float32", "float64"] = "compact"
     """How ``signals.npz`` stores a Real signal that no exact compact form fits:
-    ``"float32"`` rounds each sample to float32 (relative error at most 2**-24, about
-    6e-8; about a third of the disk space), ``"float64"`` keeps every bit.  Time,
-    Integer, Boolean, integer-valued, constant and float32-exact signals are stored
-    exactly either way; ``run.json`` lists the rounded signals.  Verdicts of ``verify``
-    and ``all`` are computed from the full-precision run before it is stored; ``report``
-    reads the stored values."""
+    ``"compact"`` rounds the signals an expectation reads (in a training scenario:
+    every signal, the learners read them) to float32 (relative error at most 2**-24,
+    about 6e-8) and the others, kept for plots and inspection, to 13 significant bits
+    (at most 2**-13, about 1.2e-4); ``"float32"`` rounds every one to
+    float32; ``"float64"`` keeps every bit.  Time, Integer, Boolean, integer-valued,
+    constant and float32-exact signals are stored exactly in any case; ``run.json``
+    lists the rounded signals with their bounds.  Verdicts of ``verify`` and ``all`` are
+    computed from the full-precision run before it is stored; ``report`` reads the
+    stored values."""
 
     @field_validator("variables")
     @classmethod
