@@ -65,7 +65,7 @@ PHYSICAL_NAMES = ("c_over_J", "k_over_J", "L_over_J", "lambda_over_J", "Ku_over_
 PHYSICAL_UNITS = ("1/s", "1/s2", "rad/s", "1/s2", "1/s2")
 
 #: Packages the host's Python needs (written to resources/requirements.txt).
-REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10", "control>=0.10"]
+REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10"]
 
 VARIABLE_META: dict[str, dict[str, Any]] = {}
 
