@@ -20,12 +20,14 @@ subprocess post-processes ``modelDescription.xml``, which pythonfmu leaves inval
   unit declared in ``<UnitDefinitions>`` (SI base-unit exponents where known);
 * ``resources/requirements.txt`` from the script's ``REQUIREMENTS`` (default numpy+scipy),
   because the FMU runs on the host's Python (DESIGN §6.5).  Hosts that are not Python
-  processes need ``LD_PRELOAD=libpython3.X.so`` on Linux to load these FMUs.
+  processes need no LD_PRELOAD: the status shim finds and starts a Python itself
+  (``HOST_NOTES`` below, in every FMU's documentation).
 
 The Linux binary is wrapped by the status shim (``fmu_src/shim/fmi2_status_shim.c``,
 compiled here with the system C compiler against fmpy's FMI headers): pythonfmu 0.7
 turns every Python exception into fmi2Fatal, so our facades log problems at error
-status instead of raising, and the shim returns fmi2Error for such a call. The original
+status instead of raising, and the shim returns fmi2Error for such a call. The shim also
+starts the interpreter in hosts that are not Python processes and guards FMU states. The original
 pythonfmu library is kept next to it as ``pythonfmu-export.so``. Without a C compiler
 the FMU is built unwrapped, with a warning (errors then surface as fmi2OK + log).
 
@@ -90,6 +92,8 @@ KNOWN_UNITS: dict[str, dict[str, float]] = {
     "N.m": {"kg": 1, "m": 2, "s": -2},
     "A": {"A": 1},
     "V": {"kg": 1, "m": 2, "s": -3, "A": -1},
+    "V/s": {"kg": 1, "m": 2, "s": -4, "A": -1},
+    "V2": {"kg": 2, "m": 4, "s": -6, "A": -2},
     "V/(rad/s)": {"kg": 1, "m": 2, "s": -2, "A": -1, "rad": -1},
     "N.m/A": {"kg": 1, "m": 2, "s": -2, "A": -1},
     "rad/s/A": {"rad": 1, "s": 1, "A": -1, "kg": -1, "m": -2},
@@ -116,12 +120,18 @@ def script_path(entry: tuple[str, str, str]) -> Path:
     return ROOT / folder / script
 
 
+#: Shipped with every FMU: the facades' shared base (guarded states, step checks).
+FACADE_BASE = ROOT / "fmu_src" / "gd_fmu_base.py"
+
+
 def project_files(entry: tuple[str, str, str]) -> list[Path]:
-    """Files shipped next to the script: sibling modules and sibling packages."""
+    """Files shipped next to the script: sibling modules and packages, the facade base."""
     script = script_path(entry)
     folder = script.parent
     files = [p for p in sorted(folder.glob("*.py"))
              if p != script and not p.name.startswith("test_")]
+    if FACADE_BASE not in files:
+        files.append(FACADE_BASE)
     packages = [p for p in sorted(folder.iterdir()) if p.is_dir() and (p / "__init__.py").exists()]
     return files + packages
 
@@ -289,7 +299,7 @@ def compile_status_shim(work_dir: Path) -> Path | None:
     headers = Path(fmpy.__file__).parent / "c-code"
     work_dir.mkdir(parents=True, exist_ok=True)
     out = work_dir / "fmi2_status_shim.so"
-    cmd = [cc, "-O2", "-shared", "-fPIC", "-Wall", "-Wextra", "-Werror", f"-I{headers}",
+    cmd = [cc, "-O2", "-shared", "-fPIC", "-pthread", "-Wall", "-Wextra", "-Werror", f"-I{headers}",
            "-o", str(out), str(SHIM_SOURCE), "-ldl"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
@@ -326,32 +336,49 @@ def compile_kernels(source: Path, work_dir: Path) -> Path | None:
 
 HOST_NOTES = """
 <h2>Using this FMU</h2>
-<p>This is an FMI 2.0 co-simulation FMU made with pythonfmu 0.7: its binary starts the
-<em>host's</em> Python interpreter and imports the model from <code>resources/</code>.
-The Python packages in <code>resources/requirements.txt</code> must be installed in that
-interpreter (<code>pip install -r requirements.txt</code>).</p>
+<p>This is an FMI 2.0 co-simulation FMU made with pythonfmu 0.7: its binary runs the
+model in a CPython interpreter of the host machine and imports the model from
+<code>resources/</code>. What a host needs:</p>
 <ul>
-<li><b>Python hosts</b> (FMPy, the gyrodiag harness): nothing else to do.</li>
-<li><b>Hosts that are not Python processes</b> (Simulink, OMSimulator, libcosim, a C
-master) on Linux: the binary needs the Python shared library already loaded; start the
-host with <code>LD_PRELOAD=/path/to/libpython3.X.so</code> (the library of the Python
-whose packages are installed, e.g. <code>$(python3 -c "import sysconfig,os;
-print(os.path.join(sysconfig.get_config_var('LIBDIR'),
-sysconfig.get_config_var('LDLIBRARY')))")</code>), and make sure that interpreter's
-<code>PYTHONHOME</code>/<code>PYTHONPATH</code> find the packages.</li>
-<li>All pythonfmu FMUs in one process share one interpreter: load each FMU once per
-process and run long campaigns in separate processes.</li>
-<li>Errors: a bad parameter or an unexpected problem is logged through the FMU logger and
-the call returns fmi2Error (binaries/linux64 carries a small status shim around
-pythonfmu's library, which itself would report fmi2Fatal). The Windows binary is
-pythonfmu's own, without the shim.</li>
-<li>Speed: per-sample kernels are compiled (<code>resources/gyrodiag/_ckernels.abi3.so</code>,
+<li><b>Platform</b>: Linux x86-64 (<code>binaries/linux64</code>, with the gyrodiag status
+shim described below) or Windows x86-64 (pythonfmu's own binary, without the shim).</li>
+<li><b>A Python with the packages</b> of <code>resources/requirements.txt</code>
+(<code>python -m pip install -r requirements.txt</code>); pythonfmu itself is shipped in
+<code>resources/</code>. Tested with CPython 3.11.</li>
+<li><b>Python hosts</b> (FMPy, the gyrodiag harness, libcosimpy): nothing else; the FMU
+uses the host's interpreter.</li>
+<li><b>Hosts that are not Python processes</b> (a C master, libcosim's cosim, Simulink,
+OMSimulator) on Linux: nothing to preload. At the first fmi2Instantiate the binary asks
+one Python executable, once, where its shared libpython and its <code>sys.path</code>
+are: <code>$GYRODIAG_PYTHON</code> if set (a path to a python executable), else
+<code>$VIRTUAL_ENV/bin/python</code>, else <code>python3</code> on <code>PATH</code>.
+It loads that libpython with RTLD_GLOBAL, starts the interpreter on the calling thread
+without signal handlers, gives it that <code>sys.path</code> (its site-packages,
+<code>.pth</code> entries and <code>PYTHONPATH</code>) and leaves it running until the
+process exits: the interpreter is not finalised (finalising scipy there crashed hosts at
+exit). That Python needs a shared libpython: a build with <code>--enable-shared</code>
+(python.org installers, conda, pyenv with
+<code>PYTHON_CONFIGURE_OPTS=--enable-shared</code>) or the distribution's
+<code>libpython3.X</code> package. If none is found, fmi2Instantiate fails with a
+message saying so. The older recipe (<code>LD_PRELOAD</code> of libpython plus
+<code>PYTHONPATH</code>) still works.</li>
+<li>All pythonfmu FMUs of one process share one interpreter: load FMUs of one gyrodiag
+build together (they share the module <code>gd_fmu_base</code>) and run long campaigns
+in separate processes.</li>
+<li><b>Errors</b>: a bad parameter (named, with its range), a refused step or an
+unexpected problem is logged through the FMU logger and the call returns fmi2Error, never
+fmi2Fatal; the instance keeps its state. Messages of status warning and error reach the
+logger whatever the debug-logging setting.</li>
+<li><b>FMU states</b>: get/set/serialize hold every internal filter state, covariance and
+window. Serialized states are framed (<code>GDFMUST1</code>, the FMU's GUID, length,
+FNV-1a 64 checksum): truncated, corrupt or foreign bytes, and states of other FMUs, give
+fmi2Error naming the problem and leave the instance unchanged.</li>
+<li><b>Speed</b>: per-sample kernels are compiled
+(<code>resources/gyrodiag/_ckernels.abi3.so</code>,
 Linux x86-64, any CPython &ge; 3.11, any numpy; no JIT, no cache folder, nothing written
 at run time). Where it does not load (another platform or Python) the FMU runs the same
 kernels in plain Python, with the same outputs to 1e-12, slower; the environment
 variable <code>GYRODIAG_KERNELS=python</code> forces that fallback.</li>
-<li>The FMU supports fmi2Get/SetFMUstate and state serialisation; the saved state holds
-every internal filter state, covariance and window.</li>
 </ul>
 """
 
@@ -436,6 +463,8 @@ def build_one(name: str, out_dir: Path) -> Path:
 
     entry = next(e for e in REGISTRY if e[0] == name)
     script = script_path(entry)
+    # the builder imports the script, which imports the facade base shipped beside it
+    sys.path.insert(0, str(FACADE_BASE.parent))
     out_dir.mkdir(parents=True, exist_ok=True)
     tmp_fmu = out_dir / f".{name}.building.fmu"
     built = FmuBuilder.build_FMU(

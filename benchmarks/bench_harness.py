@@ -15,17 +15,24 @@ Prints, in one run:
   step and duration, recording the same outputs, each in a fresh process; the ratio
   and the difference per step.
 
-Figures only, no assertions. FMUs are taken from ``build/fmus`` (run build_fmu.py).
+Figures only, no assertions. FMUs are taken from ``build/fmus`` (built first if any is
+missing or older than its sources). Scenarios that read a file produced at run time
+(``${out}/dtg_signatures.json``: the DTG fault scenarios) get it from a
+``learn-signatures`` run into a temporary results folder first (its time is printed, not
+counted in the scenarios' figures).
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import subprocess
 import sys
 import tempfile
 import textwrap
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -36,8 +43,9 @@ _SCENARIO_RUNNER = textwrap.dedent(
     import json, os, sys, time
     from harness import load_scenario, run_scenario
     s = load_scenario(sys.argv[1])
+    results_dir = sys.argv[3] if len(sys.argv) > 3 else None
     t0 = time.perf_counter()
-    r = run_scenario(s, fmu_dir=sys.argv[2], progress=False)
+    r = run_scenario(s, fmu_dir=sys.argv[2], progress=False, results_dir=results_dir)
     wall = time.perf_counter() - t0
     print(json.dumps({"name": s.name, "sim_s": s.duration_s, "wall_s": wall,
                       "steps": s.n_steps, "error": r.error}))
@@ -72,11 +80,55 @@ def _run_json(code: str, *args: str) -> dict:
     return json.loads(lines[-1])
 
 
-def seed_scenarios(paths: list[str]) -> None:
+def build_fmus() -> None:
+    """Build the FMUs if any is missing or older than its sources (fresh process)."""
+    spec = importlib.util.spec_from_file_location("gd_build_fmu_bench", ROOT / "build_fmu.py")
+    builder = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(builder)
+    stale = builder.stale_fmus(FMU_DIR)
+    if stale:
+        print(f"building the FMUs ({', '.join(stale)}) into {FMU_DIR}", flush=True)
+        subprocess.run([sys.executable, str(ROOT / "build_fmu.py"), "--out", str(FMU_DIR)],
+                       cwd=ROOT, check=True, capture_output=True)
+
+
+#: Run-time files the seed scenarios read through ``${out}/``, and the training set each
+#: is learned from.
+RECIPES = {"dtg_signatures.json": ROOT / "scenarios" / "training",
+           "dtg_patterns.json": ROOT / "scenarios" / "training" / "patterns"}
+
+
+def _learn_signatures(results: Path, name: str = "dtg_signatures.json") -> None:
+    subprocess.run([sys.executable, "-m", "harness", "learn-signatures",
+                    str(RECIPES[name]), "--out", str(results / name), "--fmu-dir",
+                    str(FMU_DIR), "--no-progress", "-q"], cwd=ROOT, check=True)
+
+
+def prepare_results(paths: list[str], results: Path,
+                    learn: Callable[[Path, str], None] = _learn_signatures) -> None:
+    """Provide in ``results`` the run-time files that the scenarios name through
+    ``${out}/`` (the DTG signature and pattern libraries, learned from
+    scenarios/training and scenarios/training/patterns)."""
+    from harness.cosim.scenario import RESULTS_PREFIX, load_scenario
+
+    needed = {spec[len(RESULTS_PREFIX):] for p in paths
+              for inst in load_scenario(p).fmus.values() for spec in inst.files.values()
+              if spec.startswith(RESULTS_PREFIX)}
+    unknown = needed - set(RECIPES)
+    if unknown:
+        raise RuntimeError(f"no recipe for the run-time files {sorted(unknown)}")
+    for name in sorted(needed):
+        t0 = time.perf_counter()
+        learn(results, name)
+        print(f"({name} learned for the scenarios that read it in "
+              f"{time.perf_counter() - t0:.0f} s)")
+
+
+def seed_scenarios(paths: list[str], results: Path) -> None:
     print("Seed scenarios (each in a fresh process)")
     print(f"{'scenario':40s} {'sim s':>8s} {'wall s':>8s} {'RTF':>8s} {'us/step':>9s}")
     for path in paths:
-        r = _run_json(_SCENARIO_RUNNER, path, str(FMU_DIR))
+        r = _run_json(_SCENARIO_RUNNER, path, str(FMU_DIR), str(results))
         rtf = r["sim_s"] / r["wall_s"]
         per_step = 1e6 * r["wall_s"] / max(r["steps"], 1)
         flag = "" if r["error"] is None else "  (run error)"
@@ -123,8 +175,11 @@ def main(argv: list[str] | None = None) -> int:
     paths = args.scenarios
     if paths is None:
         paths = [str(p) for p in sorted((ROOT / "scenarios").glob("*.toml"))]
+    build_fmus()
     if paths:
-        seed_scenarios(paths)
+        with tempfile.TemporaryDirectory(prefix="bench-harness-") as tmp:
+            prepare_results(paths, Path(tmp))
+            seed_scenarios(paths, Path(tmp))
     else:
         print("no seed scenarios found under scenarios/")
     master_overhead(args.overhead_steps)

@@ -24,7 +24,7 @@ import tempfile
 from concurrent.futures import ThreadPoolExecutor
 
 FMUS = ("Aircraft", "FaultInjector", "Diagnoser")
-STEP_S = 0.001  # the Diagnoser insists on one sample per step at its default period
+STEP_S = 0.001  # one sample per step at the Diagnoser's default period
 
 
 def child(fmu_dir: str, steps: int) -> None:

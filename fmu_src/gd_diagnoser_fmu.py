@@ -13,11 +13,13 @@ Channels (each can be switched off):
 * Detection filter: sensor-fault detection and isolation on a linear plant, by default
   the seed aircraft (``gyrodiag.df_channel``).
 
-Sampled-data contract: every enabled channel processes exactly one sample per
-``doStep``, taken from the inputs set before the step (at the step's start time), and
-the outputs after the step describe that sample. The communication step must equal
-``sample_period_s`` (relative tolerance 1e−6); any other step is refused with fmi2Error.
-Run several instances for channels at different rates.
+Sampled-data contract: a ``doStep`` of n sample periods (h = n·``sample_period_s``,
+n ≥ 1, relative tolerance 1e−6) makes every enabled channel process n samples, at the
+times t, t + T, …, t + (n−1)·T, all from the inputs set before the step (held over the
+step); the outputs after the step describe the last of them (``dtg.first_alarm_time``
+and the latched ``df.detected`` keep what happened inside the step). Any other step is
+refused with fmi2Error and consumes no sample. Run several instances for channels at
+different rates.
 
 Errors: an invalid parameter, a wrong step or an unexpected exception is logged through
 the FMU logger with the parameter name and allowed range, and the call returns
@@ -25,8 +27,10 @@ fmi2Error (never fmi2Fatal): the status shim in the FMU binary maps the logged e
 NaN/Inf on a channel's input clears that channel's ``valid`` output, leaves its state
 untouched, and the channel resumes on the next valid sample: its outputs are then those
 of a run without that sample (the channels' own clocks count valid samples, e.g. for the
-learning and calibration windows). Reported times (``dtg.first_alarm_time``) are
-simulation times.
+learning and calibration windows). One exception: the DTG channel remembers the gap and
+leaves the regression rows that span it, and the prefilter's ringing after it, out of
+its reference statistics (a one-sample jump in the signals would look like a noise
+burst). Reported times (``dtg.first_alarm_time``) are simulation times.
 """
 
 from __future__ import annotations
@@ -40,13 +44,21 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from gd_fmu_base import FacadeBase
+from gd_fmu_base import STEP_RTOL, FacadeBase, samples_in_step
 from pythonfmu import DefaultExperiment
 
 from gyrodiag.aircraft import seed_aircraft
 from gyrodiag.decision import UNKNOWN_CODE
 from gyrodiag.dtg import N_THETA
-from gyrodiag.dtg_channel import ESTIMATOR_KINDS, DTGChannel, DTGChannelConfig
+from gyrodiag.dtg_channel import (
+    CLASSIFIERS,
+    ESTIMATOR_KINDS,
+    DTGChannel,
+    DTGChannelConfig,
+    DTGChannelOutput,
+)
+from gyrodiag.dtg_patterns import PatternLibrary
+from gyrodiag.dtg_reference import CHANNELS, N_CHANNELS
 from gyrodiag.grey import ClassicGreyPredictor, GreyFaultDetector, ImprovedGreyPredictor
 
 if TYPE_CHECKING:  # imported when the channel is built: it needs SciPy (design time)
@@ -56,18 +68,36 @@ if TYPE_CHECKING:  # imported when the channel is built: it needs SciPy (design 
 MAX_SIGNATURES = 8
 #: Fault codes of the summary output ``fault_code``.
 SUMMARY_CODE_BASE = {"dtg": 100, "grey": 200, "df": 300}
+#: Summary code offsets of the detection filter beyond a sensor number.
+DF_NOT_ISOLATED, DF_MULTIPLE = -1, -2
 
 SEED = seed_aircraft()
 #: Detection-filter dimensions: states, inputs, sensors (those of the seed aircraft).
 DF_N, DF_P, DF_M = SEED.A.shape[0], SEED.B.shape[1], SEED.C.shape[0]
 
 PHYSICAL_NAMES = ("c_over_J", "k_over_J", "L_over_J", "lambda_over_J", "Ku_over_KT_J")
+#: Units of the DTG statistics channels (Utx, Uty, Ux, Uy, ex, ey).
+CHANNEL_TEXT = "Utx, Uty, Ux, Uy, residual x, residual y"
 PHYSICAL_UNITS = ("1/s", "1/s2", "rad/s", "1/s2", "1/s2")
+#: Declared unit of the grey channel's signal (the HRG output voltage it was made for).
+GREY_UNIT = "V"
 
 #: Packages the host's Python needs (written to resources/requirements.txt).
 REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10"]
 
 VARIABLE_META: dict[str, dict[str, Any]] = {}
+#: Lower bound declared for parameters that must be > 0 (FMI bounds are inclusive).
+POSITIVE = 1e-9
+#: Parameters that may change between steps; a change applies from the next sample
+#: (the channel is rebuilt with the new value and takes over the old one's state).
+TUNABLE = {
+    "dtg": ("dtg.low", "dtg.high", "dtg.persistence_k", "dtg.latch", "dtg.max_distance",
+            *(f"dtg.monitored[{i}]" for i in range(1, N_THETA + 1)),
+            # the pattern classifier's residual tests (the monitor is rebuilt with them)
+            "dtg.level_threshold", "dtg.var_threshold", "dtg.long_var_threshold"),
+    "grey": ("grey.threshold", "grey.clear_after_s"),
+}
+_TUNABLE_NAMES = frozenset(n for names in TUNABLE.values() for n in names)
 
 # Variable names used at every step, formatted once (an f-string per variable per step
 # cost ~10 % of a step).
@@ -83,6 +113,15 @@ _DF_Y_KEYS = tuple(f"df.y[{i + 1}]" for i in range(DF_M))
 _DF_RESIDUAL_KEYS = tuple(f"df.residual[{i + 1}]" for i in range(DF_M))
 _DF_ALARM_KEYS = tuple(f"df.alarm[{i + 1}]" for i in range(DF_M))
 _DF_THRESHOLD_KEYS = tuple(f"df.threshold_in_use[{i + 1}]" for i in range(DF_M))
+_DF_STATISTIC_KEYS = tuple(f"df.statistic[{i + 1}]" for i in range(DF_M))
+_DF_SENSOR_TYPE_KEYS = tuple(f"df.sensor_fault_type[{i + 1}]" for i in range(DF_M))
+_DF_OFFSET_KEYS = tuple(f"df.fault_offset[{i + 1}]" for i in range(DF_M))
+_DF_GAIN_KEYS = tuple(f"df.fault_gain[{i + 1}]" for i in range(DF_M))
+_DF_RATE_KEYS = tuple(f"df.fault_rate[{i + 1}]" for i in range(DF_M))
+_DF_NOISE_RATIO_KEYS = tuple(f"df.noise_ratio[{i + 1}]" for i in range(DF_M))
+_DF_NOISE_STD_KEYS = tuple(f"df.noise_std_in_use[{i + 1}]" for i in range(DF_M))
+#: df.sensor_fault_type codes whose size goes to each per-sensor output.
+_OFFSET_TYPES, _GAIN_TYPES, _RATE_TYPES, _NOISE_TYPES = {1, 3, 4, 7}, {2}, {6}, {5}
 
 #: SI exponents of the seed aircraft's signal units (for the units of A, B, C entries).
 _UNIT_EXPONENTS: dict[str, dict[str, int]] = {
@@ -132,6 +171,9 @@ class Diagnoser(FacadeBase):
         "grey-prediction detection, Beard-Jones detection filter with isolation"
     )
     default_experiment = DefaultExperiment(start_time=0.0, stop_time=10.0, step_size=1e-3)
+    # building the channels costs up to a second, and the initial outputs (learning,
+    # calibrating flags) depend on no input: computed once, at the end of initialisation
+    provisional_outputs = False
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
@@ -139,18 +181,34 @@ class Diagnoser(FacadeBase):
         self._dtg: DTGChannel | None = None
         self._grey: GreyFaultDetector | None = None
         self._df: DFChannel | None = None
+        self._df_copied: tuple[bool, Any, Any] | None = None
         self._ready = False
         self._start_time = 0.0
         # Host time of the first DTG alarm: the channel's own clock counts valid samples
         # only, so after a skipped NaN sample it would lag the simulation time.
         self._dtg_first_alarm_time = math.nan
+        self._dtg_block_copied = -1
+        self._dtg_reference_warned = False
+        # tunable values the running channels were built with
+        self._applied: dict[str, Any] = {}
+        self._real_outputs = [n for n, kind in self.kinds.items()
+                              if kind == "Real" and self.causalities[n] == "output"]
+        self._nonfinite_reported: set[str] = set()
 
     # ------------------------------------------------------------------ variables
+    def add_variable(self, name: str, kind: str, causality: str, start: Any,
+                     description: str, variability: str | None = None) -> None:
+        if name in _TUNABLE_NAMES:
+            variability = "tunable"
+            description += " (tunable: a change applies from the next sample)"
+        super().add_variable(name, kind, causality, start, description, variability)
+
     def _declare(self) -> None:
         p = self.add_variable
         p("sample_period_s", "Real", "parameter", 1e-3,
-          "Sample period of every channel = required communication step")
-        _meta("sample_period_s", "s", 0.0)
+          "Sample period of every channel; a communication step must be a whole number "
+          "of sample periods")
+        _meta("sample_period_s", "s", POSITIVE)
         # DTG channel
         p("dtg.enabled", "Boolean", "parameter", True, "Run the DTG identification channel")
         p("dtg.prefilter_enabled", "Boolean", "parameter", True,
@@ -158,7 +216,7 @@ class Diagnoser(FacadeBase):
         p("dtg.prefilter_order", "Integer", "parameter", 6, "Butterworth order")
         _meta("dtg.prefilter_order", None, 1, 20)
         p("dtg.prefilter_cutoff_hz", "Real", "parameter", 50.0, "Butterworth cut-off")
-        _meta("dtg.prefilter_cutoff_hz", "Hz", 0.0)
+        _meta("dtg.prefilter_cutoff_hz", "Hz", POSITIVE)
         p("dtg.prefilter_highpass_hz", "Real", "parameter", 0.0,
           "High-pass corner cascaded with the low-pass (band-pass); 0: off (paper). "
           "Removes the slow torquer response to case rates, not in the regression")
@@ -168,10 +226,11 @@ class Diagnoser(FacadeBase):
         _meta("dtg.estimator", None, 0, 2)
         p("dtg.window", "Integer", "parameter", 500, "Batch LS window, samples")
         _meta("dtg.window", None, N_THETA)
-        p("dtg.forgetting", "Real", "parameter", 0.99, "RLS forgetting factor")
-        _meta("dtg.forgetting", "1", 0.0, 1.0)
+        p("dtg.forgetting", "Real", "parameter", 0.999,
+          "RLS forgetting factor (paper 0.99: false alarms on the DTG chain, docs/notes.md)")
+        _meta("dtg.forgetting", "1", POSITIVE, 1.0)
         p("dtg.p0", "Real", "parameter", 1e6, "Initial RLS covariance scale")
-        _meta("dtg.p0", "1", 0.0)
+        _meta("dtg.p0", "1", POSITIVE)
         p("dtg.learn_theta0", "Boolean", "parameter", True,
           "Learn nominal theta0 from the learning window (else use dtg.theta0[i])")
         for i in range(1, N_THETA + 1):
@@ -181,11 +240,11 @@ class Diagnoser(FacadeBase):
           "Start of the theta0 learning window after the first sample")
         _meta("dtg.learn_start_s", "s", 0.0)
         p("dtg.learn_end_s", "Real", "parameter", 5.0, "End of the theta0 learning window")
-        _meta("dtg.learn_end_s", "s", 0.0)
+        _meta("dtg.learn_end_s", "s", POSITIVE)
         p("dtg.low", "Real", "parameter", 0.5, "Lower ratio threshold on eta")
-        _meta("dtg.low", "1", 0.0, 1.0)
+        _meta("dtg.low", "1", 0.0, 1.0 - POSITIVE)
         p("dtg.high", "Real", "parameter", 1.5, "Upper ratio threshold on eta")
-        _meta("dtg.high", "1", 1.0)
+        _meta("dtg.high", "1", 1.0 + POSITIVE)
         p("dtg.persistence_k", "Integer", "parameter", 1, "Alarm when k of the last n violate")
         _meta("dtg.persistence_k", None, 1)
         p("dtg.persistence_n", "Integer", "parameter", 1, "Persistence window n, samples")
@@ -208,9 +267,40 @@ class Diagnoser(FacadeBase):
           "Eq. 7 distance beyond which a fault is unknown (code -1); < 0: no limit")
         _meta("dtg.max_distance", "1")
         p("dtg.classify_window_s", "Real", "parameter", 0.5,
-          "An alarm is classified by the median feature of its samples in this last "
-          "window (the signature-learning rule); 0: each sample alone (paper)")
+          "Paper classifier: an alarm is classified by the median feature of its samples "
+          "in this last window (the signature-learning rule); 0: each sample alone (paper)")
         _meta("dtg.classify_window_s", "s", 0.0)
+        p("dtg.classifier", "String", "parameter", "pattern",
+          "'pattern': frozen checked reference, residual tests with alarm memory and "
+          "classification by learned response patterns (type, signal, axis, size); "
+          "'paper': the paper's ratio band and decade signatures")
+        p("dtg.window_s", "Real", "parameter", 0.5,
+          "Pattern classifier: window of the residual level and variance tests, and the "
+          "shortest classification window")
+        _meta("dtg.window_s", "s", POSITIVE)
+        p("dtg.long_window_s", "Real", "parameter", 2.0,
+          "Pattern classifier: window of the long variance test and the longest "
+          "classification window (>= dtg.window_s)")
+        _meta("dtg.long_window_s", "s", POSITIVE)
+        p("dtg.level_threshold", "Real", "parameter", 6.0,
+          "Pattern classifier: alarm when a residual's window mean exceeds this many "
+          "block-mean spreads / sqrt(blocks) (held down to 2/3 of it)")
+        _meta("dtg.level_threshold", "1", POSITIVE)
+        p("dtg.var_threshold", "Real", "parameter", 4.0,
+          "Pattern classifier: alarm when a residual's window variance exceeds this "
+          "multiple of its nominal (held down to its 2/3 power)")
+        _meta("dtg.var_threshold", "1", 1.0 + 1e-9)
+        p("dtg.long_var_threshold", "Real", "parameter", 2.0,
+          "Pattern classifier: the same over the long window")
+        _meta("dtg.long_var_threshold", "1", 1.0 + 1e-9)
+        p("dtg.theta_spread_threshold", "Real", "parameter", 30.0,
+          "Learning guard: largest spread of a learning segment's theta against the "
+          "segments before it, in units of its least-squares covariance")
+        _meta("dtg.theta_spread_threshold", "1", POSITIVE)
+        p("dtg.clear_after_s", "Real", "parameter", 0.5,
+          "Pattern classifier: a residual alarm clears this long after the last block "
+          "with a test above its hold threshold")
+        _meta("dtg.clear_after_s", "s", 0.0)
         for name in ("Utx", "Uty", "Ux", "Uy"):
             p(f"dtg.{name}", "Real", "input", 0.0, f"DTG signal {name}")
             _meta(f"dtg.{name}", "V")
@@ -227,8 +317,11 @@ class Diagnoser(FacadeBase):
               f"Nominal theta{i} in use (0 while learning)")
             _meta(f"dtg.theta0_used[{i}]", "1")
         for name, unit in zip(PHYSICAL_NAMES, PHYSICAL_UNITS, strict=True):
-            p(f"dtg.{name}", "Real", "output", 0.0, f"Identified {name}")
+            p(f"dtg.{name}", "Real", "output", 0.0,
+              f"Identified {name}; 0 while dtg.physical_valid is false")
             _meta(f"dtg.{name}", unit)
+        p("dtg.physical_valid", "Boolean", "output", False,
+          "The identified theta gives finite physical parameters")
         p("dtg.learning", "Boolean", "output", False, "Nominal theta0 still being learned")
         p("dtg.alarm", "Boolean", "output", False, "DTG parameter-ratio alarm")
         p("dtg.fault_code", "Integer", "output", 0,
@@ -237,6 +330,7 @@ class Diagnoser(FacadeBase):
           "Simulation time of the first DTG alarm (its sample's time), -1 if none")
         _meta("dtg.first_alarm_time", "s")
         p("dtg.valid", "Boolean", "output", True, "Last DTG sample was finite")
+        self._declare_dtg_diagnosis()
         # Grey channel
         p("grey.enabled", "Boolean", "parameter", True, "Run the grey-prediction channel")
         p("grey.model", "Integer", "parameter", 1,
@@ -251,18 +345,64 @@ class Diagnoser(FacadeBase):
           "(1 - e^a)(C - b/a)e^(-am), which collapses on a constant window as in the paper")
         _meta("grey.classic_evaluation", None, 0, 1)
         p("grey.threshold", "Real", "parameter", 0.05,
-          "Alarm threshold on |y - prediction|, signal units")
-        _meta("grey.threshold", None, 0.0)
+          "Alarm threshold on |y - prediction|, in the monitored signal's unit")
+        _meta("grey.threshold", GREY_UNIT, POSITIVE)
         p("grey.clear_after_s", "Real", "parameter", 20.0,
           "Clear an alarm this long after onset; <= 0: never")
         _meta("grey.clear_after_s", "s")
         p("grey.a_min", "Real", "parameter", 1e-6,
           "|a| below which the improved model predicts by the polynomial")
         _meta("grey.a_min", "1", 0.0)
-        p("grey.y", "Real", "input", 0.0, "Monitored signal")
-        p("grey.prediction", "Real", "output", 0.0, "One-step prediction of this sample")
-        p("grey.error", "Real", "output", 0.0, "y - prediction")
+        p("grey.residual_order", "Integer", "parameter", 2,
+          "Improved model: degree of the residual polynomial (paper: 2)")
+        _meta("grey.residual_order", None, 0, 4)
+        p("grey.calibrate_s", "Real", "parameter", 0.0,
+          "> 0: calibrated detector: after the warm-up window, this long of fault-free "
+          "one-step prediction errors gives their standard deviation sigma_e, and "
+          "grey.threshold becomes the smallest threshold allowed; 0: fixed threshold "
+          "(paper)")
+        _meta("grey.calibrate_s", "s", 0.0)
+        p("grey.k_sigma", "Real", "parameter", 5.0,
+          "Calibrated: alarm when |y - prediction| > k_sigma * sigma_e")
+        _meta("grey.k_sigma", "1", POSITIVE)
+        p("grey.sequential", "Boolean", "parameter", False,
+          "Calibrated: alarm by a two-sided CUSUM on the error / sigma_e (threshold for "
+          "grey.false_alarm_rate) instead of the k-sigma test")
+        p("grey.false_alarm_rate", "Real", "parameter", 1e-3,
+          "Calibrated, sequential: design false-alarm rate (per hour)")
+        _meta("grey.false_alarm_rate", "1/h", 1e-9, 3600.0)
+        p("grey.cusum_k", "Real", "parameter", 1.5,
+          "Calibrated, sequential: CUSUM reference in sigma_e")
+        _meta("grey.cusum_k", "1", 0.05, 5.0)
+        p("grey.suspicion_sigma", "Real", "parameter", 3.0,
+          "Calibrated: a sample off its prediction by more than this many sigma_e is "
+          "not fed to the predictor until the test decides")
+        _meta("grey.suspicion_sigma", "1", POSITIVE)
+        p("grey.auto_order", "Boolean", "parameter", False,
+          "Calibrated, improved model: also run residual orders 1 and 0 during the "
+          "calibration and keep the one with the least error (noise favours low orders)")
+        p("grey.y", "Real", "input", 0.0,
+          f"Monitored signal (declared in {GREY_UNIT}, the HRG output the channel was made "
+          "for; any signal works, its unit is then that of grey.threshold and the outputs)")
+        _meta("grey.y", GREY_UNIT)
+        p("grey.prediction", "Real", "output", 0.0,
+          "One-step prediction of this sample; 0 while grey.prediction_valid is false")
+        _meta("grey.prediction", GREY_UNIT)
+        p("grey.error", "Real", "output", 0.0,
+          "y - prediction; 0 while grey.prediction_valid or grey.valid is false")
+        _meta("grey.error", GREY_UNIT)
+        p("grey.prediction_valid", "Boolean", "output", False,
+          "A prediction exists for this sample (window filled)")
         p("grey.alarm", "Boolean", "output", False, "Grey prediction alarm")
+        p("grey.calibrating", "Boolean", "output", False,
+          "Calibrated detector: warm-up or calibration window in progress (no alarm)")
+        p("grey.sigma", "Real", "output", 0.0,
+          "Calibrated: standard deviation of the fault-free prediction error in use "
+          "(signal units); 0 before it is learned and with a fixed threshold")
+        _meta("grey.sigma", GREY_UNIT, 0.0)
+        p("grey.statistic", "Real", "output", 0.0,
+          "Alarm statistic in units of its threshold (alarm at 1)")
+        _meta("grey.statistic", "1", 0.0)
         p("grey.valid", "Boolean", "output", True, "Last grey sample was finite")
         # Detection-filter channel
         self._declare_df()
@@ -270,8 +410,71 @@ class Diagnoser(FacadeBase):
         p("any_alarm", "Boolean", "output", False, "Any enabled channel in alarm")
         p("fault_code", "Integer", "output", 0,
           "0 none; 100+j DTG signature j (99 unknown); 200 grey alarm; "
-          "300+i sensor i isolated by the detection filter (299 not isolated)")
+          "300+i sensor i isolated by the detection filter (299 not isolated, "
+          "298 several sensors)")
         p("inputs_valid", "Boolean", "output", True, "All enabled channels' inputs finite")
+
+    def _declare_dtg_diagnosis(self) -> None:
+        """Outputs of the reference, residual tests and pattern classification."""
+
+        def out(name: str, kind: str, start: Any, text: str, unit: str | None = None) -> None:
+            self.add_variable(name, kind, "output", start, text, variability="discrete")
+            if unit is not None:
+                _meta(name, unit)
+
+        out("dtg.reference_valid", "Boolean", False,
+            "The learned nominal reference passed its checks (false while learning)")
+        out("dtg.reference_status", "Integer", 0,
+            "0 learning, 1 valid, 2 change inside the learning window (reference from the "
+            "segments before it), 3 mismatch with the nominal prior (prior in use), "
+            "4 not checked (paper classifier, too little data), 5 no reference (no usable "
+            "data in the learning window: no alarm)")
+        out("dtg.residual_alarm", "Boolean", False,
+            "Pattern classifier: residual tests against the frozen reference in alarm")
+        out("dtg.fault_type", "Integer", 0,
+            "0 none, 1 step, 2 noise, 3 loss, 4 drift, 5 spin slow-down, 6 torquer scale, "
+            "-1 unknown")
+        out("dtg.fault_signal", "Integer", 0,
+            "0 none or physical, 1 Utx, 2 Uty, 3 Ux, 4 Uy, -1 unknown")
+        out("dtg.fault_axis", "Integer", 0, "0 none, 1 x, 2 y, 3 both, -1 unknown")
+        out("dtg.class_distance", "Real", -1.0,
+            "Chi-square per channel of the class fitted to the statistics; -1 if none",
+            "1")
+        out("dtg.fault_size", "Real", 0.0,
+            "Estimated fault size: step offset, noise std, noise left by a loss, current "
+            "drift offset (V); 0 if undefined (dtg.fault_size_valid)", "V")
+        out("dtg.fault_size_valid", "Boolean", False, "dtg.fault_size is defined")
+        out("dtg.fault_rate", "Real", 0.0, "Estimated drift rate; 0 unless a drift", "V/s")
+        out("dtg.fault_ratio", "Real", 1.0,
+            "Physical classes: estimated parameter ratio (spin Omega/Omega_nom, torquer "
+            "Ku/Ku_nom); 1 otherwise", "1")
+        for i, ch in enumerate(CHANNELS, start=1):
+            out(f"dtg.level[{i}]", "Real", 0.0,
+                f"{ch}: window mean minus nominal, in nominal block-mean spreads (test "
+                "window; classification window in alarm)", "1")
+            out(f"dtg.log_var_ratio[{i}]", "Real", 0.0,
+                f"{ch}: log10 of window variance / nominal (detrended)", "1")
+        out("dtg.level_growth", "Real", 0.0,
+            "Growth of the residual level across the window (drift witness)", "1")
+        out("dtg.stat_window_s", "Real", 0.0,
+            "Length of the window of dtg.level / dtg.log_var_ratio", "s")
+        for i, axis in enumerate("xy", start=1):
+            out(f"dtg.residual_level_z[{i}]", "Real", 0.0,
+                f"Level test statistic of the {axis} residual", "1")
+            out(f"dtg.residual_var_ratio[{i}]", "Real", 0.0,
+                f"Short-window variance ratio of the {axis} residual", "1")
+            out(f"dtg.residual_long_var_ratio[{i}]", "Real", 0.0,
+                f"Long-window variance ratio of the {axis} residual", "1")
+        for i in range(1, N_THETA + 1):
+            out(f"dtg.ref_theta0[{i}]", "Real", 0.0,
+                f"Reference theta{i} of the residuals (0 before the reference)", "1")
+        for key, unit, text in (("ref_mean", "V", "nominal mean"),
+                                ("ref_block_std", "V", "nominal spread of block means"),
+                                ("ref_var_short", "V2", "nominal variance, short window"),
+                                ("ref_var_long", "V2", "nominal variance, long window")):
+            for i, ch in enumerate(CHANNELS, start=1):
+                out(f"dtg.{key}[{i}]", "Real", 0.0,
+                    f"{ch}: {text} (0 before the reference)", unit)
 
     def _declare_df(self) -> None:
         p = self.add_variable
@@ -297,26 +500,62 @@ class Diagnoser(FacadeBase):
         for i in range(DF_N):
             p(f"df.eigenvalue[{i + 1}]", "Real", "parameter", -float(i + 1),
               f"Eigenvalue {i + 1} of A - KC (real, negative, distinct)")
-            _meta(f"df.eigenvalue[{i + 1}]", "1/s")
+            _meta(f"df.eigenvalue[{i + 1}]", "1/s", None, -POSITIVE)
             p(f"df.x0[{i + 1}]", "Real", "parameter", 0.0,
               f"Initial estimate of state {SEED.state_names[i]}")
             _meta(f"df.x0[{i + 1}]", SEED.state_units[i])
+        p("df.decision", "Integer", "parameter", 1,
+          "Decision rule: 0 paper (k-sigma per sample, k-of-n, latched, observer-bank "
+          "isolation), 1 sequential (whitened residual, CUSUM for df.false_alarm_rate, "
+          "isolation of one or two sensors, fault typing, episodes)")
+        _meta("df.decision", None, 0, 1)
+        p("df.false_alarm_rate", "Real", "parameter", 1e-3,
+          "Sequential: design false-alarm rate of the detection (per hour)")
+        _meta("df.false_alarm_rate", "1/h", 1e-9, 3600.0)
+        p("df.cusum_k", "Real", "parameter", 0.5,
+          "Sequential: CUSUM reference in sigma of the whitened residual (optimal for "
+          "mean shifts of 2k)")
+        _meta("df.cusum_k", "1", 0.05, 5.0)
+        p("df.variance_ratio", "Real", "parameter", 4.0,
+          "Sequential: variance increase the variance CUSUMs are designed for (> 1)")
+        _meta("df.variance_ratio", "1", 1.0 + 1e-9, 1e6)
+        p("df.max_faults", "Integer", "parameter", 2,
+          "Sequential: simultaneously faulty sensors to isolate (1 or 2)")
+        _meta("df.max_faults", None, 1, 2)
+        p("df.history_s", "Real", "parameter", 4.0,
+          "Sequential: samples kept to start the isolation before a change")
+        _meta("df.history_s", "s", POSITIVE, 600.0)
+        p("df.memory_s", "Real", "parameter", 10.0,
+          "Sequential: the isolation keeps running this long after a fault episode")
+        _meta("df.memory_s", "s", 0.0)
+        p("df.input_delay_samples", "Integer", "parameter", 0,
+          "Alignment: y(k) is paired with u(k - d) (d < 0: with a later u, outputs then "
+          "describe the sample |d| steps back); the chosen one if df.align_auto")
+        _meta("df.input_delay_samples", None, -50, 50)
+        p("df.align_auto", "Boolean", "parameter", True,
+          "Choose the alignment on the calibration window (least residual variance over "
+          "d in [-df.align_max, df.align_max]); the master's coupling order needs no setting")
+        p("df.align_max", "Integer", "parameter", 2, "Largest |d| tried by df.align_auto")
+        _meta("df.align_max", None, 0, 50)
         p("df.calibrate_s", "Real", "parameter", 10.0,
-          "Fault-free calibration window for the thresholds; 0: use df.threshold[i]")
+          "Fault-free calibration window for the alignment, noise and thresholds; 0: "
+          "none (paper rule: df.threshold[i]; sequential rule: df.noise_std[i])")
         _meta("df.calibrate_s", "s", 0.0)
         p("df.burn_in_s", "Real", "parameter", 2.0,
           "Start of the calibration window ignored (observer convergence)")
         _meta("df.burn_in_s", "s", 0.0)
-        p("df.k_sigma", "Real", "parameter", 6.0, "Thresholds at k standard deviations")
-        _meta("df.k_sigma", "1", 0.0)
+        p("df.k_sigma", "Real", "parameter", 6.0,
+          "Paper rule: thresholds at k standard deviations")
+        _meta("df.k_sigma", "1", POSITIVE)
         for i in range(DF_M):
             unit = SEED.output_units[i]
             p(f"df.threshold[{i + 1}]", "Real", "parameter", 1.0,
               f"Main residual threshold of sensor {SEED.output_names[i]} "
               "(used when df.calibrate_s = 0)")
-            _meta(f"df.threshold[{i + 1}]", unit)
+            _meta(f"df.threshold[{i + 1}]", unit, POSITIVE)
             p(f"df.noise_std[{i + 1}]", "Real", "parameter", -1.0,
-              f"Noise std of sensor {SEED.output_names[i]}; < 0: threshold / k_sigma")
+              f"Noise std of sensor {SEED.output_names[i]}; < 0 on any sensor: learned "
+              "from the calibration window (paper rule without one: threshold / k_sigma)")
             _meta(f"df.noise_std[{i + 1}]", unit)
             used = [k for k in range(DF_M) if k != i]
             for j in range(DF_M - 1):
@@ -324,7 +563,8 @@ class Diagnoser(FacadeBase):
                   f"Threshold of observer {i + 1} (without sensor {i + 1}) on its "
                   f"residual {j + 1}, sensor {SEED.output_names[used[j]]} "
                   "(used when df.calibrate_s = 0)")
-                _meta(f"df.bank_threshold[{i + 1},{j + 1}]", SEED.output_units[used[j]])
+                _meta(f"df.bank_threshold[{i + 1},{j + 1}]", SEED.output_units[used[j]],
+                      POSITIVE)
         p("df.persistence_k", "Integer", "parameter", 3, "Residual alarm: k of the last n")
         _meta("df.persistence_k", None, 1)
         p("df.persistence_n", "Integer", "parameter", 5, "Residual alarm persistence n")
@@ -344,17 +584,63 @@ class Diagnoser(FacadeBase):
             p(f"df.alarm[{i + 1}]", "Boolean", "output", False,
               f"Residual alarm of sensor {SEED.output_names[i]}")
             p(f"df.threshold_in_use[{i + 1}]", "Real", "output", 0.0,
-              f"Residual threshold in use for sensor {SEED.output_names[i]} "
-              "(learned or given; 0 while calibrating)")
+              f"Paper rule: residual threshold in use for sensor {SEED.output_names[i]} "
+              "(learned or given); 0 while calibrating and with the sequential rule")
             _meta(f"df.threshold_in_use[{i + 1}]", SEED.output_units[i])
-        p("df.calibrating", "Boolean", "output", False, "Thresholds still being learned")
-        p("df.detected", "Boolean", "output", False, "Sensor fault detected (latched)")
+            p(f"df.statistic[{i + 1}]", "Real", "output", 0.0,
+              f"Alarm statistic of sensor {SEED.output_names[i]} in units of its "
+              "threshold (alarm at 1): largest CUSUM / threshold (sequential), "
+              "|residual| / threshold (paper)")
+            _meta(f"df.statistic[{i + 1}]", "1", 0.0)
+            p(f"df.noise_std_in_use[{i + 1}]", "Real", "output", 0.0,
+              f"Noise std of sensor {SEED.output_names[i]} in use (given or learned); 0 "
+              "while calibrating")
+            _meta(f"df.noise_std_in_use[{i + 1}]", SEED.output_units[i], 0.0)
+            p(f"df.sensor_fault_type[{i + 1}]", "Integer", "output", 0,
+              f"Fault type of sensor {SEED.output_names[i]} (codes of df.fault_type; 0 "
+              "when not isolated)")
+            unit = SEED.output_units[i]
+            p(f"df.fault_offset[{i + 1}]", "Real", "output", 0.0,
+              f"Sensor {SEED.output_names[i]}: bias, intermittent amplitude or stuck value "
+              "(0 for a failure or another type)")
+            _meta(f"df.fault_offset[{i + 1}]", unit)
+            p(f"df.fault_gain[{i + 1}]", "Real", "output", 1.0,
+              f"Sensor {SEED.output_names[i]}: gain factor of a gain fault (1 otherwise)")
+            _meta(f"df.fault_gain[{i + 1}]", "1")
+            p(f"df.fault_rate[{i + 1}]", "Real", "output", 0.0,
+              f"Sensor {SEED.output_names[i]}: drift rate of a ramp fault (0 otherwise)")
+            _meta(f"df.fault_rate[{i + 1}]", f"{unit}/s" if unit != "m/s" else "m/s2")
+            p(f"df.noise_ratio[{i + 1}]", "Real", "output", 1.0,
+              f"Sensor {SEED.output_names[i]}: noise std over nominal of a noise-increase "
+              "fault (1 otherwise)")
+            _meta(f"df.noise_ratio[{i + 1}]", "1")
+        p("df.calibrating", "Boolean", "output", False,
+          "Calibration window still being recorded")
+        p("df.detected", "Boolean", "output", False,
+          "Sensor fault detected: latched (paper rule); a fault episode in progress, "
+          "cleared when the fault clears (sequential rule)")
+        p("df.episodes", "Integer", "output", 0, "Fault episodes since the start")
         p("df.isolated_sensor", "Integer", "output", 0,
-          "1-based index of the isolated sensor; 0 none; -1 detected, not isolated")
+          "1-based index of the isolated sensor (the current or, between episodes, the "
+          "last diagnosis); 0 none; -1 detected, not isolated; -2 several sensors "
+          "(df.isolated_mask says which, 0 if they cannot be told apart)")
+        p("df.isolated_mask", "Integer", "output", 0,
+          "Bit i-1 set for each isolated sensor i (e.g. 6: sensors 2 and 3)")
         p("df.fault_type", "Integer", "output", 0,
-          "-1 unknown, 0 none, 1 bias, 2 gain, 3 stuck, 4 complete failure")
+          "-1 unknown, 0 none, 1 bias, 2 gain, 3 stuck, 4 complete failure, 5 noise "
+          "increase, 6 ramp, 7 intermittent (of the isolated sensor; two sensors: their "
+          "common type, else -1)")
         p("df.fault_magnitude", "Real", "output", 0.0,
-          "Bias (sensor units), gain factor, stuck value or 0; NaN if unknown")
+          "Size of the isolated sensor's fault in the unit of its type: bias / stuck "
+          "value / intermittent amplitude (sensor units), gain factor, ramp rate (per s), "
+          "noise std ratio; declared dimensionless because its unit follows the isolated "
+          "sensor and type; 0 for a failure or when df.fault_magnitude_valid is false. The "
+          "per-sensor outputs df.fault_offset/gain/rate, df.noise_ratio carry units")
+        _meta("df.fault_magnitude", "1")
+        p("df.fault_magnitude_valid", "Boolean", "output", False,
+          "df.fault_magnitude holds an estimate (a fault of known type is isolated)")
+        p("df.input_delay_in_use", "Integer", "output", 0,
+          "Alignment d in use (chosen on the calibration window with df.align_auto)")
         p("df.valid", "Boolean", "output", True, "Last u, y sample was finite")
 
     def _df_config(self, period: float) -> DFChannelConfig:
@@ -370,9 +656,13 @@ class Diagnoser(FacadeBase):
             return np.array([float(v[f"df.{name}[{i + 1}]"]) for i in range(size)])
 
         noise = vector("noise_std", DF_M)
+        decision = _named_int(v, "df.decision")
+        if decision not in (0, 1):
+            raise ValueError(f"df.decision must be 0 (paper) or 1 (sequential), got {decision}")
         return DFChannelConfig(
             A=matrix("A", DF_N, DF_N), B=matrix("B", DF_N, DF_P), C=matrix("C", DF_M, DF_N),
             eigenvalues=vector("eigenvalue", DF_N), sample_period_s=period,
+            decision=("paper", "sequential")[decision],
             calibrate_s=float(v["df.calibrate_s"]), burn_in_s=float(v["df.burn_in_s"]),
             k_sigma=float(v["df.k_sigma"]), main_thresholds=vector("threshold", DF_M),
             bank_thresholds=matrix("bank_threshold", DF_M, DF_M - 1),
@@ -380,6 +670,12 @@ class Diagnoser(FacadeBase):
             persistence_k=_named_int(v, "df.persistence_k"),
             persistence_n=_named_int(v, "df.persistence_n"),
             confirm_samples=_named_int(v, "df.confirm_samples"),
+            false_alarms_per_h=float(v["df.false_alarm_rate"]),
+            cusum_k=float(v["df.cusum_k"]), variance_ratio=float(v["df.variance_ratio"]),
+            max_faults=_named_int(v, "df.max_faults"),
+            history_s=float(v["df.history_s"]), memory_s=float(v["df.memory_s"]),
+            input_delay_samples=_named_int(v, "df.input_delay_samples"),
+            align_auto=bool(v["df.align_auto"]), align_max=_named_int(v, "df.align_max"),
             x0=vector("x0", DF_N),
         )
 
@@ -389,20 +685,44 @@ class Diagnoser(FacadeBase):
             v[key] = float(value)
         for key, value in zip(_DF_ALARM_KEYS, _as_list(out.alarms), strict=True):
             v[key] = bool(value)
-        assert self._df is not None
-        thresholds = self._df.thresholds
-        if thresholds is None:
-            for key in _DF_THRESHOLD_KEYS:
-                v[key] = 0.0
-        else:
-            for key, value in zip(_DF_THRESHOLD_KEYS, _as_list(thresholds[0]), strict=True):
-                v[key] = float(value)
+        for key, value in zip(_DF_STATISTIC_KEYS, _as_list(out.statistic), strict=True):
+            v[key] = float(value)
         v["df.calibrating"] = bool(out.calibrating)
         v["df.detected"] = bool(out.detected)
+        v["df.episodes"] = int(out.episodes)
         v["df.isolated_sensor"] = int(out.isolated_sensor)
+        v["df.isolated_mask"] = int(out.isolated_mask)
         v["df.fault_type"] = int(out.fault_type)
-        v["df.fault_magnitude"] = float(out.magnitude)
+        magnitude_valid = bool(out.magnitude_valid) and math.isfinite(out.magnitude)
+        v["df.fault_magnitude"] = float(out.magnitude) if magnitude_valid else 0.0
+        v["df.fault_magnitude_valid"] = magnitude_valid
+        v["df.input_delay_in_use"] = int(out.input_delay)
         v["df.valid"] = bool(out.valid)
+        # the diagnosis and the calibration results change rarely: copy them on change
+        # (the channel hands over the same arrays while they do not change)
+        prev = self._df_copied
+        if (prev is not None and prev[0] == out.calibrating
+                and prev[1] is out.sensor_fault_type and prev[2] is out.sensor_magnitude):
+            return
+        self._df_copied = (out.calibrating, out.sensor_fault_type, out.sensor_magnitude)
+        assert self._df is not None
+        thresholds = self._df.thresholds
+        for k, value in zip(_DF_THRESHOLD_KEYS, [0.0] * DF_M if thresholds is None
+                            else _as_list(thresholds[0]), strict=True):
+            v[k] = float(value)
+        noise = self._df.noise_std
+        for k, value in zip(_DF_NOISE_STD_KEYS, [0.0] * DF_M if noise is None
+                            else _as_list(noise), strict=True):
+            v[k] = float(value)
+        types = _as_list(out.sensor_fault_type)
+        sizes = _as_list(out.sensor_magnitude)
+        for i in range(DF_M):
+            kind, size = int(types[i]), float(sizes[i])
+            v[_DF_SENSOR_TYPE_KEYS[i]] = kind
+            v[_DF_OFFSET_KEYS[i]] = size if kind in _OFFSET_TYPES else 0.0
+            v[_DF_GAIN_KEYS[i]] = size if kind in _GAIN_TYPES and size != 0.0 else 1.0
+            v[_DF_RATE_KEYS[i]] = size if kind in _RATE_TYPES else 0.0
+            v[_DF_NOISE_RATIO_KEYS[i]] = size if kind in _NOISE_TYPES and size else 1.0
 
     # ------------------------------------------------------------------ lifecycle
     def setup_experiment(self, start_time: float, stop_time: float | None = None,
@@ -415,10 +735,12 @@ class Diagnoser(FacadeBase):
             self._dtg_first_alarm_time = math.nan
             # Outputs at the start time (before the first step) describe the channels'
             # initial state, e.g. df.calibrating and dtg.learning are already true.
+            self._dtg_block_copied = -1
             if self._dtg is not None:
                 self._copy_dtg(self._dtg.last_output)
             if self._df is not None:
                 self._copy_df(self._df.last_output)
+            self._guard_finite_outputs()
             self._ready = True
         except MissingPackageError as exc:
             self._ready = False
@@ -432,10 +754,12 @@ class Diagnoser(FacadeBase):
 
     def _build_channels(self) -> None:
         v = self.values
+        errors = self.range_errors(VARIABLE_META)
+        if errors:
+            raise ValueError("; ".join(errors))
         period = float(v["sample_period_s"])
-        if not (math.isfinite(period) and period > 0.0):
-            raise ValueError(f"sample_period_s must be > 0 s, got {period!r}")
         self._dtg = self._grey = self._df = None
+        self._df_copied = None
         with _channel_context("dtg"):
             self._dtg = DTGChannel(self._dtg_config(period)) if v["dtg.enabled"] else None
         with _channel_context("grey"):
@@ -444,6 +768,57 @@ class Diagnoser(FacadeBase):
             df_channel = _import_or_explain("gyrodiag.df_channel", "df.enabled")
             with _channel_context("df"):
                 self._df = df_channel.DFChannel(self._df_config(period))
+        self._applied = {n: v[n] for n in _TUNABLE_NAMES}
+
+    def _apply_tunables(self) -> bool:
+        """Rebuild the channels whose tunable parameters changed, keeping their state.
+
+        Returns False (with an error logged, the previous values restored) if a new
+        value is refused.
+        """
+        v = self.values
+        changed = [n for n in _TUNABLE_NAMES if v[n] != self._applied[n]]
+        if not changed:
+            return True
+        period = float(v["sample_period_s"])
+        rebuilt: dict[str, Any] = {}
+        try:
+            errors = self.range_errors(VARIABLE_META, changed)
+            if errors:
+                raise ValueError("; ".join(errors))
+            for channel, names in TUNABLE.items():
+                running = getattr(self, f"_{channel}")
+                if running is None or not any(n in changed for n in names):
+                    continue
+                with _channel_context(channel):
+                    fresh = (DTGChannel(self._dtg_config(period)) if channel == "dtg"
+                             else self._grey_detector(period))
+                fresh.set_state(running.get_state())
+                rebuilt[channel] = fresh
+        except (ValueError, TypeError) as exc:
+            kept = ", ".join(f"{n} = {self._applied[n]!r}" for n in sorted(changed))
+            for n in changed:
+                v[n] = self._applied[n]
+            self.report_error(f"{self.instance_name}: tunable parameter change refused: {exc}."
+                              f" Kept {kept}; the step was not taken")
+            return False
+        for channel, fresh in rebuilt.items():
+            setattr(self, f"_{channel}", fresh)
+        self._applied.update({n: v[n] for n in changed})
+        return True
+
+    def _guard_finite_outputs(self) -> None:
+        """Publish 0 for any non-finite Real output (outputs are always finite; the known
+        cases have validity outputs), with a warning once per variable."""
+        v = self.values
+        for name in self._real_outputs:
+            x = v[name]
+            if not math.isfinite(x):
+                v[name] = 0.0
+                if name not in self._nonfinite_reported:
+                    self._nonfinite_reported.add(name)
+                    self.report_warning(f"{self.instance_name}: output {name} was {x!r}; "
+                                        "published as 0 (outputs are always finite)")
 
     def _dtg_config(self, period: float) -> DTGChannelConfig:
         v = self.values
@@ -451,6 +826,11 @@ class Diagnoser(FacadeBase):
         if kind not in range(len(ESTIMATOR_KINDS)):
             raise ValueError(f"dtg.estimator must be 0, 1 or 2, got {kind}")
         max_distance = float(v["dtg.max_distance"])
+        classifier = str(v["dtg.classifier"]).strip()
+        if classifier not in CLASSIFIERS:
+            raise ValueError(f"dtg.classifier must be one of {', '.join(CLASSIFIERS)}, got "
+                             f"{classifier!r}")
+        signatures, patterns = self._dtg_library(classifier, period)
         return DTGChannelConfig(
             sample_period_s=period,
             prefilter_enabled=bool(v["dtg.prefilter_enabled"]),
@@ -474,38 +854,68 @@ class Diagnoser(FacadeBase):
             persistence_n=_named_int(v, "dtg.persistence_n"),
             latch=bool(v["dtg.latch"]),
             monitored=[bool(v[f"dtg.monitored[{i}]"]) for i in range(1, N_THETA + 1)],
-            signatures=self._signatures(),
+            signatures=signatures,
             max_distance=None if max_distance < 0 else max_distance,
             classify_window_s=float(v["dtg.classify_window_s"]),
+            classifier=classifier,  # type: ignore[arg-type]
+            patterns=patterns,
+            window_s=float(v["dtg.window_s"]),
+            long_window_s=float(v["dtg.long_window_s"]),
+            level_threshold=float(v["dtg.level_threshold"]),
+            var_threshold=float(v["dtg.var_threshold"]),
+            long_var_threshold=float(v["dtg.long_var_threshold"]),
+            theta_spread_threshold=float(v["dtg.theta_spread_threshold"]),
+            clear_after_s=float(v["dtg.clear_after_s"]),
         )
 
-    def _signatures(self) -> dict[str, list[float]]:
+    def _dtg_library(self, classifier: str, period: float
+                     ) -> tuple[dict[str, list[float]], PatternLibrary | None]:
+        """(decade signatures, pattern library) from dtg.signature_file or the table."""
         v = self.values
         path_text = str(v["dtg.signature_file"]).strip()
-        if path_text:
-            path = Path(path_text)
-            if not path.is_absolute() and self.resources:
-                path = Path(self.resources) / path
-            try:
-                data = json.loads(path.read_text(encoding="utf-8"))
-            except (OSError, json.JSONDecodeError) as exc:
-                raise ValueError(
-                    f"dtg.signature_file {str(path)!r} cannot be read: {exc}"
-                ) from None
-            sigs = data.get("signatures") if isinstance(data, dict) else None
-            if not isinstance(sigs, dict) or not sigs:
-                raise ValueError(
-                    f"dtg.signature_file {str(path)!r} must hold a non-empty object "
-                    "'signatures': {name: [C1, ..., C5]}"
-                )
-            return {str(k): list(s) for k, s in sigs.items()}
         n = int(v["dtg.n_signatures"])
         if not 0 <= n <= MAX_SIGNATURES:
             raise ValueError(f"dtg.n_signatures must be in [0, {MAX_SIGNATURES}], got {n}")
-        return {
-            f"signature_{j}": [float(v[f"dtg.signature[{j},{i}]"]) for i in range(1, N_THETA + 1)]
-            for j in range(1, n + 1)
-        }
+        if classifier == "pattern" and n > 0 and not path_text:
+            raise ValueError(
+                f"dtg.n_signatures = {n}: the signature table holds decade signatures of "
+                "dtg.classifier = paper; the pattern classifier reads a pattern library "
+                "from dtg.signature_file")
+        if not path_text:
+            table = {
+                f"signature_{j}": [float(v[f"dtg.signature[{j},{i}]"])
+                                   for i in range(1, N_THETA + 1)]
+                for j in range(1, n + 1)
+            }
+            return (table if classifier == "paper" else {}), None
+        path = Path(path_text)
+        if not path.is_absolute() and self.resources:
+            path = Path(self.resources) / path
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError) as exc:
+            raise ValueError(f"dtg.signature_file {str(path)!r} cannot be read: {exc}") from None
+        if not isinstance(data, dict):
+            raise ValueError(f"dtg.signature_file {str(path)!r} must hold a JSON object")
+        if classifier == "pattern":
+            if "patterns" not in data:
+                raise ValueError(
+                    f"dtg.signature_file {str(path)!r} holds no 'patterns' library (decade "
+                    "signatures are for dtg.classifier = paper; learn patterns with "
+                    "python -m harness learn-signatures on pattern training scenarios)")
+            try:
+                return {}, PatternLibrary.from_dict(data["patterns"])
+            except (ValueError, TypeError) as exc:
+                raise ValueError(f"dtg.signature_file {str(path)!r}: {exc}") from None
+        sigs = data.get("signatures")
+        if not isinstance(sigs, dict) or not sigs:
+            raise ValueError(
+                f"dtg.signature_file {str(path)!r} must hold a non-empty object "
+                "'signatures': {name: [C1, ..., C5]} for dtg.classifier = paper"
+                + (" (it holds a pattern library: set dtg.classifier = pattern)"
+                   if "patterns" in data else "")
+            )
+        return {str(k): list(s) for k, s in sigs.items()}, None
 
     def _grey_detector(self, period: float) -> GreyFaultDetector:
         v = self.values
@@ -526,12 +936,34 @@ class Diagnoser(FacadeBase):
                 raise ValueError("grey.window = 0 (whole record) is only available for the "
                                  "classic model (grey.model = 0); the improved model needs "
                                  "a moving window >= 4")
-            predictor = ImprovedGreyPredictor(window, a_min=float(v["grey.a_min"]))
+            predictor = ImprovedGreyPredictor(
+                window, a_min=float(v["grey.a_min"]),
+                residual_order=_named_int(v, "grey.residual_order"))
         else:
             raise ValueError(f"grey.model must be 0 (classic) or 1 (improved), got {model}")
         clear = float(v["grey.clear_after_s"])
+        calibrate_s = float(v["grey.calibrate_s"])
+        if not (math.isfinite(calibrate_s) and calibrate_s >= 0.0):
+            raise ValueError(f"grey.calibrate_s must be >= 0 s, got {calibrate_s!r}")
+        calibrate = round(calibrate_s / period)
+        candidates: list[Any] = []
+        if bool(v["grey.auto_order"]):
+            if model != 1 or not calibrate:
+                raise ValueError("grey.auto_order needs the improved model (grey.model = "
+                                 "1) and a calibration window (grey.calibrate_s > 0)")
+            candidates = [ImprovedGreyPredictor(window, a_min=float(v["grey.a_min"]),
+                                                residual_order=order)
+                          for order in (1, 0) if order != int(v["grey.residual_order"])]
+        if calibrate and calibrate < 10:
+            raise ValueError(f"grey.calibrate_s must hold at least 10 samples "
+                             f"({10 * period:g} s), got {calibrate_s!r}")
         return GreyFaultDetector(
-            predictor, float(v["grey.threshold"]), period, None if clear <= 0 else clear
+            predictor, float(v["grey.threshold"]), period, None if clear <= 0 else clear,
+            calibrate_samples=calibrate, k_sigma=float(v["grey.k_sigma"]),
+            sequential=bool(v["grey.sequential"]) and calibrate > 0,
+            false_alarms_per_h=float(v["grey.false_alarm_rate"]),
+            cusum_k=float(v["grey.cusum_k"]), suspicion_sigma=float(v["grey.suspicion_sigma"]),
+            candidates=candidates,
         )
 
     def reset(self) -> None:  # pythonfmu re-creates the instance on fmi2Reset
@@ -554,19 +986,37 @@ class Diagnoser(FacadeBase):
                 "(see the earlier error); fix the parameters and re-instantiate or reset"
             )
             return
+        if not self.check_step(h):
+            return
         period = float(self.values["sample_period_s"])
-        if abs(h - period) > 1e-6 * period:
+        n = samples_in_step(h, period)
+        if n is None:
             self.report_error(
-                f"{self.instance_name}: communication step {h!r} s differs from "
-                f"sample_period_s = {period!r} s; the Diagnoser is sampled-data and "
-                "processes one sample per step (set sample_period_s to the step)"
+                f"{self.instance_name}: communication step {h!r} s is not a whole multiple "
+                f"of sample_period_s = {period!r} s (relative tolerance {STEP_RTOL:g}); the "
+                "Diagnoser is sampled-data: a step of n sample periods processes n samples "
+                "with the inputs held. The step was not taken"
             )
             return
+        if not self._apply_tunables():
+            return
+        for i in range(n):
+            self._sample(t + i * period)
+        self._guard_finite_outputs()
+
+    def _sample(self, t: float) -> None:
+        """Process one sample of every enabled channel, taken at time ``t``."""
         v = self.values
         valid = True
         codes: list[int] = []
         if self._dtg is not None:
             out = self._dtg.update(*[v[key] for key in _DTG_INPUT_KEYS])
+            if self._dtg.reference_failed and not self._dtg_reference_warned:
+                self._dtg_reference_warned = True
+                self.report_warning(
+                    f"{self.instance_name}: dtg: no reference theta0 was learned between "
+                    "dtg.learn_start_s and dtg.learn_end_s (a zero entry: no excitation on "
+                    "the DTG inputs); the DTG channel will not alarm")
             if math.isnan(self._dtg_first_alarm_time) and not math.isnan(
                 out.first_alarm_time_s
             ):
@@ -578,10 +1028,16 @@ class Diagnoser(FacadeBase):
                 codes.append(SUMMARY_CODE_BASE["dtg"] + (code if code > 0 else -1))
         if self._grey is not None:
             g = self._grey.update(float(v["grey.y"]), time_s=t)
-            v["grey.prediction"] = g.prediction
-            v["grey.error"] = g.error
+            prediction_valid = math.isfinite(g.prediction)
+            v["grey.prediction"] = g.prediction if prediction_valid else 0.0
+            v["grey.error"] = g.error if math.isfinite(g.error) else 0.0
+            v["grey.prediction_valid"] = prediction_valid
             v["grey.alarm"] = g.alarm
             v["grey.valid"] = g.valid
+            v["grey.calibrating"] = g.calibrating
+            v["grey.statistic"] = g.statistic
+            sigma = self._grey.sigma
+            v["grey.sigma"] = sigma if sigma == sigma else 0.0
             valid &= g.valid
             if g.alarm:
                 codes.append(SUMMARY_CODE_BASE["grey"])
@@ -594,7 +1050,8 @@ class Diagnoser(FacadeBase):
             valid &= df_out.valid
             if df_out.alarm:
                 iso = df_out.isolated_sensor
-                codes.append(SUMMARY_CODE_BASE["df"] + (iso if iso > 0 else -1))
+                codes.append(SUMMARY_CODE_BASE["df"] + (iso if iso > 0 else (
+                    DF_MULTIPLE if iso == DF_MULTIPLE else DF_NOT_ISOLATED)))
         v["any_alarm"] = bool(codes)
         v["fault_code"] = codes[0] if codes else 0
         v["inputs_valid"] = bool(valid)
@@ -612,8 +1069,11 @@ class Diagnoser(FacadeBase):
         theta0_values = [0.0] * N_THETA if theta0 is None else _as_list(theta0)
         for key, value in zip(_DTG_THETA0_KEYS, theta0_values, strict=True):
             v[key] = float(value)
-        for key, value in zip(_DTG_PHYSICAL_KEYS, _as_list(out.physical), strict=True):
-            v[key] = float(value)
+        physical = _as_list(out.physical)
+        physical_valid = all(math.isfinite(x) for x in physical)
+        for key, value in zip(_DTG_PHYSICAL_KEYS, physical, strict=True):
+            v[key] = float(value) if physical_valid else 0.0
+        v["dtg.physical_valid"] = physical_valid
         v["dtg.learning"] = bool(out.learning)
         v["dtg.alarm"] = bool(out.alarm)
         v["dtg.fault_code"] = int(out.fault_code) if out.alarm else 0
@@ -622,6 +1082,48 @@ class Diagnoser(FacadeBase):
         first = self._dtg_first_alarm_time
         v["dtg.first_alarm_time"] = -1.0 if math.isnan(first) else first
         v["dtg.valid"] = bool(out.valid)
+        d = out.diagnosis
+        if d.block != self._dtg_block_copied:  # block-rate outputs change at block ends
+            self._copy_dtg_diagnosis(out)
+            self._dtg_block_copied = d.block
+        if not out.alarm and v["dtg.fault_type"] != 0:
+            self._copy_dtg_diagnosis(out)
+
+    def _copy_dtg_diagnosis(self, out: DTGChannelOutput) -> None:
+        """Reference, residual tests and class (sentinels instead of NaN)."""
+        v = self.values
+        d = out.diagnosis
+        v["dtg.reference_status"] = int(d.reference_status)
+        v["dtg.reference_valid"] = d.reference_status == 1
+        v["dtg.residual_alarm"] = bool(d.residual_alarm)
+        alarm = bool(out.alarm)
+        v["dtg.fault_type"] = int(d.fault_type) if alarm else 0
+        v["dtg.fault_signal"] = int(d.fault_signal) if alarm else 0
+        v["dtg.fault_axis"] = int(d.fault_axis) if alarm else 0
+        v["dtg.class_distance"] = _finite_or(d.distance, -1.0) if alarm else -1.0
+        size_ok = alarm and math.isfinite(d.size)
+        v["dtg.fault_size"] = float(d.size) if size_ok else 0.0
+        v["dtg.fault_size_valid"] = size_ok
+        v["dtg.fault_rate"] = _finite_or(d.rate, 0.0) if alarm else 0.0
+        v["dtg.fault_ratio"] = _finite_or(d.ratio, 1.0) if alarm else 1.0
+        for i in range(N_CHANNELS):
+            v[f"dtg.level[{i + 1}]"] = _finite_or(float(d.level[i]), 0.0)
+            v[f"dtg.log_var_ratio[{i + 1}]"] = _finite_or(float(d.log_variance[i]), 0.0)
+        v["dtg.level_growth"] = _finite_or(d.growth, 0.0)
+        v["dtg.stat_window_s"] = float(d.window_s)
+        for a in range(2):
+            v[f"dtg.residual_level_z[{a + 1}]"] = _finite_or(float(d.tests[a]), 0.0)
+            v[f"dtg.residual_var_ratio[{a + 1}]"] = _finite_or(float(d.tests[2 + a]), 0.0)
+            v[f"dtg.residual_long_var_ratio[{a + 1}]"] = _finite_or(float(d.tests[4 + a]),
+                                                                    0.0)
+        assert self._dtg is not None
+        ref = self._dtg.reference
+        for i in range(N_THETA):
+            v[f"dtg.ref_theta0[{i + 1}]"] = 0.0 if ref is None else float(ref.theta0[i])
+        for key, attr in (("ref_mean", "mean"), ("ref_block_std", "block_std"),
+                          ("ref_var_short", "var_short"), ("ref_var_long", "var_long")):
+            for i in range(N_CHANNELS):
+                v[f"dtg.{key}[{i + 1}]"] = 0.0 if ref is None else float(getattr(ref, attr)[i])
 
     # ------------------------------------------------------------------ state
     def _capture_state(self) -> dict[str, Any]:
@@ -641,6 +1143,7 @@ class Diagnoser(FacadeBase):
         self._ready = bool(state["ready"])
         self._start_time = float(state["start_time"])
         self._dtg_first_alarm_time = float(state["dtg_first_alarm_time"])
+        self._dtg_block_copied = -1  # the restored values are complete; recopy at the next block
         for name, channel in (("dtg", self._dtg), ("grey", self._grey), ("df", self._df)):
             sub = state[name]
             if (sub is None) != (channel is None):
@@ -662,11 +1165,19 @@ _PARAMETER_NAMES: dict[str, dict[str, str]] = {
         "persistence_k": "dtg.persistence_k", "persistence_n": "dtg.persistence_n",
         "monitored": "dtg.monitored[1..5]", "classify_window_s": "dtg.classify_window_s",
         "signatures": "signatures (dtg.signature[j,i] or dtg.signature_file)",
-        "max_distance": "dtg.max_distance",
+        "max_distance": "dtg.max_distance", "classifier": "dtg.classifier",
+        "window_s": "dtg.window_s", "long_window_s": "dtg.long_window_s",
+        "level_threshold": "dtg.level_threshold", "var_threshold": "dtg.var_threshold",
+        "long_var_threshold": "dtg.long_var_threshold",
+        "theta_spread_threshold": "dtg.theta_spread_threshold",
+        "clear_after_s": "dtg.clear_after_s", "patterns": "dtg.signature_file",
     },
     "grey": {
         "window": "grey.window", "threshold": "grey.threshold", "a_min": "grey.a_min",
-        "clear_after_s": "grey.clear_after_s",
+        "clear_after_s": "grey.clear_after_s", "residual_order": "grey.residual_order",
+        "k_sigma": "grey.k_sigma", "false_alarms_per_h": "grey.false_alarm_rate",
+        "cusum_k": "grey.cusum_k", "suspicion_sigma": "grey.suspicion_sigma",
+        "calibrate_samples": "grey.calibrate_s",
     },
     "df": {
         "eigenvalues": "df.eigenvalue[1..5]", "calibrate_s": "df.calibrate_s",
@@ -674,7 +1185,12 @@ _PARAMETER_NAMES: dict[str, dict[str, str]] = {
         "main_thresholds": "df.threshold[1..6]", "bank_thresholds": "df.bank_threshold[i,j]",
         "noise_std": "df.noise_std[1..6]", "persistence_k": "df.persistence_k",
         "persistence_n": "df.persistence_n", "confirm_samples": "df.confirm_samples",
-        "x0": "df.x0[1..5]",
+        "x0": "df.x0[1..5]", "decision": "df.decision",
+        "false_alarms_per_h": "df.false_alarm_rate", "cusum_k": "df.cusum_k",
+        "variance_ratio": "df.variance_ratio", "max_faults": "df.max_faults",
+        "history_s": "df.history_s", "memory_s": "df.memory_s",
+        "input_delay_samples": "df.input_delay_samples", "align_auto": "df.align_auto",
+        "align_max": "df.align_max",
     },
 }
 
@@ -708,6 +1224,11 @@ def _channel_context(prefix: str) -> Iterator[None]:
         raise ValueError(
             f"channel {prefix!r} (parameters {prefix}.*): {text}"
         ) from None
+
+
+def _finite_or(value: float, fallback: float) -> float:
+    """``value`` if finite, else the documented sentinel (outputs never carry NaN)."""
+    return float(value) if math.isfinite(value) else fallback
 
 
 def _as_list(values: Any) -> list:

@@ -1,20 +1,28 @@
 """Shared machinery of the gyrodiag pythonfmu facades (no algorithm in here).
 
-A facade declares its variables in a table, keeps their values in one dict, and maps
-them onto plain algorithm objects. This module supplies:
+This module supplies:
 
-* ``FacadeBase``: variable registration with explicit getters/setters (names may contain
-  dots and brackets, FMI "structured" naming), a logger helper that reports errors
-  through the FMU logger instead of raising (pythonfmu 0.7 turns any exception into
-  fmi2Fatal; the status shim built into our FMUs turns a logged error into fmi2Error),
-  and full FMU state get/set/serialize through JSON-safe encoding of numpy arrays.
+* ``GuardedSlave``: the base of every gyrodiag FMU. Error reporting through the FMU
+  logger instead of raising (pythonfmu 0.7 turns any exception into fmi2Fatal; the
+  status shim built into our FMUs turns a logged error into fmi2Error), the
+  communication-step checks, and FMU states that cannot kill the instance: a state is
+  tagged with its model and format, a state of another model, an unreadable or
+  ill-fitting one gives fmi2Error and leaves the instance exactly as it was
+  (DESIGN §6.14; the shim also frames serialized states with the FMU's GUID and a
+  checksum).
+* ``FacadeBase``: a ``GuardedSlave`` with table-driven variables (names may contain dots
+  and brackets, FMI "structured" naming), values in one dict, and full FMU state
+  through JSON-safe encoding of numpy arrays.
 * ``encode`` / ``decode`` for numpy arrays, NaN and nested containers in JSON.
 
-The module name is unique to this project (DESIGN §6.3): every FMU ships its own copy.
+The module name is unique to this project (DESIGN §6.3). build_fmu.py ships this file
+with every FMU; all gyrodiag FMUs in one process share the copy imported first, so FMUs
+of one process should come from one build.
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import traceback
@@ -76,8 +84,265 @@ def decode(obj: Any) -> Any:
     return obj
 
 
-class FacadeBase(Fmi2Slave):
-    """Fmi2Slave with table-driven variables, error logging and full state handling.
+#: Tag of the FMU state layout written by :class:`GuardedSlave`.
+STATE_FORMAT = "gyrodiag-fmu-state/1"
+#: Relative tolerance on "the communication step is a whole number of sample periods".
+STEP_RTOL = 1e-6
+
+
+def samples_in_step(step_size: float, sample_period: float) -> int | None:
+    """Number n >= 1 of sample periods in a communication step, None if it is no multiple.
+
+    A step counts as ``n * sample_period`` when it differs from that by at most
+    ``STEP_RTOL`` of the step (floating-point masters add or lose a few ulps per step).
+    """
+    if not (math.isfinite(step_size) and step_size > 0.0):
+        return None
+    n = round(step_size / sample_period)
+    if n < 1 or abs(step_size - n * sample_period) > STEP_RTOL * step_size:
+        return None
+    return int(n)
+
+
+class GuardedSlave(Fmi2Slave):
+    """Fmi2Slave base of every gyrodiag FMU: errors as fmi2Error, guarded FMU states,
+    outputs that are right in initialisation mode.
+
+    Subclasses keep their algorithm state in :meth:`_state_payload` /
+    :meth:`_apply_state_payload` (default: every registered variable through its getter
+    and setter) and never override ``_get_fmu_state`` / ``_set_fmu_state``.
+
+    Initialisation mode: FMI masters may read outputs before fmi2ExitInitializationMode
+    (they are initial unknowns) and propagate them through the connections, as libcosim
+    does. pythonfmu facades compute their initial outputs in
+    ``exit_initialization_mode``, so an output read earlier would be a stale start value.
+    Here, reading an output in initialisation mode after a parameter or input changed runs
+    the subclass's ``exit_initialization_mode`` provisionally (its messages held back;
+    the real call at the end of initialisation reports), so that every master sees the
+    same initial outputs. Facades whose initialisation is costly and whose initial
+    outputs depend on no input set :attr:`provisional_outputs` to False.
+    """
+
+    #: Compute outputs read in initialisation mode (see the class docstring).
+    provisional_outputs: bool = True
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        own_exit = cls.__dict__.get("exit_initialization_mode")
+        if own_exit is None or getattr(own_exit, "_gd_marks_end", False):
+            return
+
+        @functools.wraps(own_exit)
+        def exit_initialization_mode(self: GuardedSlave, *args: Any, **kw: Any) -> Any:
+            self._in_initialisation = False
+            return own_exit(self, *args, **kw)
+
+        exit_initialization_mode._gd_marks_end = True  # type: ignore[attr-defined]
+        cls.exit_initialization_mode = exit_initialization_mode  # type: ignore[method-assign]
+
+    def enter_initialization_mode(self) -> None:
+        self._in_initialisation = True
+        self._outputs_stale = True
+
+    def _refresh_initial_outputs(self, vrs: list[int]) -> None:
+        if not (getattr(self, "_in_initialisation", False) and self._outputs_stale
+                and self.provisional_outputs):
+            return
+        if not any(self.vars[vr].causality == Fmi2Causality.output for vr in vrs):
+            return
+        self._outputs_stale = False
+        provisional = getattr(type(self).exit_initialization_mode, "__wrapped__", None)
+        if provisional is None:
+            return
+        refused = getattr(self, "_initialisation_refused", False)
+        self.log = lambda *args, **kwargs: None  # type: ignore[method-assign]
+        try:
+            provisional(self)
+        except Exception:  # reported by the real call at the end of initialisation
+            pass
+        finally:
+            del self.log
+            self._initialisation_refused = refused
+
+    def _mark_inputs_changed(self) -> None:
+        if getattr(self, "_in_initialisation", False):
+            self._outputs_stale = True
+
+    def get_real(self, vrs: list[int]) -> list[float]:
+        self._refresh_initial_outputs(vrs)
+        return super().get_real(vrs)
+
+    def get_integer(self, vrs: list[int]) -> list[int]:
+        self._refresh_initial_outputs(vrs)
+        return super().get_integer(vrs)
+
+    def get_boolean(self, vrs: list[int]) -> list[bool]:
+        self._refresh_initial_outputs(vrs)
+        return super().get_boolean(vrs)
+
+    def set_real(self, vrs: list[int], values: list[float]) -> None:
+        super().set_real(vrs, values)
+        self._mark_inputs_changed()
+
+    def set_integer(self, vrs: list[int], values: list[int]) -> None:
+        super().set_integer(vrs, values)
+        self._mark_inputs_changed()
+
+    def set_boolean(self, vrs: list[int], values: list[bool]) -> None:
+        super().set_boolean(vrs, values)
+        self._mark_inputs_changed()
+
+    def set_string(self, vrs: list[int], values: list[str]) -> None:
+        super().set_string(vrs, values)
+        self._mark_inputs_changed()
+
+    # -- error reporting ------------------------------------------------------
+    def report_error(self, message: str) -> None:
+        """Log an error; the status shim turns it into fmi2Error for this call."""
+        self.log(message, Fmi2Status.error)
+
+    def report_warning(self, message: str) -> None:
+        """Log a warning; the status shim turns it into fmi2Warning for this call."""
+        self.log(message, Fmi2Status.warning)
+
+    def report_exception(self, where: str, exc: BaseException) -> None:
+        """Log an unexpected exception with its traceback as an error."""
+        tb = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
+        self.report_error(f"{self.instance_name}: {where} failed: {exc}\n{tb}")
+
+    def check_step(self, step_size: float) -> bool:
+        """False (with an error logged) unless ``step_size`` is finite and > 0 and the
+        initialisation was not refused."""
+        if getattr(self, "_initialisation_refused", False):
+            self.report_error(f"{self.instance_name}: fmi2DoStep: initialisation did not "
+                              "succeed (see the earlier error); fix the parameters and "
+                              "re-instantiate or reset")
+            return False
+        if math.isfinite(step_size) and step_size > 0.0:
+            return True
+        self.report_error(f"{self.instance_name}: fmi2DoStep: communication step "
+                          f"{step_size!r} s must be finite and > 0; the step was not taken")
+        return False
+
+    def parameters_in_range(self, meta: dict[str, dict[str, Any]], names: Any = None,
+                            call: str = "fmi2ExitInitializationMode") -> bool:
+        """False (with an error naming each parameter and its range) if a parameter is
+        outside its declared [min, max]; see :meth:`range_errors`."""
+        errors = self.range_errors(meta, names)
+        if call == "fmi2ExitInitializationMode":
+            self._initialisation_refused = bool(errors)
+        if errors:
+            self.report_error(f"{self.instance_name}: {call}: invalid parameter: "
+                              + "; ".join(errors))
+            return False
+        return True
+
+    def range_errors(self, meta: dict[str, dict[str, Any]],
+                     names: Any = None) -> list[str]:
+        """Messages for parameters outside their declared [min, max] (``meta`` is the
+        script's VARIABLE_META); only ``names`` if given, else every parameter."""
+        errors = []
+        for var in self.vars.values():
+            if names is not None and var.name not in names:
+                continue
+            if var.causality != Fmi2Causality.parameter or var.name not in meta:
+                continue
+            lo, hi = meta[var.name].get("min"), meta[var.name].get("max")
+            if lo is None and hi is None:
+                continue
+            value = var.getter()
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                continue
+            if not math.isfinite(value) or (lo is not None and value < lo) or (
+                    hi is not None and value > hi):
+                bounds = f"[{'-inf' if lo is None else lo}, {'inf' if hi is None else hi}]"
+                errors.append(f"{var.name} = {value!r} is outside its range {bounds}")
+        return errors
+
+    # -- FMU state (DESIGN §6.8, §6.14) ---------------------------------------
+    def _state_payload(self) -> dict[str, Any]:
+        """Everything the instance needs to resume (JSON-serialisable)."""
+        return {var.name: var.getter() for var in self.vars.values()}
+
+    def _apply_state_payload(self, payload: dict[str, Any]) -> None:
+        """Restore :meth:`_state_payload`; raise ValueError if it does not fit."""
+        by_name = {v.name: v for v in self.vars.values()}
+        unknown = sorted(set(payload) - set(by_name))
+        missing = sorted(set(by_name) - set(payload))
+        if unknown or missing:
+            raise ValueError(f"its variables differ from this FMU's (unknown: "
+                             f"{unknown[:5]}, missing: {missing[:5]})")
+        for name, value in payload.items():
+            if by_name[name].setter is not None:
+                by_name[name].setter(value)
+
+    def _get_fmu_state(self) -> dict[str, Any]:
+        try:
+            return {"format": STATE_FORMAT, "model": type(self).__name__,
+                    "payload": self._state_payload()}
+        except Exception as exc:  # never let an exception reach the bridge
+            self.report_exception("fmi2GetFMUstate", exc)
+            return {"invalid": f"fmi2GetFMUstate of {self.instance_name} failed: {exc}"}
+
+    def _set_fmu_state(self, state: Any) -> None:
+        where = f"{self.instance_name}: fmi2SetFMUstate"
+        problem = _state_problem(state, type(self).__name__)
+        if problem:
+            self.report_error(f"{where}: {problem}; the instance is unchanged")
+            return
+        try:
+            backup = self._state_payload()
+        except Exception as exc:
+            self.report_exception("fmi2SetFMUstate (saving the current state)", exc)
+            return
+        try:
+            self._apply_state_payload(state["payload"])
+        except Exception as exc:
+            try:
+                self._apply_state_payload(backup)
+            except Exception as exc_back:
+                self.report_exception("fmi2SetFMUstate (going back to the previous state)",
+                                      exc_back)
+                return
+            self.report_error(f"{where}: the state does not fit this instance "
+                              f"({type(exc).__name__}: {exc}); the instance is unchanged")
+
+    @staticmethod
+    def _fmu_state_to_bytes(state: Any) -> bytes:
+        try:
+            return json.dumps(state).encode("utf-8")
+        except (TypeError, ValueError) as exc:  # reported when the bytes are used
+            return json.dumps({"invalid": f"the state could not be serialised: {exc}"}).encode()
+
+    @staticmethod
+    def _fmu_state_from_bytes(state: bytes) -> Any:
+        # Called on the class (no instance to log through): an unreadable state becomes
+        # a marker that fmi2SetFMUstate reports as fmi2Error.
+        try:
+            return json.loads(bytes(state).decode("utf-8"))
+        except (UnicodeDecodeError, ValueError) as exc:
+            return {"invalid": f"serialized state of {len(state)} bytes is truncated or "
+                               f"corrupt ({type(exc).__name__}: {exc})"}
+
+
+def _state_problem(state: Any, model: str) -> str | None:
+    """Why ``state`` is no state of ``model`` (None if it is one)."""
+    if not isinstance(state, dict):
+        return f"foreign FMU state (a {type(state).__name__}, not a gyrodiag state)"
+    if "invalid" in state:
+        return str(state["invalid"])
+    if state.get("format") != STATE_FORMAT:
+        return (f"foreign FMU state (format {state.get('format')!r}, this FMU reads "
+                f"{STATE_FORMAT!r})")
+    if state.get("model") != model:
+        return f"foreign FMU state: made by model {state.get('model')!r}, this is {model!r}"
+    if not isinstance(state.get("payload"), dict):
+        return "corrupt FMU state: no payload"
+    return None
+
+
+class FacadeBase(GuardedSlave):
+    """GuardedSlave with table-driven variables and full state handling.
 
     Subclasses call :meth:`add_variable` in ``__init__`` and implement
     :meth:`_capture_state` / :meth:`_restore_state` for their algorithm objects.
@@ -96,9 +361,10 @@ class FacadeBase(Fmi2Slave):
     ) -> None:
         """Register one variable whose value lives in ``self.values[name]``."""
         if variability is None:
+            # outputs of a sampled-data facade change only at communication points
             variability = {
                 "parameter": "fixed", "input": "continuous" if kind == "Real" else "discrete",
-                "output": "continuous" if kind == "Real" else "discrete",
+                "output": "discrete",
                 "local": "continuous" if kind == "Real" else "discrete",
             }[causality]
         self.values[name] = start
@@ -113,16 +379,6 @@ class FacadeBase(Fmi2Slave):
         )
         self.register_variable(var, nested=False)
 
-    # -- error reporting ------------------------------------------------------
-    def report_error(self, message: str) -> None:
-        """Log an error; the status shim turns it into fmi2Error for this call."""
-        self.log(message, Fmi2Status.error)
-
-    def report_exception(self, where: str, exc: BaseException) -> None:
-        """Log an unexpected exception with its traceback as an error."""
-        tb = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
-        self.report_error(f"{self.instance_name}: {where} failed: {exc}\n{tb}")
-
     # -- FMU state (DESIGN §6.8: save everything, not only registered variables) -
     def _capture_state(self) -> dict[str, Any]:
         return {}
@@ -130,29 +386,17 @@ class FacadeBase(Fmi2Slave):
     def _restore_state(self, state: dict[str, Any]) -> None:
         del state
 
-    def _get_fmu_state(self) -> dict[str, Any]:
-        try:
-            return {"values": encode(dict(self.values)), "internal": encode(self._capture_state())}
-        except Exception as exc:  # never let an exception reach the bridge
-            self.report_exception("fmi2GetFMUstate", exc)
-            return {"values": encode(dict(self.values)), "internal": None}
+    def _state_payload(self) -> dict[str, Any]:
+        return {"values": encode(dict(self.values)), "internal": encode(self._capture_state())}
 
-    def _set_fmu_state(self, state: dict[str, Any]) -> None:
-        try:
-            values = decode(state["values"])
-            internal = state.get("internal")
-            if internal is None:
-                self.report_error("fmi2SetFMUstate: the state holds no internal part")
-                return
-            self.values.update(values)
-            self._restore_state(decode(internal))
-        except Exception as exc:
-            self.report_exception("fmi2SetFMUstate", exc)
-
-    @staticmethod
-    def _fmu_state_to_bytes(state: dict[str, Any]) -> bytes:
-        return json.dumps(state).encode("utf-8")
-
-    @staticmethod
-    def _fmu_state_from_bytes(state: bytes) -> dict[str, Any]:
-        return json.loads(state.decode("utf-8"))
+    def _apply_state_payload(self, payload: dict[str, Any]) -> None:
+        values = decode(payload["values"])
+        if not isinstance(values, dict) or set(values) != set(self.values):
+            names = set(values) if isinstance(values, dict) else set()
+            raise ValueError(
+                f"its variables differ from this FMU's (unknown: "
+                f"{sorted(names - set(self.values))[:5]}, missing: "
+                f"{sorted(set(self.values) - names)[:5]})")
+        internal = decode(payload["internal"])
+        self.values.update(values)
+        self._restore_state(internal)

@@ -38,14 +38,27 @@ def _signature_params(table: dict[int, list[int]]) -> dict[str, Any]:
 DTG_H, DTG_START = 1e-3, 2.5
 DTG_PARAMS: dict[str, Any] = {
     "sample_period_s": DTG_H, "grey.enabled": False, "df.enabled": False,
+    "dtg.classifier": "paper",
     "dtg.p0": 1e8, "dtg.forgetting": 0.99, "dtg.learn_start_s": 0.5, "dtg.learn_end_s": 2.0,
     "dtg.persistence_k": 3, "dtg.persistence_n": 5, **_signature_params(SIGNATURE_TABLE),
 }
 #: DTG with a given θ0 and the signature library from a file (set as a String).
 SIGFILE_PARAMS: dict[str, Any] = {
     "sample_period_s": DTG_H, "grey.enabled": False, "df.enabled": False,
+    "dtg.classifier": "paper", "dtg.forgetting": 0.99,
     "dtg.p0": 1e8, "dtg.prefilter_enabled": False, "dtg.learn_theta0": False,
 }
+#: DTG with the (default) pattern classifier at 1 kHz; the library file is set at run
+#: time (``dtg.signature_file`` = the input's ``patterns_1khz_path``).
+PATTERN_PARAMS: dict[str, Any] = {
+    "sample_period_s": DTG_H, "grey.enabled": False, "df.enabled": False,
+    "dtg.p0": 1e8, "dtg.learn_start_s": 0.5, "dtg.learn_end_s": 2.0,
+}
+#: Save point of the pattern scenario: inside the learning window (learner state).
+K_PATTERN_SAVE = 1200
+K_PATTERN_RERUN = 2000
+#: NaN sample of the pattern scenario, inside the learning window.
+K_PATTERN_NAN = 900
 #: Grey channel alone at 10 Hz (improved and classic models).
 GREY_H = 0.1
 GREY_PARAMS: dict[str, Any] = {
@@ -65,9 +78,9 @@ DF_PARAMS: dict[str, Any] = {
 ALL_H, ALL_START = 0.01, 1.0
 ALL_PARAMS: dict[str, Any] = {
     "sample_period_s": ALL_H,
-    "dtg.prefilter_cutoff_hz": 20.0, "dtg.p0": 1e8, "dtg.learn_start_s": 0.5,
-    "dtg.learn_end_s": 2.0, "dtg.persistence_k": 3, "dtg.persistence_n": 5,
-    **_signature_params(SIGNATURE_TABLE),
+    "dtg.prefilter_cutoff_hz": 20.0, "dtg.p0": 1e8, "dtg.forgetting": 0.99,
+    "dtg.learn_start_s": 0.5, "dtg.learn_end_s": 2.0, "dtg.persistence_k": 3,
+    "dtg.persistence_n": 5,
     "grey.window": 10, "grey.threshold": 0.01, "grey.clear_after_s": 3.0,
     "df.calibrate_s": 5.0, "df.burn_in_s": 1.0,
 }
@@ -84,6 +97,20 @@ NAN_STEPS: dict[int, tuple[str, float]] = {
     1050: ("df.y[3]", float("nan")),   # DF in alarm
 }
 N_RESET = 300
+#: Tunable changes: applied from sample K_TUNE on; at K_BAD two refused changes (one
+#: outside the declared range, one the library refuses), then the run goes on.
+K_TUNE, K_BAD = 1000, 1500
+TUNED: dict[str, Any] = {"dtg.low": 0.8, "dtg.high": 1.25, "dtg.persistence_k": 2,
+                         "dtg.level_threshold": 1.5, "dtg.var_threshold": 1.3,
+                         "grey.threshold": 0.03, "grey.clear_after_s": 1.0}
+REFUSED_TUNES: tuple[tuple[str, Any], ...] = (("dtg.high", 0.9), ("dtg.persistence_k", 9))
+#: Multi-sample steps: samples per doStep, cycled over the "all" record, and the
+#: relative jitter put on each step size (inside the 1e-6 tolerance).
+MULTI_STEPS = (1, 3, 2, 5, 1, 4, 7, 2)
+MULTI_JITTER = (0.0, 4e-7, -4e-7, 9e-7)
+#: Refused steps at sample_period_s = 0.1 s: not a multiple, beyond the tolerance, zero,
+#: negative, non-finite.
+BAD_STEPS = (0.15, 0.05, 0.3 * (1 + 5e-6), 0.0, -0.1, float("nan"), float("inf"))
 N_INTERLEAVE = 600
 #: Invalid parameter sets: label → (parameters, strings).
 INVALID: dict[str, tuple[dict[str, Any], dict[str, str]]] = {
@@ -91,7 +118,13 @@ INVALID: dict[str, tuple[dict[str, Any], dict[str, str]]] = {
     "dtg.estimator": ({"dtg.estimator": 7}, {}),
     "dtg.prefilter_cutoff_hz": ({"dtg.prefilter_cutoff_hz": 600.0}, {}),
     "dtg.window": ({"dtg.estimator": 0, "dtg.window": 3}, {}),
+    "dtg.classifier": ({}, {"dtg.classifier": "nearest"}),
+    "dtg.long_window_s": ({"dtg.long_window_s": 0.1}, {}),
+    "dtg.var_threshold": ({"dtg.var_threshold": 0.5}, {}),
+    "dtg.signature_file (paper signatures, pattern classifier)": (
+        {}, {"dtg.signature_file": "@PAPER_FILE@"}),
     "dtg.n_signatures": ({"dtg.n_signatures": 9}, {}),
+    "dtg.n_signatures (pattern classifier)": ({"dtg.n_signatures": 1}, {}),
     "dtg.signature_file": ({}, {"dtg.signature_file": "/nonexistent/gyrodiag/sigs.json"}),
     "dtg.signature_file (bad JSON)": ({}, {"dtg.signature_file": "@BAD_JSON@"}),
     "grey.window": ({"grey.window": 2}, {}),
@@ -100,6 +133,14 @@ INVALID: dict[str, tuple[dict[str, Any], dict[str, str]]] = {
     "df.eigenvalue (repeated)": ({"df.eigenvalue[2]": -1.0}, {}),
     "df.persistence_k": ({"df.persistence_k": 6}, {}),
     "df.calibrate_s": ({"df.calibrate_s": 1.0, "df.burn_in_s": 1.0}, {}),
+    "df.decision": ({"df.decision": 2}, {}),
+    "df.cusum_k": ({"df.cusum_k": 0.0}, {}),
+    "df.false_alarm_rate": ({"df.false_alarm_rate": -1.0}, {}),
+    "df.max_faults": ({"df.max_faults": 3}, {}),
+    "df.align_auto (no window)": ({"df.calibrate_s": 0.0, "df.noise_std[1]": 0.05,
+                                   "df.noise_std[2]": 1e-3, "df.noise_std[3]": 1e-3,
+                                   "df.noise_std[4]": 1e-3, "df.noise_std[5]": 1e-3,
+                                   "df.noise_std[6]": 0.2}, {}),
     "sample_period_s (zero)": ({"sample_period_s": 0.0}, {}),
     "sample_period_s (negative)": ({"sample_period_s": -1e-3}, {}),
 }
@@ -226,6 +267,7 @@ def run_scenarios(fmu_dir: Path, out: Path, inp: Path) -> None:
     md = read_model_description(unzipdir)
     data = dict(np.load(inp))
     res: dict[str, Any] = {}
+    all_params = {**ALL_PARAMS, "dtg.signature_file": str(data["patterns_100hz_path"])}
 
     def new(name: str, params: dict[str, Any], **kw: Any) -> Diag:
         return Diag(unzipdir, md, name, params, **kw)
@@ -241,9 +283,25 @@ def run_scenarios(fmu_dir: Path, out: Path, inp: Path) -> None:
         d.close()
     res["columns"] = np.array(d.out_names)
 
+    # -- DTG pattern classifier: a NaN sample and a save point inside the learning -----
+    pattern_params = {**PATTERN_PARAMS, "dtg.signature_file": str(data["patterns_1khz_path"])}
+    d = new("pattern", pattern_params, h=DTG_H, start=DTG_START)
+    assert d.init_status == 0, d.log
+    rec_p = data["dtg"].copy()
+    rec_p[K_PATTERN_NAN, 0] = np.nan
+    first = d.run(rec_p[:K_PATTERN_SAVE])
+    saved = d.fmu.serializeFMUstate(d.fmu.getFMUstate())
+    res["pattern"] = np.vstack([first, d.run(rec_p[K_PATTERN_SAVE:])])
+    d.close()
+    other = new("pattern_other", {}, h=DTG_H, start=DTG_START)
+    other.fmu.setFMUstate(other.fmu.deSerializeFMUstate(saved))
+    other.k = K_PATTERN_SAVE
+    res["pattern_restored"] = other.run(rec_p[K_PATTERN_SAVE:K_PATTERN_SAVE + K_PATTERN_RERUN])
+    other.close()
+
     # -- all channels, with FMU state saved, restored and (de)serialised ---------------
     rec = data["all"]
-    d = new("all", ALL_PARAMS, h=ALL_H, start=ALL_START)
+    d = new("all", all_params, h=ALL_H, start=ALL_START)
     first = d.run(rec[:K_SAVE_1])
     s1 = d.fmu.getFMUstate()
     b1 = d.fmu.serializeFMUstate(s1)
@@ -270,7 +328,7 @@ def run_scenarios(fmu_dir: Path, out: Path, inp: Path) -> None:
     other.close()
 
     # -- non-finite inputs ---------------------------------------------------------------
-    d = new("nan", ALL_PARAMS, h=ALL_H, start=ALL_START)
+    d = new("nan", all_params, h=ALL_H, start=ALL_START)
     bad = rec.copy()
     for k, (name, value) in NAN_STEPS.items():
         bad[k, IN_NAMES.index(name)] = value
@@ -279,15 +337,15 @@ def run_scenarios(fmu_dir: Path, out: Path, inp: Path) -> None:
     d.close()
 
     # -- fmi2Reset, and two instances interleaved ---------------------------------------
-    d = new("reset", ALL_PARAMS, h=ALL_H, start=ALL_START)
+    d = new("reset", all_params, h=ALL_H, start=ALL_START)
     d.run(data["all2"][:N_RESET])  # other data, so that leftovers would show
     res["reset_status"] = np.array(d.call(d.fmu.reset))
     res["reset_period"] = np.array(d.get("sample_period_s"))
-    res["reset_init_status"] = np.array(d.initialise(ALL_PARAMS))
+    res["reset_init_status"] = np.array(d.initialise(all_params))
     res["reset_run"] = d.run(rec[:N_RESET])
     d.close()
-    a = new("inter_a", ALL_PARAMS, h=ALL_H, start=ALL_START)
-    b = new("inter_b", ALL_PARAMS, h=ALL_H, start=ALL_START)
+    a = new("inter_a", all_params, h=ALL_H, start=ALL_START)
+    b = new("inter_b", all_params, h=ALL_H, start=ALL_START)
     rows_a, rows_b = [], []
     for k in range(N_INTERLEAVE):
         rows_a.append(a.run(rec[k:k + 1])[0])
@@ -295,7 +353,7 @@ def run_scenarios(fmu_dir: Path, out: Path, inp: Path) -> None:
     res["inter_a"], res["inter_b"] = np.array(rows_a), np.array(rows_b)
     a.close()
     b.close()
-    alone = new("alone_b", ALL_PARAMS, h=ALL_H, start=ALL_START)
+    alone = new("alone_b", all_params, h=ALL_H, start=ALL_START)
     res["alone_b"] = alone.run(data["all2"][:N_INTERLEAVE])
     alone.close()
 
@@ -313,8 +371,9 @@ def run_scenarios(fmu_dir: Path, out: Path, inp: Path) -> None:
     bad_json = Path(unzipdir) / "resources" / "gd_bad.json"
     bad_json.write_text('{"signatures": [1, 2', encoding="utf-8")
     labels, exit_status, exit_log, step_status, step_log = [], [], [], [], []
+    substitute = {"@BAD_JSON@": str(bad_json), "@PAPER_FILE@": str(data["sigfile_path"])}
     for label, (params, strings) in {"valid defaults": ({}, {}), **INVALID}.items():
-        strings = {k: (str(bad_json) if v == "@BAD_JSON@" else v) for k, v in strings.items()}
+        strings = {k: substitute.get(v, v) for k, v in strings.items()}
         d = new(f"bad_{len(labels)}", params, strings=strings)
         labels.append(label)
         exit_status.append(d.init_status)
@@ -329,11 +388,55 @@ def run_scenarios(fmu_dir: Path, out: Path, inp: Path) -> None:
     res["invalid_step_status"] = np.array(step_status)
     res["invalid_step_log"] = np.array(step_log)
 
+    # -- tunable parameters changed during the run --------------------------------------
+    d = new("tune", all_params, h=ALL_H, start=ALL_START)
+    parts = [d.run(rec[:K_TUNE])]
+    for name, value in TUNED.items():
+        d.set(name, value)
+    parts.append(d.run(rec[K_TUNE:K_BAD]))
+    statuses, logs, kept = [], [], []
+    for name, value in REFUSED_TUNES:
+        d.log.clear()
+        d.set(name, value)
+        statuses.append(d.step(rec[K_BAD]))
+        d.k -= 1  # a refused step consumed no sample
+        logs.append("\n".join(m for _, m in d.log))
+        kept.append(d.get(name))
+    d.log.clear()
+    parts.append(d.run(rec[K_BAD:]))
+    res["tune"] = np.vstack(parts)
+    res["tune_refused_status"] = np.array(statuses)
+    res["tune_refused_log"] = np.array(logs)
+    res["tune_refused_kept"] = np.array(kept, dtype=float)
+    res["tune_after_log"] = np.array(len(d.log))
+    d.close()
+
+    # -- communication steps of several samples, and refused steps ---------------------
+    d = new("multi", all_params, h=ALL_H, start=ALL_START)
+    rows, counts, k, j = [], [], 0, 0
+    while k < len(rec):
+        n = min(MULTI_STEPS[j % len(MULTI_STEPS)], len(rec) - k)
+        h = n * ALL_H * (1.0 + MULTI_JITTER[j % len(MULTI_JITTER)])
+        d.fmu.setReal(d._in_vr, [float(x) for x in rec[k]])
+        status = d.call(d.fmu.doStep, ALL_START + k * ALL_H, h)
+        if status != 0:
+            raise RuntimeError(f"multi-sample doStep at k={k}, n={n}: {status} {d.log}")
+        rows.append(d.outputs())
+        counts.append(n)
+        k, j = k + n, j + 1
+    res["multi"], res["multi_n"] = np.array(rows), np.array(counts)
+    d.close()
+
     d = new("wrong_step", GREY_PARAMS, h=GREY_H)
-    d.h = 2 * GREY_H
-    res["wrong_step_status"] = np.array(d.step(data["grey"][0]))
-    res["wrong_step_log"] = np.array("\n".join(m for _, m in d.log))
-    d.h, d.k = GREY_H, 0
+    statuses, logs = [], []
+    for h in BAD_STEPS:
+        d.log.clear()
+        d.fmu.setReal(d._in_vr, [float(x) for x in data["grey"][0]])
+        statuses.append(d.call(d.fmu.doStep, 0.0, h))
+        logs.append("\n".join(m for _, m in d.log))
+    res["wrong_step_status"] = np.array(statuses)
+    res["wrong_step_log"] = np.array(logs)
+    d.k = 0
     d.log.clear()
     res["after_wrong_step"] = d.run(data["grey"][:20])
     res["after_wrong_step_log"] = np.array(len(d.log))

@@ -30,6 +30,16 @@ CASES: dict[str, tuple[int, int, int]] = {
     "moving_textbook": (0, 8, 1),
     "improved": (1, 10, 0),
 }
+#: Calibrated detectors (run on the noisy signal ``y_noisy``): label -> parameters.
+CALIBRATED: dict[str, dict[str, Any]] = {
+    "calibrated_k_sigma": {"grey.model": 1, "grey.window": 10, "grey.calibrate_s": 10.0,
+                           "grey.threshold": 0.01, "grey.k_sigma": 5.0},
+    "calibrated_sequential_auto": {"grey.model": 1, "grey.window": 10,
+                                   "grey.calibrate_s": 10.0, "grey.threshold": 0.01,
+                                   "grey.sequential": True, "grey.auto_order": True},
+}
+#: Steps before the calibrated sequential detector's state is saved (restored, re-run).
+K_SAVE_CALIBRATED = 80
 #: Steps before the FMU state is saved in the whole-record run (restored, re-run).
 K_SAVE = 150
 #: Invalid parameter sets: label -> parameters.
@@ -37,6 +47,12 @@ INVALID: dict[str, dict[str, Any]] = {
     "window 0 with the improved model": {"grey.model": 1, "grey.window": 0},
     "classic_evaluation 2": {"grey.model": 0, "grey.classic_evaluation": 2},
     "classic window 3": {"grey.model": 0, "grey.window": 3},
+    "grey.auto_order with the classic model": {"grey.model": 0, "grey.window": 8,
+                                               "grey.calibrate_s": 10.0,
+                                               "grey.auto_order": True},
+    "grey.calibrate_s of 2 samples": {"grey.calibrate_s": 1.0},
+    "grey.cusum_k 0": {"grey.calibrate_s": 10.0, "grey.sequential": True,
+                       "grey.cusum_k": 0.0},
 }
 
 
@@ -62,6 +78,22 @@ def main(fmu_dir: Path, out: Path, inp: Path) -> None:
         d.close()
     assert d is not None
     res["columns"] = np.array(d.out_names)
+    noisy = np.zeros((y.size, len(IN_NAMES)))
+    noisy[:, IN_NAMES.index("grey.y")] = np.load(inp)["y_noisy"]
+    for label, extra in CALIBRATED.items():
+        d = Diag(unzipdir, md, label, {**BASE, **extra}, h=H)
+        assert d.init_status == 0, d.log
+        res[label] = d.run(noisy)
+        d.close()
+    d = Diag(unzipdir, md, "state_cal", {**BASE, **CALIBRATED["calibrated_sequential_auto"]},
+             h=H)
+    d.run(noisy[:K_SAVE_CALIBRATED])
+    state = d.fmu.serializeFMUstate(d.fmu.getFMUstate())
+    res["cal_first"] = d.run(noisy[K_SAVE_CALIBRATED:])
+    d.fmu.setFMUstate(d.fmu.deSerializeFMUstate(state))
+    d.k = K_SAVE_CALIBRATED
+    res["cal_again"] = d.run(noisy[K_SAVE_CALIBRATED:])
+    d.close()
 
     # whole-record model: its state grows with the record, save and restore it
     d = Diag(unzipdir, md, "state", params(*CASES["ordinary_textbook"]), h=H)

@@ -27,6 +27,9 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
+# pytester: the gyrodiag pytest plugin is tested by running pytest on scenario projects
+pytest_plugins = ["pytester"]
+
 
 def load_builder() -> Any:
     """Import build_fmu.py as a module (registry and staleness helpers only)."""

@@ -129,8 +129,39 @@ def test_summary_figures_from_synthetic_records():
     md = markdown_summary(s, "t").splitlines()
     up = garwood_interval(3, 2.0)[1]
     assert f"| df | 3 in 2.00 h (≤ {up:.3g}) | 2 of 3 | 0.3 / 0.39 / 0.4 | 1 of 3 |" in md
-    assert "| c | bias | 0.1 | 1 of 2 | 1 of 2 |" in md
+    assert "| c | bias | 0.1 | 1 of 2 | 1 of 2 | – | – |" in md
+    # a channel that types its faults (sequential detection filter) adds "typed right"
+    for r, typed in zip(records[:3], ("bias", "ramp", "bias"), strict=True):
+        r["typed"], r["expected_type"] = typed, "bias"
+    md = markdown_summary(summarize(records, n_planned=6), "t").splitlines()
+    assert "| c | bias | 0.1 | 1 of 2 | 1 of 2 | – | 1 of 2 |" in md
     assert "| 1 | 0.667 | 1.5 | " + f"{up:.3g} |" in md
+
+
+def test_dtg_summary_counts_merged_classes_and_the_axis():
+    """A sweep's ``accept`` labels count as right (classes merged where physics cannot tell
+    them apart); the axis column compares dtg.fault_axis with the injected channel's axis
+    (injector channels 1, 3 feed x; 2, 4 feed y)."""
+    def rec(target, injected, diagnosed, axis, accepted=()):
+        return {"status": "ok", "run": {"run_id": f"{target}{diagnosed}{axis}", "kind": "fault",
+                                        "cls": "dtg", "channel": "dtg", "fault_type": injected,
+                                        "magnitude": 0.1, "injected": injected,
+                                        "accepted": list(accepted), "target": target,
+                                        "thresholds": [1.0]},
+                "detected": True, "delay_s": 0.1, "false_alarms": 0, "fault_free_s": 1.0,
+                "diagnosed": diagnosed, "diagnosed_axis": axis, "threshold_config": 1.0,
+                "sweep": {"detected": [True], "false_alarms": [0]}, "sweep_mismatch": 0.0}
+    records = [rec(2, "uty_loss", "uty_noise", 2, accepted=["uty_noise"]),
+               rec(2, "uty_loss", "uty_loss", 2, accepted=["uty_noise"]),
+               rec(2, "uty_loss", "utx_noise", 1, accepted=["uty_noise"]),
+               rec(3, "ux_drift", "ux_step", 1)]
+    s = summarize(records)
+    rows = {r["fault_type"]: r for r in s["detection"]}
+    assert rows["uty_loss"]["isolated"] == 2 and rows["uty_loss"]["axis_right"] == 2
+    assert rows["ux_drift"]["isolated"] == 0 and rows["ux_drift"]["axis_right"] == 1
+    assert s["confusion"]["dtg"]["correct"] == 2
+    md = markdown_summary(s, "t").splitlines()
+    assert "| dtg | uty_loss | 0.1 | 3 of 3 | 2 of 3 | 2 of 3 | – |" in md
 
 
 # --------------------------------------------------------------------------- expansion
@@ -153,6 +184,25 @@ def test_expansion_is_deterministic_and_applies_fault_seed_and_overrides(tmp_pat
     assert sc.fmus["diag"].parameters["df.burn_in_s"] == 0.5
     nominal = next(r for r in runs if r.kind == "nominal")
     assert build_scenario(nominal).faults == []
+
+
+def test_aircraft_campaign_has_dual_faults_both_couplings_and_40_nominal_hours(tmp_path):
+    from harness.campaigns.campaign import _df_sequential
+
+    spec, base = load_campaign(ROOT / "campaigns" / "aircraft.toml")
+    runs = expand_runs(spec, base, tmp_path)
+    nominal_h = sum(r.duration_s - 8.0 for r in runs if r.kind == "nominal") / 3600.0
+    assert nominal_h >= 40.0
+    dual = [r for r in runs if r.also]
+    assert {r.injected for r in dual} == {"alpha+q", "theta+gamma"}
+    sc = build_scenario(next(r for r in dual if r.cls == "aircraft_jacobi"))
+    assert sc.coupling == "jacobi"
+    assert sorted((f.channel, f.type, f.magnitude) for f in sc.faults) == [
+        (2, "bias", 0.005), (3, "bias", 0.005)]
+    assert len({f.name for f in sc.faults}) == 2
+    # the classes judge the Diagnoser's default, sequential decision
+    assert _df_sequential(sc, "diag")
+    assert not _df_sequential(build_scenario(expand_runs(*load_campaign(SMOKE))[0]), "diag")
 
 
 def test_identical_sweep_entries_are_rejected():

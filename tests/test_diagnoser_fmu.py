@@ -23,6 +23,9 @@ from _diagnoser_runner import (
     DTG_START,
     GREY_H,
     IN_NAMES,
+    K_PATTERN_NAN,
+    K_PATTERN_RERUN,
+    K_PATTERN_SAVE,
     K_RERUN_1,
     K_RERUN_2,
     K_RERUN_OTHER,
@@ -32,6 +35,7 @@ from _diagnoser_runner import (
     N_RESET,
     NAN_STEPS,
 )
+from _dtg_patterns import pattern_library_dict
 from _dtg_sim import STABLE_ROTOR, simulate_difference_equation
 from conftest import load_builder
 from fmpy.validation import validate_fmu
@@ -41,6 +45,7 @@ from gyrodiag.decision import UNKNOWN_CODE
 from gyrodiag.df_channel import DFChannel, DFChannelConfig
 from gyrodiag.dtg import N_THETA, theta_from_physical
 from gyrodiag.dtg_channel import DTGChannel, DTGChannelConfig
+from gyrodiag.dtg_patterns import PatternLibrary
 from gyrodiag.grey import ClassicGreyPredictor, GreyFaultDetector, ImprovedGreyPredictor
 from gyrodiag.isolation import FaultType
 
@@ -94,6 +99,11 @@ def _inputs(tmp: Path) -> dict[str, np.ndarray]:
     _, u_all2, y_all2 = simulate(20.0, seed=33, fault=(3, "stuck", None))
     sig_path = tmp / "signatures.json"
     sig_path.write_text(json.dumps({"signatures": FILE_SIGNATURES}), encoding="utf-8")
+    paths = {}
+    for key, h in (("patterns_1khz_path", DTG_H), ("patterns_100hz_path", ALL_H)):
+        paths[key] = tmp / f"{key}.json"
+        paths[key].write_text(json.dumps({"patterns": pattern_library_dict(h)}),
+                              encoding="utf-8")
     return {
         "dtg": _record(4500, dtg=_dtg_record(DTG_H, 3000, 1500, seed=1, noise=1e-4)),
         "grey": _record(600, grey=_grey_signal(600, GREY_H, 0.01, 1e-3, 30.0, 0.1, seed=2)),
@@ -107,6 +117,7 @@ def _inputs(tmp: Path) -> dict[str, np.ndarray]:
         "sigfile": _record(1200, dtg=_dtg_record(DTG_H, 500, 700, seed=7, noise=0.0)),
         "sigfile_path": np.array(str(sig_path)),
         "sigfile_theta0": theta_from_physical(STABLE_ROTOR, DTG_H),
+        **{k: np.array(str(v)) for k, v in paths.items()},
     }
 
 
@@ -150,9 +161,58 @@ def assert_columns(got: Rows, expected: dict[str, np.ndarray]) -> None:
 def _dtg_channel(T, cutoff_hz=50.0, signatures=SIGNATURES, **kw):
     cfg = dict(sample_period_s=T, prefilter_cutoff_hz=cutoff_hz, estimator="forgetting",
                forgetting=0.99, p0=1e8, learn_start_s=0.5, learn_end_s=2.0,
-               persistence_k=3, persistence_n=5, signatures=signatures)
+               persistence_k=3, persistence_n=5, signatures=signatures, classifier="paper")
     cfg.update(kw)
     return DTGChannel(DTGChannelConfig(**cfg))
+
+
+def _pattern_channel(T, **kw):
+    """The pattern classifier with the hand-made library of that sample period."""
+    cfg = dict(sample_period_s=T, p0=1e8, learn_start_s=0.5, learn_end_s=2.0,
+               patterns=PatternLibrary.from_dict(pattern_library_dict(T)))
+    cfg.update(kw)
+    return DTGChannel(DTGChannelConfig(**cfg))
+
+
+CHANNEL_STATS = ("level", "log_var_ratio")
+
+
+def _diagnosis_columns(put, ch: DTGChannel, o) -> None:
+    """The facade's mapping of the block-rate outputs, with its sentinels."""
+    d = o.diagnosis
+
+    def fin(x, fallback):
+        return float(x) if np.isfinite(x) else fallback
+
+    alarm = bool(o.alarm)
+    put("dtg.reference_status", d.reference_status)
+    put("dtg.reference_valid", d.reference_status == 1)
+    put("dtg.residual_alarm", d.residual_alarm)
+    put("dtg.fault_type", d.fault_type if alarm else 0)
+    put("dtg.fault_signal", d.fault_signal if alarm else 0)
+    put("dtg.fault_axis", d.fault_axis if alarm else 0)
+    put("dtg.class_distance", fin(d.distance, -1.0) if alarm else -1.0)
+    size_ok = alarm and np.isfinite(d.size)
+    put("dtg.fault_size", d.size if size_ok else 0.0)
+    put("dtg.fault_size_valid", size_ok)
+    put("dtg.fault_rate", fin(d.rate, 0.0) if alarm else 0.0)
+    put("dtg.fault_ratio", fin(d.ratio, 1.0) if alarm else 1.0)
+    for i in range(6):
+        put(f"dtg.level[{i + 1}]", fin(d.level[i], 0.0))
+        put(f"dtg.log_var_ratio[{i + 1}]", fin(d.log_variance[i], 0.0))
+    put("dtg.level_growth", fin(d.growth, 0.0))
+    put("dtg.stat_window_s", d.window_s)
+    for a in range(2):
+        put(f"dtg.residual_level_z[{a + 1}]", d.tests[a])
+        put(f"dtg.residual_var_ratio[{a + 1}]", d.tests[2 + a])
+        put(f"dtg.residual_long_var_ratio[{a + 1}]", d.tests[4 + a])
+    ref = ch.reference
+    for i in range(N_THETA):
+        put(f"dtg.ref_theta0[{i + 1}]", 0.0 if ref is None else ref.theta0[i])
+    for key, attr in (("ref_mean", "mean"), ("ref_block_std", "block_std"),
+                      ("ref_var_short", "var_short"), ("ref_var_long", "var_long")):
+        for i in range(6):
+            put(f"dtg.{key}[{i + 1}]", 0.0 if ref is None else getattr(ref, attr)[i])
 
 
 def _dtg_columns(ch: DTGChannel, samples: np.ndarray, start: float) -> dict[str, np.ndarray]:
@@ -169,14 +229,17 @@ def _dtg_columns(ch: DTGChannel, samples: np.ndarray, start: float) -> dict[str,
                 put(f"dtg.eta_{axis}[{i + 1}]", o.eta[a, i])
         for i in range(N_THETA):
             put(f"dtg.theta0_used[{i + 1}]", 0.0 if ch.theta0 is None else ch.theta0[i])
+        physical_valid = bool(np.all(np.isfinite(o.physical)))  # else 0 (sentinel)
         for i, name in enumerate(PHYSICAL):
-            put(f"dtg.{name}", o.physical[i])
+            put(f"dtg.{name}", o.physical[i] if physical_valid else 0.0)
+        put("dtg.physical_valid", physical_valid)
         put("dtg.learning", o.learning)
         put("dtg.alarm", o.alarm)
         put("dtg.fault_code", o.fault_code)
         first = o.first_alarm_time_s
         put("dtg.first_alarm_time", -1.0 if np.isnan(first) else start + first)
         put("dtg.valid", o.valid)
+        _diagnosis_columns(put, ch, o)
     return {k: np.array(v, dtype=float) for k, v in cols.items()}
 
 
@@ -187,11 +250,16 @@ def _grey_detector(model=1, window=10, threshold=0.02, clear=5.0, h=GREY_H):
 
 def _grey_columns(det, y, times) -> dict[str, np.ndarray]:
     outs = [det.update(float(v), time_s=float(t)) for v, t in zip(y, times, strict=True)]
-    return {
-        "grey.prediction": np.array([o.prediction for o in outs]),
-        "grey.error": np.array([o.error for o in outs]),
+    prediction = np.array([o.prediction for o in outs])
+    error = np.array([o.error for o in outs])
+    return {  # the FMU publishes 0 for a missing prediction or error (sentinels)
+        "grey.prediction": np.where(np.isfinite(prediction), prediction, 0.0),
+        "grey.error": np.where(np.isfinite(error), error, 0.0),
+        "grey.prediction_valid": np.isfinite(prediction).astype(float),
         "grey.alarm": np.array([o.alarm for o in outs], dtype=float),
         "grey.valid": np.array([o.valid for o in outs], dtype=float),
+        "grey.calibrating": np.array([o.calibrating for o in outs], dtype=float),
+        "grey.statistic": np.array([o.statistic for o in outs], dtype=float),
     }
 
 
@@ -205,10 +273,20 @@ def _df_columns(ch: DFChannel, u, y) -> dict[str, np.ndarray]:
     cols = {f"df.residual[{i + 1}]": np.array([o.residual[i] for o in outs]) for i in range(6)}
     cols.update({f"df.alarm[{i + 1}]": np.array([o.alarms[i] for o in outs], dtype=float)
                  for i in range(6)})
+    cols.update({f"df.statistic[{i + 1}]": np.array([o.statistic[i] for o in outs])
+                 for i in range(6)})
+    cols.update({f"df.sensor_fault_type[{i + 1}]": np.array(
+        [o.sensor_fault_type[i] for o in outs], dtype=float) for i in range(6)})
     for name, attr in (("calibrating", "calibrating"), ("detected", "detected"),
                        ("isolated_sensor", "isolated_sensor"), ("fault_type", "fault_type"),
-                       ("fault_magnitude", "magnitude"), ("valid", "valid")):
+                       ("fault_magnitude", "magnitude"), ("valid", "valid"),
+                       ("episodes", "episodes"), ("isolated_mask", "isolated_mask"),
+                       ("fault_magnitude_valid", "magnitude_valid"),
+                       ("input_delay_in_use", "input_delay")):
         cols[f"df.{name}"] = np.array([getattr(o, attr) for o in outs], dtype=float)
+    known = np.isfinite(cols["df.fault_magnitude"]) & (cols["df.fault_magnitude_valid"] > 0)
+    cols["df.fault_magnitude"] = np.where(known, cols["df.fault_magnitude"], 0.0)
+    cols["df.fault_magnitude_valid"] = known.astype(float)
     return cols
 
 
@@ -227,7 +305,7 @@ def _summary(cols: dict[str, np.ndarray], n: int) -> dict[str, np.ndarray]:
         elif grey_alarm[k]:
             code[k] = 200
         elif df_alarm[k]:
-            code[k] = 300 + (iso[k] if iso[k] > 0 else -1)
+            code[k] = 300 + (iso[k] if iso[k] > 0 else (-2 if iso[k] == -2 else -1))
     return {"any_alarm": (dtg_alarm | grey_alarm | df_alarm).astype(float), "fault_code": code}
 
 
@@ -240,8 +318,14 @@ def _all_reference(data, skip: dict[str, set[int]] | None = None) -> dict[str, n
     keep = {c: np.array([k not in skip.get(c, set()) for k in range(n)]) for c in
             ("dtg", "grey", "df")}
     cols = {}
-    cols.update(_dtg_columns(_dtg_channel(ALL_H, cutoff_hz=20.0), rec[keep["dtg"], 0:4],
-                             ALL_START))
+    # the DTG channel is fed the non-finite samples too: it remembers the gap (the
+    # regression rows spanning it are left out of its reference statistics), so its
+    # outputs are aligned with the host steps
+    dtg_rec = rec[:, 0:4].copy()
+    dtg_rec[~keep["dtg"]] = np.nan
+    cols.update(_dtg_columns(
+        _pattern_channel(ALL_H, prefilter_cutoff_hz=20.0, forgetting=0.99, persistence_k=3,
+                         persistence_n=5), dtg_rec, ALL_START))
     cols.update(_grey_columns(_grey_detector(threshold=0.01, clear=3.0, h=ALL_H),
                               rec[keep["grey"], 4], times[keep["grey"]]))
     cols.update(_df_columns(_df_channel(5.0, 1.0), rec[keep["df"], 5:7],
@@ -318,7 +402,38 @@ def test_all_channels_together_equal_library(fmu, all_reference):
     for flag in ("dtg.alarm", "grey.alarm", "df.detected"):
         assert got[flag].any(), flag
     both = (got["dtg.alarm"] == 1) & (got["df.detected"] == 1)
-    assert both.any() and np.all(got["fault_code"][both] == 101)
+    code = got["dtg.fault_code"][both]
+    assert both.any() and np.all(got["fault_code"][both] == 100 + np.where(code > 0, code, -1))
+    # the pattern classifier's reference was learned and checked, and the torquer fault
+    # (θ5 × 0.3 at 12 s) raised the residual tests
+    assert got["dtg.reference_status"][-1] == 1 and got["dtg.reference_valid"][-1] == 1
+    assert got["dtg.residual_alarm"][-1] == 1
+
+
+def test_dtg_pattern_classifier_equals_library_through_nan_and_state(fmu, data):
+    """The default classifier: reference learning with a NaN sample inside the window (the
+    regression rows spanning it are left out: the reference stays valid), residual
+    tests, classification; a fresh instance restored from a state saved inside the
+    learning window continues identically."""
+    got = rows(fmu, "pattern")
+    rec = data["dtg"][:, 0:4].copy()
+    rec[K_PATTERN_NAN, 0] = np.nan
+    expected = _dtg_columns(_pattern_channel(DTG_H), rec, DTG_START)
+    assert expected["dtg.valid"][K_PATTERN_NAN] == 0
+    # the first-alarm time is the host time: one period later than the channel's clock
+    k_first = int(np.argmax(expected["dtg.alarm"]))
+    expected["dtg.first_alarm_time"] = np.where(
+        np.arange(len(rec)) >= k_first, DTG_START + k_first * DTG_H, -1.0)
+    expected.update(_summary(expected, len(rec)))
+    assert_columns(got, expected)
+    # learned and checked at 2.0 s on the channel's clock (the NaN sample makes that host
+    # step 2001); no alarm before the torquer fault at 3.0 s, held to the end
+    assert got["dtg.reference_status"][2002] == 1
+    assert got["dtg.reference_status"][1990] == 0
+    assert not got["dtg.alarm"][2002:3000].any()
+    assert got["dtg.residual_alarm"][3200:].all()
+    seg = slice(K_PATTERN_SAVE, K_PATTERN_SAVE + K_PATTERN_RERUN)
+    np.testing.assert_array_equal(fmu["pattern_restored"], fmu["pattern"][seg])
 
 
 # ---------------------------------------------------------------------------------------
@@ -382,16 +497,18 @@ def test_non_finite_input_skips_the_sample_and_the_channel_recovers(fmu, data):
     got = rows(fmu, "nan")
     expected: dict[str, np.ndarray] = {}
     for channel in ("dtg", "grey", "df"):
-        idx = _held_index(n, bad[channel])
+        # the DTG reference was fed the non-finite samples (aligned with the host steps)
+        idx = np.arange(n) if channel == "dtg" else _held_index(n, bad[channel])
         for name, col in lib.items():
             if name.startswith(channel + "."):
                 expected[name] = col[idx]
         expected[f"{channel}.valid"] = np.array([k not in bad[channel] for k in range(n)],
                                                 dtype=float)
-    # grey at the skipped sample: no error, the pending prediction, the alarm held
+    # grey at the skipped sample: no error (0), the pending prediction, the alarm held
     (k_grey,) = bad["grey"]
-    expected["grey.error"][k_grey] = np.nan
+    expected["grey.error"][k_grey] = 0.0
     expected["grey.prediction"][k_grey] = lib["grey.prediction"][k_grey]
+    expected["grey.prediction_valid"][k_grey] = 1.0
     # the DTG first-alarm time is the host time of the alarming step: one period after
     # the time on the channel's valid-sample clock, since one sample was skipped before
     k_first = int(np.argmax(expected["dtg.alarm"]))
@@ -427,6 +544,9 @@ def test_valid_defaults_initialise_without_messages(fmu):
 @pytest.mark.parametrize("label", [
     "dtg.forgetting", "dtg.estimator", "dtg.prefilter_cutoff_hz", "dtg.window",
     "dtg.n_signatures", "dtg.signature_file", "dtg.signature_file (bad JSON)",
+    "dtg.classifier", "dtg.long_window_s", "dtg.var_threshold",
+    "dtg.signature_file (paper signatures, pattern classifier)",
+    "dtg.n_signatures (pattern classifier)",
     "grey.window", "grey.threshold", "df.eigenvalue (unstable)", "df.eigenvalue (repeated)",
     "df.persistence_k", "df.calibrate_s", "sample_period_s (zero)",
     "sample_period_s (negative)",
@@ -442,13 +562,103 @@ def test_invalid_parameter_is_fmi2error_naming_it(fmu, label):
     assert "initialisation did not succeed" in step_log
 
 
-def test_communication_step_must_equal_sample_period(fmu):
-    assert fmu["wrong_step_status"] == 3
-    log = str(fmu["wrong_step_log"])
-    assert "communication step 0.2 s" in log and "sample_period_s = 0.1 s" in log
-    # the refused step consumed no sample: the run continues as a fresh one
+def test_step_of_n_sample_periods_processes_n_samples_with_inputs_held(fmu, data):
+    """A doStep of n·sample_period_s (n = 1..7, sizes jittered inside the 1e-6
+    tolerance) equals the library fed the step's first input n times; the outputs after
+    the step are those of its last sample."""
+    counts = fmu["multi_n"]
+    assert set(counts.tolist()) >= {1, 2, 3, 4, 5, 7} and counts.sum() == len(data["all"])
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    held = np.repeat(data["all"][starts], counts, axis=0)
+    ref = _all_reference({"all": held})[0]
+    ref.update(_summary(ref, len(held)))
+    last = np.cumsum(counts) - 1
+    assert_columns(rows(fmu, "multi"), {name: col[last] for name, col in ref.items()})
+    # held inputs are not the record: the run differs from the one-sample-per-step run
+    got = rows(fmu, "multi")
+    assert not np.allclose(got["df.residual[3]"], rows(fmu, "all")["df.residual[3]"][last])
+    assert got["df.detected"][-1] == 1 and got["dtg.alarm"].any()
+
+
+@pytest.mark.parametrize(("index", "reason"), [
+    (0, "not a whole multiple"), (1, "not a whole multiple"), (2, "not a whole multiple"),
+    (3, "must be finite and > 0"), (4, "must be finite and > 0"),
+    (5, "must be finite and > 0"), (6, "must be finite and > 0"),
+])
+def test_other_steps_are_refused_with_the_reason(fmu, index, reason):
+    from _diagnoser_runner import BAD_STEPS
+
+    assert fmu["wrong_step_status"][index] == 3  # fmi2Error, the instance lives on
+    log = str(fmu["wrong_step_log"][index])
+    assert reason in log and f"{BAD_STEPS[index]!r} s" in log, log
+    if index < 3:
+        assert "sample_period_s = 0.1 s" in log and "relative tolerance 1e-06" in log
+
+
+def test_refused_steps_consume_no_sample(fmu):
     np.testing.assert_array_equal(fmu["after_wrong_step"], fmu["grey"][:20])
     assert fmu["after_wrong_step_log"] == 0
+
+
+# ---------------------------------------------------------------------------------------
+# tunable parameters
+# ---------------------------------------------------------------------------------------
+
+def _tuned_reference(data) -> dict[str, np.ndarray]:
+    """Library run of the "all" record where the tuned channels are rebuilt with the new
+    values at K_TUNE and take over the running channels' state."""
+    from _diagnoser_runner import K_TUNE, TUNED
+
+    rec = data["all"]
+    times = ALL_START + ALL_H * np.arange(len(rec))
+    common = dict(prefilter_cutoff_hz=20.0, forgetting=0.99, persistence_n=5)
+    dtg = _pattern_channel(ALL_H, persistence_k=3, **common)
+    grey = _grey_detector(threshold=0.01, clear=3.0, h=ALL_H)
+    cols = {k: list(v) for k, v in _dtg_columns(dtg, rec[:K_TUNE, 0:4], ALL_START).items()}
+    for k, v in _grey_columns(grey, rec[:K_TUNE, 4], times[:K_TUNE]).items():
+        cols[k] = list(v)
+    dtg2 = _pattern_channel(ALL_H, low=TUNED["dtg.low"], high=TUNED["dtg.high"],
+                            persistence_k=TUNED["dtg.persistence_k"],
+                            level_threshold=TUNED["dtg.level_threshold"],
+                            var_threshold=TUNED["dtg.var_threshold"], **common)
+    dtg2.set_state(dtg.get_state())
+    grey2 = _grey_detector(threshold=TUNED["grey.threshold"],
+                           clear=TUNED["grey.clear_after_s"], h=ALL_H)
+    grey2.set_state(grey.get_state())
+    for k, v in _dtg_columns(dtg2, rec[K_TUNE:, 0:4], ALL_START).items():
+        cols[k].extend(v)
+    for k, v in _grey_columns(grey2, rec[K_TUNE:, 4], times[K_TUNE:]).items():
+        cols[k].extend(v)
+    return {k: np.array(v, dtype=float) for k, v in cols.items()}
+
+
+def test_tunable_changes_apply_from_the_next_sample(fmu, data, all_reference):
+    from _diagnoser_runner import K_TUNE
+
+    got = rows(fmu, "tune")
+    ref = _tuned_reference(data)
+    assert_columns(got, ref)
+    # the detection filter is not tuned: as in the untuned run
+    assert_columns(got, {k: v for k, v in all_reference.items() if k.startswith("df.")})
+    untuned = rows(fmu, "all")
+    for name in ("dtg.alarm", "grey.alarm"):
+        np.testing.assert_array_equal(got[name][:K_TUNE], untuned[name][:K_TUNE])
+    # lower residual-test thresholds alarm more, the higher grey threshold less
+    assert got["dtg.alarm"][K_TUNE:].sum() > untuned["dtg.alarm"][K_TUNE:].sum()
+    assert got["grey.alarm"][K_TUNE:].sum() < untuned["grey.alarm"][K_TUNE:].sum()
+
+
+def test_refused_tunable_change_is_fmi2error_and_keeps_the_value_in_use(fmu):
+    from _diagnoser_runner import REFUSED_TUNES, TUNED
+
+    assert fmu["tune_refused_status"].tolist() == [3, 3]
+    high_log, k_log = (str(x) for x in fmu["tune_refused_log"])
+    assert "dtg.high = 0.9 is outside its range [1.000000001, inf]" in high_log
+    assert "dtg.persistence_k" in k_log and "Traceback" not in k_log
+    for log in (high_log, k_log):
+        assert "step was not taken" in log and "Kept" in log
+    assert fmu["tune_refused_kept"].tolist() == [TUNED[n] for n, _ in REFUSED_TUNES]
+    assert fmu["tune_after_log"] == 0
 
 
 # ---------------------------------------------------------------------------------------
@@ -474,9 +684,9 @@ def test_signature_file_absolute_and_in_resources_classify(fmu, data):
 # model description
 # ---------------------------------------------------------------------------------------
 
-#: Real variables without a unit: they carry the monitored signal's own unit (grey), or
-#: a quantity whose unit depends on the fault type (bias, gain factor or stuck value).
-UNITLESS = {"grey.threshold", "grey.y", "grey.prediction", "grey.error", "df.fault_magnitude"}
+#: Real variables without a unit: none (the grey channel is declared in V, the unit of
+#: the HRG output it was made for; df.fault_magnitude as dimensionless, see its text).
+UNITLESS: set[str] = set()
 
 
 def test_every_variable_has_a_description_and_every_real_a_unit(fmu_dir):
@@ -503,4 +713,4 @@ def test_every_variable_has_a_description_and_every_real_a_unit(fmu_dir):
     assert units["df.bank_threshold[3,3]"] == "rad"  # observer without q: 3rd is theta
     var = {sv.get("name"): sv for sv in svs}
     forgetting = var["dtg.forgetting"][0]
-    assert (forgetting.get("min"), forgetting.get("max")) == ("0", "1")
+    assert (forgetting.get("min"), forgetting.get("max")) == ("1e-09", "1")

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from _grey_options_runner import CASES, INVALID, K_SAVE, H
+from _grey_options_runner import CALIBRATED, CASES, INVALID, K_SAVE, K_SAVE_CALIBRATED, H
 from test_diagnoser_fmu import _grey_columns
 
 from gyrodiag.grey import ClassicGreyPredictor, GreyFaultDetector, ImprovedGreyPredictor
@@ -33,6 +33,24 @@ def signal() -> tuple[np.ndarray, np.ndarray]:
     return t, y
 
 
+def noisy_signal() -> tuple[np.ndarray, np.ndarray]:
+    """The same signal with 10 mV of white noise (seeded)."""
+    t, y = signal()
+    return t, y + 0.01 * np.random.default_rng(11).standard_normal(y.size)
+
+
+def calibrated_library(label: str, t: np.ndarray, y: np.ndarray) -> dict[str, np.ndarray]:
+    extra = CALIBRATED[label]
+    sequential = bool(extra.get("grey.sequential", False))
+    candidates = ([ImprovedGreyPredictor(10, a_min=1e-6, residual_order=o) for o in (1, 0)]
+                  if extra.get("grey.auto_order") else [])
+    det = GreyFaultDetector(
+        ImprovedGreyPredictor(10, a_min=1e-6), extra["grey.threshold"], H, CLEAR_S,
+        calibrate_samples=round(extra["grey.calibrate_s"] / H), sequential=sequential,
+        candidates=candidates)
+    return _grey_columns(det, y, t)
+
+
 def library(label: str, t: np.ndarray, y: np.ndarray) -> dict[str, np.ndarray]:
     model, window, evaluation = CASES[label]
     if model == 1:
@@ -46,7 +64,7 @@ def library(label: str, t: np.ndarray, y: np.ndarray) -> dict[str, np.ndarray]:
 @pytest.fixture(scope="module")
 def fmu(run_fmu_script, tmp_path_factory) -> dict[str, np.ndarray]:
     inp = tmp_path_factory.mktemp("grey_options_in") / "inputs.npz"
-    np.savez(inp, y=signal()[1])
+    np.savez(inp, y=signal()[1], y_noisy=noisy_signal()[1])
     return run_fmu_script(RUNNER, str(inp))
 
 
@@ -66,6 +84,31 @@ def test_fmu_equals_library(fmu, label):
     for name, expected in ref.items():
         np.testing.assert_allclose(column(fmu, label, name), expected, equal_nan=True,
                                    err_msg=f"{label}: {name}", **TOL)
+
+
+@pytest.mark.parametrize("label", list(CALIBRATED))
+def test_calibrated_detector_fmu_equals_library(fmu, label):
+    t, y = noisy_signal()
+    ref = calibrated_library(label, t, y)
+    for name, expected in ref.items():
+        np.testing.assert_allclose(column(fmu, label, name), expected, equal_nan=True,
+                                   err_msg=f"{label}: {name}", **TOL)
+    alarm = column(fmu, label, "grey.alarm")
+    # both biases seen at their first sample, nothing else raised (10 mV of noise)
+    assert list(onsets(t, alarm)[:2]) == [30.0, 100.0]
+    calibrating = column(fmu, label, "grey.calibrating")
+    assert calibrating[:24].all() and not calibrating[31:].any()  # 5 s + 10 s
+    sigma = column(fmu, label, "grey.sigma")
+    assert 0.01 < sigma[-1] < 0.03  # the improved model's error on 10 mV of noise
+
+
+def test_calibrated_state_save_and_restore(fmu):
+    np.testing.assert_array_equal(fmu["cal_again"], fmu["cal_first"])
+    t, y = noisy_signal()
+    ref = calibrated_library("calibrated_sequential_auto", t, y)["grey.alarm"][
+        K_SAVE_CALIBRATED:]
+    got = column({"columns": fmu["columns"], "x": fmu["cal_again"]}, "x", "grey.alarm")
+    np.testing.assert_array_equal(got, ref)
 
 
 def test_textbook_evaluation_false_alarms_on_constant_reseeds_careful_does_not(fmu):
@@ -101,6 +144,9 @@ def test_whole_record_state_save_and_restore(fmu):
     (0, "window 0 with the improved model", ("grey.window", "grey.model")),
     (1, "classic_evaluation 2", ("grey.classic_evaluation",)),
     (2, "classic window 3", ("grey.window",)),
+    (3, "grey.auto_order with the classic model", ("grey.auto_order", "grey.model")),
+    (4, "grey.calibrate_s of 2 samples", ("grey.calibrate_s",)),
+    (5, "grey.cusum_k 0", ("grey.cusum_k",)),
 ])
 def test_invalid_options_are_fmi2error_naming_the_parameter(fmu, i, label, names):
     assert list(INVALID)[i] == label

@@ -35,7 +35,7 @@ def _run(ch, rec):
 def test_learns_theta0_then_detects_and_classifies_a_torquer_fault():
     cfg = DTGChannelConfig(
         sample_period_s=T, prefilter_enabled=False, estimator="forgetting", forgetting=0.99,
-        p0=1e8, learn_start_s=0.5, learn_end_s=2.0,
+        p0=1e8, learn_start_s=0.5, learn_end_s=2.0, classifier="paper",
         signatures={"torquer_gain": [0, 0, 0, 0, -1], "pickoff_loss": [-3, -1, 1, 1, 2]},
     )
     ch = DTGChannel(cfg)
@@ -76,6 +76,25 @@ def test_unclassified_alarm_has_unknown_code():
     assert outs[-1].alarm and outs[-1].fault_code == UNKNOWN_CODE
 
 
+def test_no_excitation_while_learning_leaves_no_reference_and_no_alarm():
+    """Zero inputs (a host's default start values): θ stays 0, so θ0 would have zero
+    entries. The channel keeps no reference and never alarms, instead of failing every
+    sample from the end of learning on; a state round trip keeps that."""
+    cfg = DTGChannelConfig(sample_period_s=T, learn_start_s=0.1, learn_end_s=0.3, p0=1e8)
+    ch = DTGChannel(cfg)
+    outs = _run(ch, np.zeros((299, 4)))
+    assert outs[-1].learning and not ch.reference_failed
+    outs += _run(ch, np.zeros((3, 4)))
+    assert ch.reference_failed and ch.theta0 is None
+    assert not outs[-1].learning and not outs[-1].alarm
+    # excitation afterwards does not start a late reference: the window is over
+    outs += _run(ch, _record(STABLE_ROTOR, 500, seed=9))
+    assert ch.theta0 is None and not any(o.alarm for o in outs)
+    again = DTGChannel(cfg)
+    again.set_state(ch.get_state())
+    assert again.reference_failed
+
+
 def test_nan_sample_is_skipped_and_state_round_trip_is_exact():
     cfg = DTGChannelConfig(sample_period_s=T, learn_start_s=0.2, learn_end_s=0.5, p0=1e8)
     rec = _record(STABLE_ROTOR, 1500, seed=4, noise=1e-4)
@@ -114,6 +133,7 @@ def test_windowed_classification_is_the_median_of_the_per_sample_features():
         ch = DTGChannel(DTGChannelConfig(
             sample_period_s=T, prefilter_enabled=False, p0=1e8, forgetting=0.99,
             theta0=list(theta_from_physical(STABLE_ROTOR, T)), classify_window_s=w,
+            classifier="paper",
             signatures={"torquer_weak": [0, 0, 0, 0, -1], "near_nominal": [0, 0, 0, 0, 0]}))
         outs[w] = _run(ch, rec)
     single, smooth = outs[0.0], outs[window * T]
@@ -131,6 +151,7 @@ def test_windowed_classification_is_the_median_of_the_per_sample_features():
     ch = DTGChannel(DTGChannelConfig(
         sample_period_s=T, prefilter_enabled=False, p0=1e8, forgetting=0.99,
         theta0=list(theta_from_physical(STABLE_ROTOR, T)), classify_window_s=window * T,
+        classifier="paper",
         signatures={"torquer_weak": [0, 0, 0, 0, -1], "near_nominal": [0, 0, 0, 0, 0]}))
     _run(ch, rec[:1500])
     state = ch.get_state()
@@ -143,6 +164,7 @@ def test_windowed_classification_is_the_median_of_the_per_sample_features():
     with pytest.raises(ValueError, match="classify_window_s"):
         DTGChannel(DTGChannelConfig(
             sample_period_s=T, prefilter_enabled=False, p0=1e8, classify_window_s=0.2,
+            classifier="paper",
             theta0=list(theta_from_physical(STABLE_ROTOR, T)))).set_state(state)
 
 
@@ -157,10 +179,56 @@ def test_windowed_classification_is_the_median_of_the_per_sample_features():
         ({"theta0": [1.0, 0.0, 1.0, 1.0, 1.0]}, "theta0"),
         ({"learn_start_s": 2.0, "learn_end_s": 1.0}, "learn_end_s"),
         ({"low": 2.0}, "low"),
-        ({"signatures": {"a": [0, 0, 0]}}, "signatures"),
+        ({"signatures": {"a": [0, 0, 0]}, "classifier": "paper"}, "signatures"),
+        ({"signatures": {"a": [0, 0, 0, 0, 0]}}, "signatures"),
+        ({"classifier": "nearest"}, "classifier"),
+        ({"long_window_s": 0.2}, "long_window_s"),
+        ({"var_threshold": 1.0}, "var_threshold"),
+        ({"learn_start_s": 1.0, "learn_end_s": 1.03}, "learn_end_s"),
         ({"classify_window_s": -0.1}, "classify_window_s"),
     ],
 )
 def test_invalid_settings_name_the_setting(changes, name):
     with pytest.raises((ValueError, TypeError), match=name):
         DTGChannel(DTGChannelConfig(**changes))
+
+
+def test_pattern_alarm_clears_after_an_intermittent_fault_and_the_estimator_rolls_back():
+    """A noise burst on Utx 4-6 s (pattern classifier): the residual tests alarm at once and
+    clear within the long window + clear time (2.5 s) + the prefilter's memory (0.095 s)
+    + block alignment (2 × 25 ms) after it; the fast estimators are then rolled back to
+    their state from before the burst, so the ratio band does not keep the alarm while
+    they would forget the burst (its data raise their information ~100-fold)."""
+    rec = _record(STABLE_ROTOR, 10000, seed=21, noise=1e-4)
+    scale = np.std(rec[:, 0])
+    rec[4000:6000, 0] += 10 * scale * np.random.default_rng(22).standard_normal(2000)
+    ch = DTGChannel(DTGChannelConfig(sample_period_s=T, p0=1e8, learn_start_s=0.5,
+                                     learn_end_s=3.0))
+    outs = _run(ch, rec)
+    t = np.arange(len(rec)) * T
+    alarm = np.array([o.alarm for o in outs])
+    residual = np.array([o.diagnosis.residual_alarm for o in outs])
+    assert not alarm[t < 4.0].any()
+    assert alarm[(t >= 4.05) & (t < 6.0)].all()
+    cleared = t[(t > 6.0) & ~alarm][0] - 6.0
+    assert 2.0 < cleared <= 2.5 + 0.095 + 0.05, cleared
+    assert not alarm[t > 6.0 + cleared].any()
+    # the ratio band alone may alarm within the block that detects the burst (before the
+    # block's tests run), never after the burst
+    band_only = alarm & ~residual
+    assert not band_only[t > 4.1].any(), t[band_only]
+    # during the burst the estimators absorb it; after the clearing they are back at
+    # their estimates from before the burst (half a test window before the alarm)
+    k_clear = int(np.argmax((t > 6.0) & ~alarm))
+    assert np.any(np.abs(outs[5900].eta - 1.0) > 0.5)
+    np.testing.assert_allclose(outs[k_clear].theta, outs[3500].theta, rtol=0.05, atol=1e-6)
+    # the hold and the snapshots are part of the state
+    ch2 = DTGChannel(ch.config)
+    _run(ch2, rec[:5000])
+    state = ch2.get_state()
+    ref = _run(ch2, rec[5000:7000])
+    ch2.set_state(state)
+    again = _run(ch2, rec[5000:7000])
+    for a, b in zip(ref, again, strict=True):
+        np.testing.assert_array_equal(a.theta, b.theta)
+        assert a.alarm == b.alarm

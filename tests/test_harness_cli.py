@@ -28,12 +28,13 @@ def test_run_writes_signals_and_meta_per_scenario(tmp_path, fmu_dir):
     proc = harness("run", str(DATA / "closed_loop.toml"), str(DATA / "aircraft_pitch.toml"),
                    "--out", str(out), "--fmu-dir", str(fmu_dir), "--no-progress")
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    lines = proc.stdout.strip().splitlines()
+    # one line per scenario, in the order the runs end (they run in parallel)
+    lines = sorted(proc.stdout.strip().splitlines())
     assert len(lines) == 2
-    assert lines[0].startswith("closed_loop: ok, 201 samples of 5 signals, 2 s simulated")
-    assert lines[0].endswith(str(out / "closed_loop"))
+    assert lines[1].startswith("closed_loop: ok, 201 samples of 5 signals, 2 s simulated")
+    assert lines[1].endswith(str(out / "closed_loop"))
     r = RunResult.load(out / "closed_loop")
-    assert (out / "closed_loop" / "signals.csv").is_file()
+    assert (out / "closed_loop" / "signals.npz").is_file()
     assert r.error is None and r.stop_time_s == 2.0 and r.step_s == 0.01
     np.testing.assert_allclose(r.time[[0, -1]], [0.0, 2.0])
     assert [w.name for w in r.fault_windows] == ["q_bias"]
@@ -106,3 +107,83 @@ equals = 1
     # report: the same verdict from the saved run, nothing re-run
     again = harness("report", str(scenario), "--out", str(tmp_path / "r"))
     assert again.returncode == 1 and "verify_me: FAIL (1 of 2" in again.stdout
+
+
+def test_default_output_folders_never_clobber_and_latest_follows(tmp_path, fmu_dir):
+    # no --out: each command gets results/<command>-<time>/ in the working folder, and
+    # results/latest points to the newest; two verifies of different scenarios keep both
+    # reports (the README examples in a row)
+    scenario = DATA / "closed_loop.toml"
+    first = harness("verify", str(scenario), "--fmu-dir", str(fmu_dir), "--no-progress",
+                    cwd=tmp_path)
+    second = harness("run", str(DATA / "aircraft_pitch.toml"), "--fmu-dir", str(fmu_dir),
+                     "--no-progress", cwd=tmp_path)
+    third = harness("verify", str(scenario), "--fmu-dir", str(fmu_dir), "--no-progress",
+                    cwd=tmp_path)
+    for proc in (first, second, third):
+        assert proc.returncode == 0, proc.stdout + proc.stderr
+    folders = sorted(p.name for p in (tmp_path / "results").iterdir() if p.name != "latest")
+    assert [f.split("-")[0] for f in folders] == ["run", "verify", "verify"], folders
+    assert len(set(folders)) == 3
+    verifies = [tmp_path / "results" / f for f in folders if f.startswith("verify")]
+    assert all((v / "report.html").is_file() and (v / "closed_loop" / "run.json").is_file()
+               for v in verifies)
+    latest = (tmp_path / "results" / "latest").resolve()
+    assert latest.name in third.stdout and latest.parent == (tmp_path / "results").resolve()
+    assert (latest / "junit.xml").is_file()
+    # report without --out reads and writes results/latest
+    again = harness("report", str(scenario), cwd=tmp_path)
+    assert again.returncode == 0 and f"HTML: {latest / 'report.html'}" in again.stdout.replace(
+        str(tmp_path / "results" / "latest"), str(latest))
+
+
+def test_export_csv_writes_the_saved_signals_exactly(tmp_path, fmu_dir):
+    out = tmp_path / "r"
+    proc = harness("run", str(DATA / "closed_loop.toml"), "--out", str(out), "--fmu-dir",
+                   str(fmu_dir), "--no-progress", "-q")
+    assert proc.returncode == 0 and proc.stdout == "", proc.stdout + proc.stderr  # -q
+    exported = harness("export-csv", str(out))
+    assert exported.returncode == 0, exported.stderr
+    csv_file = out / "closed_loop" / "signals.csv"
+    assert exported.stdout.strip() == str(csv_file)
+    saved = RunResult.load(out / "closed_loop")
+    header = csv_file.read_text().splitlines()[0].split(",")
+    table = np.loadtxt(csv_file, delimiter=",", skiprows=1)
+    assert header == ["time", *saved.signals]
+    # 17 significant digits: the CSV holds every bit of the binary store
+    assert np.array_equal(table[:, 0], saved.time)
+    for j, name in enumerate(saved.signals, start=1):
+        assert np.array_equal(table[:, j], saved.signals[name]), name
+    single = harness("export-csv", str(out / "closed_loop"), "--out", str(tmp_path / "x.csv"))
+    assert single.returncode == 0 and (tmp_path / "x.csv").read_text() == csv_file.read_text()
+    bad = harness("export-csv", str(tmp_path / "nothing"))
+    assert bad.returncode == 2 and "not a run folder" in bad.stderr
+
+
+def test_a_run_error_is_said_once(tmp_path, fmu_dir):
+    bad = tmp_path / "failing.toml"
+    bad.write_text("""
+duration_s = 0.2
+step_s = 0.01
+[fmus.ctl]
+fmu = "PitchController"
+[[faults]]
+name = "bad_source"
+set = "ctl.command_source"
+value = 7
+start_s = 0.1
+""" + "".join(f"""
+[[expect]]
+kind = "value_at_end"
+signal = "ctl.elevator"
+name = "e{i}"
+min = -1
+""" for i in range(5)))
+    proc = harness("verify", str(bad), "--out", str(tmp_path / "r"), "--fmu-dir", str(fmu_dir))
+    assert proc.returncode == 1
+    text = proc.stdout + proc.stderr
+    assert text.count("ValueError: command_source must be") == 1, text
+    assert "failing: ERROR (instance ctl: doStep at t=0.1" in proc.stdout
+    assert "5 expectations not evaluated" in proc.stdout
+    html = (tmp_path / "r" / "report.html").read_text()
+    assert html.count("ValueError: command_source must be") == 1

@@ -215,7 +215,8 @@ def test_missing_signal_and_fault_fail_without_raising(run: RunResult) -> None:
     assert not f.passed and "no fault named 'gain'" in f.message and "q_bias" in f.message
 
 
-def test_run_error_fails_every_expectation_with_the_error(run: RunResult) -> None:
+def test_run_error_leaves_every_expectation_unevaluated_and_says_the_error_once(
+        run: RunResult) -> None:
     run.error = "instance diag: doStep at t=12.3: division by zero"
     scenario = {"name": "q_bias", "expect": [
         {"kind": "value_at_end", "signal": "diag.df.isolated_sensor", "equals": 3},
@@ -223,8 +224,12 @@ def test_run_error_fails_every_expectation_with_the_error(run: RunResult) -> Non
     ]}
     (verdict,) = ex.verify_results([run], [scenario])
     assert not verdict.passed and verdict.error == run.error
-    assert [e.passed for e in verdict.expectations] == [False, False]
-    assert all("doStep at t=12.3" in e.message for e in verdict.expectations)
+    assert [(e.passed, e.evaluated) for e in verdict.expectations] == [(False, False)] * 2
+    assert [e.message for e in verdict.expectations] == [
+        "not evaluated: the run did not complete"] * 2
+    run.interrupted = True
+    (verdict,) = ex.verify_results([run], [scenario])
+    assert verdict.expectations[0].message == "not evaluated: the run was interrupted"
 
 
 # ---------------------------------------------------------------- verdicts
@@ -243,7 +248,8 @@ def test_verify_results_pairs_by_name_and_reports_orphans(run: RunResult) -> Non
     assert [v.scenario for v in verdicts] == ["other", "q_bias", "stray"]
     other, q_bias, orphan = verdicts
     assert not other.passed and "no run result for scenario 'other'" in other.error
-    assert other.expectations[0].message == other.error
+    assert other.expectations[0].message == "not evaluated: no run result"
+    assert not other.expectations[0].evaluated
     assert [e.passed for e in q_bias.expectations] == [True, False]
     assert q_bias.n_failed == 1 and not q_bias.passed and q_bias.error is None
     assert orphan.passed and orphan.expectations == []

@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[1]
 HARNESS = ROOT / "harness"
 
 #: Subpackages, lowest first: a module may import its own subpackage and those before it.
-LAYERS = ("verification", "cosim", "reporting", "campaigns", "cli")
+LAYERS = ("verification", "cosim", "reporting", "campaigns", "testing", "cli")
 
 
 def _module_name(path: Path, root: Path) -> str:
@@ -148,6 +148,14 @@ def test_subpackages_import_only_their_own_layer_and_lower_ones() -> None:
             elif LAYERS.index(t_parts[1]) > rank:
                 wrong.append(f"{module} -> {t}")
     assert wrong == []
+
+
+def test_the_package_installs_every_subpackage() -> None:
+    import tomllib
+
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
+    listed = set(config["tool"]["setuptools"]["packages"])
+    assert {"harness", *(f"harness.{layer}" for layer in LAYERS)} <= listed
 
 
 def test_only_the_cli_parses_command_lines() -> None:

@@ -416,5 +416,5 @@ def test_wrong_communication_step_is_reported_with_the_fmu_message(runs):
     r = _get(runs, "wrong_step")
     error = str(r["error"])
     assert error.startswith("instance diag: doStep at t=0 returned ERROR")
-    assert "differs from sample_period_s = 0.02" in error
+    assert "is not a whole multiple of sample_period_s = 0.02" in error
     np.testing.assert_array_equal(r["time"], [0.0])

@@ -168,6 +168,10 @@ def test_prediction_errors_percent_known_answer() -> None:
     assert e.max_percent == pytest.approx(10.0)
     assert (e.n_used, e.n_excluded) == (2, 2)
     assert metrics.prediction_errors_percent(t, y, p).max_percent == pytest.approx(100.0)
+    # a validity signal drops rows whose prediction is a sentinel: row 5 (ŷ = 0, 100 %)
+    valid = [1, 1, 1, 1, 1, 0]
+    e = metrics.prediction_errors_percent(t, y, p, valid=valid)
+    assert (e.n_used, e.max_percent) == (2, pytest.approx(10.0))
 
 
 def test_absolute_errors_known_answer() -> None:

@@ -101,8 +101,11 @@ def test_write_report_uses_default_file_names(written: dict) -> None:
 def test_junit_counts_failures_and_errors(written: dict) -> None:
     root = ET.parse(written["paths"].junit).getroot()
     assert root.tag == "testsuites"
-    # tests: expectations + one run case per scenario = (3+1) + (2+1) + (1+1)
-    assert (root.get("tests"), root.get("failures"), root.get("errors")) == ("9", "4", "2")
+    # tests: expectations + one run case per scenario = (3+1) + (2+1) + (1+1); the
+    # expectations of the broken and the missing run are not evaluated (skipped): their
+    # reason is said once, by the run case's error
+    assert (root.get("tests"), root.get("failures"), root.get("errors"),
+            root.get("skipped")) == ("9", "1", "2", "3")
     suites = {s.get("name"): s for s in root.findall("testsuite")}
     assert list(suites) == ["full", "broken", "missing"]
     full = suites["full"]
@@ -122,7 +125,12 @@ def test_junit_run_errors_survive_control_characters(written: dict) -> None:
     error = run_case.find("error")
     assert error.get("message") == "instance diag: doStep at t=0.02:"
     assert "FATAL" in error.text and "<nan> & stop" in error.text and "\x1b" not in error.text
-    assert broken.get("failures") == "2" and broken.get("errors") == "1"
+    assert (broken.get("failures"), broken.get("errors"), broken.get("skipped")) == (
+        "0", "1", "2")
+    skipped = [c.find("skipped") for c in broken.findall("testcase") if c.get("name") != "run"]
+    assert [e.get("message") for e in skipped] == ["not evaluated: the run did not complete"] * 2
+    assert all("FATAL" not in c.find("system-out").text for c in broken.findall("testcase")
+               if c.get("name") != "run")
     missing = next(s for s in root.findall("testsuite") if s.get("name") == "missing")
     assert "no run result" in missing.find("testcase[@name='run']/error").get("message")
 
@@ -155,16 +163,21 @@ def test_html_has_tables_and_embedded_plots(written: dict, full_run: RunResult) 
     text = written["paths"].html.read_text(encoding="utf-8")
     page = _Collector()
     page.feed(text)
-    # full run: θ, residuals, grey, alarm timeline; the broken run: its timeline only
-    assert len(page.images) == 5
+    # full run: one figure per channel (DTG, detection filter, grey); the broken run: the
+    # timeline of its (all-zero) detection flag
+    assert len(page.images) == 4
     for src in page.images:
         assert src.startswith("data:image/png;base64,")
         assert base64.b64decode(src.split(",", 1)[1])[:8] == b"\x89PNG\r\n\x1a\n"
     cells = page.cells
     assert "fast <detection> & more" in cells  # escaped in HTML, intact after parsing
     assert "detected_within(diag.df.detected, q_bias, 0.5 s)" in cells
-    # no scenario passes; 2 expectations do; FAIL: 3 summary rows + 1 + 2 + 1 expectations
-    assert cells.count("PASS") == 2 and cells.count("FAIL") == 3 + 4
+    # no scenario passes; 2 expectations do; the full run FAILs (summary row and one
+    # expectation), the broken run is an ERROR, the missing one NOT RUN, and the
+    # expectations of both are NOT EVALUATED
+    assert cells.count("PASS") == 2 and cells.count("FAIL") == 2
+    assert cells.count("ERROR") == 1 and cells.count("NOT RUN") == 1
+    assert cells.count("NOT EVALUATED") == 3
     assert "2/3" in cells and "0/2" in cells and "0/1" in cells
     assert "0.37" in cells  # metrics table: detection delay of diag.df.detected
     assert "<nan> & stop" in html.unescape(text) and "\x1b" not in text
@@ -241,23 +254,29 @@ def test_grey_plot_error_and_threshold(full_run: RunResult) -> None:
         plots.plot_grey_prediction(full_run, "diag.grey.prediction")
 
 
-def test_plot_selection_from_signal_names(full_run: RunResult) -> None:
+def test_one_figure_per_channel_with_its_lanes(full_run: RunResult) -> None:
     titles = [title for title, _ in plots.figures_for_result(full_run, FULL_SCENARIO)]
-    assert titles == ["θ trajectories — diag.dtg", "detection-filter residuals — diag",
-                      "grey prediction — diag", "alarms and flags"]
+    assert titles == ["detection-filter channel — diag", "grey-prediction channel — diag",
+                      "DTG channel — diag"]
+    figs = dict(plots.figures_for_result(full_run, FULL_SCENARIO))
+    df = figs["detection-filter channel — diag"]
+    assert [ax.get_ylabel() for ax in df.axes] == ["r1", "r2", "detected", "isolated_sensor",
+                                                   "alarm[2]"]
+    dtg = figs["DTG channel — diag"]
+    assert [ax.get_ylabel() for ax in dtg.axes] == ["θ1", "θ2", "θ3", "θ4", "θ5"]
+    grey = figs["grey-prediction channel — diag"]
+    assert [ax.get_ylabel() for ax in grey.axes] == ["signal", "|error|", "alarm"]
     # without the scenario the grey measurement and the thresholds are unknown
     figs = dict(plots.figures_for_result(full_run))
-    assert "grey prediction — diag" not in figs
-    assert all(len(ax.get_lines()) == 1
-               for ax in figs["detection-filter residuals — diag"].axes)
-    timeline = figs["alarms and flags"]
-    assert [ax.get_ylabel() for ax in timeline.axes] == [
-        "diag.df.detected", "diag.df.isolated_sensor", "diag.df.alarm[2]", "diag.grey.alarm"]
+    grey = figs["grey-prediction channel — diag"]
+    assert [ax.get_ylabel() for ax in grey.axes] == ["alarm"]
+    df = figs["detection-filter channel — diag"]
+    assert all(len(ax.get_lines()) == 1 for ax in df.axes[:2])
 
 
 def test_residual_thresholds_from_scenario(full_run: RunResult) -> None:
     figs = dict(plots.figures_for_result(full_run, FULL_SCENARIO))
-    ax1, ax2 = figs["detection-filter residuals — diag"].axes
+    ax1, ax2 = figs["detection-filter channel — diag"].axes[:2]
     assert float(ax1.get_lines()[1].get_ydata()[0]) == 0.05
     assert float(ax2.get_lines()[1].get_ydata()[0]) == 0.06
 
@@ -272,7 +291,7 @@ def test_residual_thresholds_from_the_diagnosers_threshold_output() -> None:
         },
     )
     figs = dict(plots.figures_for_result(run))
-    (ax,) = figs["detection-filter residuals — diag"].axes
+    (ax,) = figs["detection-filter channel — diag"].axes
     upper = np.asarray(ax.get_lines()[1].get_ydata(), dtype=float)
     assert np.all(np.isnan(upper[:2]))  # nothing drawn while calibrating
     np.testing.assert_array_equal(upper[2:], [0.04, 0.04])
@@ -285,7 +304,7 @@ def test_residual_plot_is_not_squashed_by_a_start_up_transient() -> None:
     run = RunResult(scenario="tr", time=t, step_s=0.01,
                     signals={"diag.df.residual[3]": residual,
                              "diag.df.threshold_in_use[3]": np.full(t.size, 5e-3)})
-    (ax,) = dict(plots.figures_for_result(run))["detection-filter residuals — diag"].axes
+    (ax,) = dict(plots.figures_for_result(run))["detection-filter channel — diag"].axes
     lo, hi = ax.get_ylim()
     assert -0.05 < lo < -5e-3 and 5e-3 < hi < 0.05  # the thresholds stay readable
 
@@ -306,11 +325,14 @@ def test_disabled_theta_channel_and_flag_lane_order() -> None:
     sig.update({f"inj.fault_active_{i}": np.zeros(t.size) for i in range(1, 21)})
     sig["diag.df.detected"] = (t >= 0.5).astype(float)
     run = RunResult("lanes", t, sig, [], STEP_S)
-    ((_title, fig),) = plots.figures_for_result(run)  # no θ plot for an all-zero channel
+    # no DTG figure for an all-zero channel; the detection flag in its channel's figure
+    (df_title, df), (_title, fig) = plots.figures_for_result(run)
+    assert df_title == "detection-filter channel — diag"
+    assert [ax.get_ylabel() for ax in df.axes] == ["detected"]
     lanes = [ax.get_ylabel() for ax in fig.axes]
     assert len(lanes) == plots.MAX_TIMELINE_LANES
-    assert lanes[:2] == ["diag.df.detected", "inj.fault_active_1"]
-    assert "5 constant flags not shown" in fig.get_suptitle()
+    assert lanes[:2] == ["inj.fault_active_1", "inj.fault_active_2"]
+    assert "4 constant flags not shown" in fig.get_suptitle()
 
 
 def test_grey_plot_keeps_the_measurement_visible_when_prediction_diverges() -> None:
@@ -325,3 +347,104 @@ def test_grey_plot_keeps_the_measurement_visible_when_prediction_diverges() -> N
     # measurement spans [1, 3]: shown with half its span as margin, prediction clipped
     assert lo == pytest.approx(0.0, abs=0.05) and hi == pytest.approx(4.0, abs=0.05)
     assert bottom.get_yscale() == "log"
+
+
+# ------------------------------------------------------- plots people read (issue 15)
+def _df_run(with_flag: bool) -> RunResult:
+    """Detection filter: observer start-up, calibration to 8 s, a bias 20× the
+    threshold from 10 s, six per-residual alarms."""
+    rng = np.random.default_rng(5)
+    t = np.arange(2001) * STEP_S
+    r = rng.normal(0.0, 1e-3, t.size) - 0.25 * np.exp(-t / 0.3) + 0.1 * (t >= 10.0)
+    sig = {"diag.df.residual[3]": r,
+           "diag.df.threshold_in_use[3]": np.where(t >= 8.0, 5e-3, 0.0),
+           "diag.df.detected": (t >= 10.0).astype(float)}
+    sig.update({f"diag.df.alarm[{i}]": ((t >= 10.0) & (i in (2, 3))).astype(float)
+                for i in range(1, 7)})
+    if with_flag:
+        sig["diag.df.calibrating"] = (t < 7.5).astype(float)
+    return RunResult("df", t, sig, [FaultWindow("q_bias", "inj.out_3", "bias", 10.0)],
+                     STEP_S)
+
+
+def _grey_spans(ax) -> list:
+    return [p for p in ax.patches if p.get_alpha() == pytest.approx(plots._STARTUP_ALPHA)]
+
+
+def test_calibration_window_is_shaded_from_the_channels_own_outputs() -> None:
+    # from the calibrating flag when recorded, else from the threshold being 0
+    for with_flag, end in ((True, 7.5), (False, 8.0)):
+        run = _df_run(with_flag)
+        shades = plots.startup_shades(run, None, "diag", "df")
+        assert [(s.label, s.start_s) for s in shades] == [("calibration", 0.0)]
+        assert shades[0].end_s == pytest.approx(end)
+        fig = dict(plots.figures_for_result(run))["detection-filter channel — diag"]
+        for ax in fig.axes:
+            (span,) = _grey_spans(ax)
+            assert span.get_x() == pytest.approx(0.0) and span.get_width() == pytest.approx(end)
+            assert len(_spans(ax)) == 1  # and the fault window
+        assert "calibrating" not in [ax.get_ylabel() for ax in fig.axes]  # shaded instead
+    # else from the scenario's parameters; a DTG learning window likewise
+    bare = RunResult("x", np.arange(100) * STEP_S, {"d.df.residual[1]": np.ones(100),
+                                                     "d.dtg.eta_x[1]": np.ones(100)}, [],
+                     STEP_S)
+    scenario = {"name": "x", "fmus": {"d": {"fmu": "Diagnoser", "parameters": {
+        "df.calibrate_s": 0.6, "dtg.learn_start_s": 0.1, "dtg.learn_end_s": 0.4}}}}
+    assert plots.startup_shades(bare, scenario, "d", "df") == [
+        plots.Shade("calibration", 0.0, 0.6)]
+    assert plots.startup_shades(bare, scenario, "d", "dtg") == [
+        plots.Shade("θ0 learning", 0.1, 0.4)]
+    assert plots.startup_shades(bare, None, "d", "dtg") == []
+
+
+def test_residual_axis_shows_noise_against_threshold_and_the_fault_size() -> None:
+    run = _df_run(with_flag=True)
+    fig = dict(plots.figures_for_result(run))["detection-filter channel — diag"]
+    residual = fig.axes[0]
+    # a fault of 20 thresholds: linear within ± 2 thresholds, logarithmic beyond
+    assert residual.get_yscale() == "symlog"
+    lo, hi = residual.get_ylim()
+    assert hi >= 0.1 and lo <= -0.1
+    # the six alarms share one raster lane, indices 1..6 as ticks
+    assert [ax.get_ylabel() for ax in fig.axes] == ["r3", "detected", "alarm[i]"]
+    assert list(fig.axes[2].get_yticks()) == [1, 2, 3, 4, 5, 6]
+    assert len(fig.axes[2].collections) == 6
+    # without the fault: a linear axis from the post-calibration data, thresholds inside
+    quiet = _df_run(with_flag=True)
+    quiet.signals["diag.df.residual[3]"] = np.where(
+        quiet.time >= 10.0, quiet.signals["diag.df.residual[3]"] - 0.1,
+        quiet.signals["diag.df.residual[3]"])
+    ax = dict(plots.figures_for_result(quiet))["detection-filter channel — diag"].axes[0]
+    lo, hi = ax.get_ylim()
+    assert ax.get_yscale() == "linear" and -0.01 < lo < -5e-3 and 5e-3 < hi < 0.01
+    assert any("y clipped" in text.get_text() for text in ax.texts)  # the start-up
+
+
+def test_legends_sit_below_the_panels_never_on_the_data(full_run: RunResult) -> None:
+    for title, fig in plots.figures_for_result(full_run, FULL_SCENARIO):
+        assert all(ax.get_legend() is None for ax in fig.axes), title
+        (legend,) = fig.legends
+        labels = [t.get_text() for t in legend.get_texts()]
+        assert "fault: q_bias" in labels, (title, labels)
+        fig.canvas.draw()
+        box = legend.get_window_extent()
+        lowest = min(ax.get_window_extent().y0 for ax in fig.axes)
+        assert box.y1 <= lowest + 1.0, title  # entirely under the lowest panel
+
+
+def test_titles_say_what_passed(full_run: RunResult) -> None:
+    (verdict,) = verify_results([full_run], [FULL_SCENARIO])
+    titles = [t for t, _ in plots.figures_for_result(full_run, FULL_SCENARIO, verdict)]
+    # FULL_SCENARIO: two detected_within on df.detected (0.5 s passes, 0.3 s fails) and an
+    # isolation check; nothing reads the grey or DTG signals
+    assert titles == [
+        "detection-filter channel — diag: 1 of 3 expectations FAILED: fast <detection> & "
+        "more",
+        "grey-prediction channel — diag: no expectation on it",
+        "DTG channel — diag: no expectation on it"]
+    broken = _broken_run()
+    (v,) = verify_results([broken], [BROKEN_SCENARIO])
+    broken.signals["diag.df.detected"] = np.array([0.0, 1.0, 1.0])
+    ((title, _fig),) = plots.figures_for_result(broken, BROKEN_SCENARIO, v)
+    assert title == ("detection-filter channel — diag: 2 expectations not evaluated "
+                     "(run incomplete)")

@@ -324,3 +324,14 @@ def test_compiled_observer_equals_the_fallback_exactly() -> None:
     for row in rng.standard_normal((2000, p + m)).tolist():
         assert list(a.step(row[:p], row[p:])) == list(b.step(row[:p], row[p:]))
     assert a.get_z() == b.get_z()
+
+
+def test_sliding_window_step_equals_update() -> None:
+    rows = _dtg_rows()[:400]
+    a = estimators.SlidingWindowLS(5, window=50)
+    b = estimators.SlidingWindowLS(5, window=50)
+    for phi, y, *_ in rows:
+        got = a.step(phi, y)
+        want = b.update(np.array(phi), y)
+        assert isinstance(got, tuple)
+        np.testing.assert_array_equal(np.array(got), want)

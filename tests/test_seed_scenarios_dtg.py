@@ -1,17 +1,20 @@
-"""DTG and system seed scenarios through the CLI, in subprocesses (DESIGN §6.11).
+"""DTG and system seed scenarios.
 
-One campaign per session, two processes in parallel (2 cores):
+The suite collects ``scenarios/`` with the gyrodiag pytest plugin (ini ``gyrodiag =
+true``): each seed scenario is a test item checked against its ``[[expect]]`` tables.
+The tests here take the same runs from the session's run cache (fixture
+``gyrodiag_run``: each scenario runs once per session, in a worker process of its own,
+DESIGN §6.11, whoever asks first, also across xdist workers):
 
-* A: ``learn-signatures scenarios/training`` (12 training runs, seeds 101-103), then
-  ``verify scenarios/dtg_fault_*.toml`` (8 runs, seeds 11-12), which load the learned
-  library through ``files = { "dtg.signature_file" = "${out}/dtg_signatures.json" }``;
-* B: ``verify`` of the nominal and physical-fault scenarios;
-* system (own fixture, after the campaign): the spin scenario and its fault-free
-  control, two ``verify`` processes in parallel.
+* the DTG fault scenarios (8 runs, seeds 11-12) load the signature library through
+  ``files = { "dtg.signature_file" = "${out}/dtg_signatures.json" }``, which the plugin
+  learns once per session from ``scenarios/training`` (12 training runs, seeds 101-103);
+  ``learn-signatures --saved`` on the same training runs must write the same library;
+* the nominal and physical-fault scenarios;
+* the system scenarios: the spin scenario and its fault-free control.
 
-The CLI ends with ``os._exit`` (harness/__main__.py), so exit statuses are reliable.
-The tests assert exit 0, zero JUnit failures and key figures read back from the saved
-runs: the paper's θ pattern, the learned signatures and classification codes, detection
+The tests assert that every expectation holds and key figures read back from the runs:
+the paper's θ pattern, the learned signatures and classification codes, detection
 delays, the physical faults' η and the system scenario's two witnesses.
 """
 
@@ -23,7 +26,6 @@ import os
 import subprocess
 import sys
 import time
-import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +34,7 @@ import pytest
 from harness.campaigns.signatures import check_training_scenarios
 from harness.cosim.results import RunResult
 from harness.cosim.scenario import ScenarioError, load_scenario, parse_scenario
+from harness.verification.expectations import verify_results
 from harness.verification.metrics import detection_delay_s
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -53,43 +56,38 @@ def _env() -> dict[str, str]:
     return env
 
 
-def _junit_failures(path: Path) -> tuple[int, int]:
-    root = ET.parse(path).getroot()
-    return int(root.get("failures", "-1")), int(root.get("errors", "-1"))
-
-
 @pytest.fixture(scope="module")
-def campaign(fmu_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> dict:
-    out_a = tmp_path_factory.mktemp("dtg_faults")
-    out_b = tmp_path_factory.mktemp("dtg_other")
-    fmu = ["--fmu-dir", str(fmu_dir), "--no-progress"]
+def campaign(gyrodiag_run, gyrodiag_results: Path) -> dict:
     t0 = time.perf_counter()
-    proc_b = subprocess.Popen(_cmd("verify", *[str(SCEN / f) for f in GROUP_B],
-                                   "--out", str(out_b), *fmu),
-                              cwd=ROOT, env=_env(), stdout=subprocess.PIPE,
-                              stderr=subprocess.STDOUT, text=True)
-    learn = subprocess.run(_cmd("learn-signatures", str(SCEN / "training"), "--out",
-                                str(out_a / "dtg_signatures.json"), *fmu),
-                           cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=600)
-    faults = sorted(str(p) for p in SCEN.glob("dtg_fault_*.toml"))
-    verify_a = subprocess.run(_cmd("verify", *faults, "--out", str(out_a), *fmu),
-                              cwd=ROOT, env=_env(), capture_output=True, text=True,
-                              timeout=600)
-    out_text_b, _ = proc_b.communicate(timeout=900)
-    return {"out_a": out_a, "out_b": out_b, "learn": learn, "verify_a": verify_a,
-            "rc_b": proc_b.returncode, "text_b": out_text_b,
+    faults = sorted(SCEN.glob("dtg_fault_*.toml"))
+    paths = [*faults, *(SCEN / f for f in GROUP_B)]
+    runs = {p.stem: r for p, r in zip(paths, gyrodiag_run.many(paths), strict=True)}
+    return {"runs": runs, "library": gyrodiag_results / "dtg_signatures.json",
+            "training": gyrodiag_results / "training", "faults": faults,
             "wall_s": time.perf_counter() - t0}
 
 
-def _load(out: Path, name: str) -> RunResult:
-    return RunResult.load(out / name)
+def _load(campaign: dict, name: str) -> RunResult:
+    return campaign["runs"][name]
+
+
+def _verified(runs: dict[str, RunResult], names: list[str]) -> None:
+    for name in names:
+        (verdict,) = verify_results([runs[name]], [load_scenario(SCEN / f"{name}.toml")])
+        assert verdict.passed, (name, verdict.error,
+                                [e.message for e in verdict.expectations if not e.passed])
 
 
 # ----------------------------------------------------------------- signature learning
-def test_learn_signatures_writes_a_library_in_code_order(campaign):
-    learn = campaign["learn"]
-    assert learn.returncode == 0, learn.stdout[-3000:] + learn.stderr[-3000:]
-    lib = json.loads((campaign["out_a"] / "dtg_signatures.json").read_text())
+def test_learn_signatures_writes_a_library_in_code_order(campaign, tmp_path):
+    lib = json.loads(campaign["library"].read_text())
+    # the command line learns the same library from the same (saved) training runs
+    again = tmp_path / "dtg_signatures.json"
+    proc = subprocess.run(_cmd("learn-signatures", str(SCEN / "training"), "--saved",
+                               "--runs-out", str(campaign["training"]), "--out", str(again)),
+                          cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert json.loads(again.read_text())["signatures"] == lib["signatures"]
     assert list(lib["signatures"]) == list(FAULTS)
     assert lib["codes"] == FAULTS
     sig = {k: np.array(v) for k, v in lib["signatures"].items()}
@@ -114,13 +112,11 @@ def test_learn_signatures_writes_a_library_in_code_order(campaign):
 
 
 def test_fault_scenarios_detect_and_classify(campaign):
-    v = campaign["verify_a"]
-    assert v.returncode == 0, v.stdout[-4000:] + v.stderr[-2000:]
-    assert _junit_failures(campaign["out_a"] / "junit.xml") == (0, 0)
+    _verified(campaign["runs"], [p.stem for p in campaign["faults"]])
     delays = {}
     for name, code in FAULTS.items():
         for seed in ("s1", "s2"):
-            r = _load(campaign["out_a"], f"dtg_fault_{name}_{seed}")
+            r = _load(campaign, f"dtg_fault_{name}_{seed}")
             alarm = r.signal("diag.dtg.alarm")
             assert not np.any(alarm[r.time < FAULT_T] > 0.5)
             delays[name, seed] = detection_delay_s(r.time, alarm, FAULT_T)
@@ -136,12 +132,11 @@ def test_fault_scenarios_detect_and_classify(campaign):
 
 # ----------------------------------------------------------------- nominal and physical
 def test_group_b_verifies(campaign):
-    assert campaign["rc_b"] == 0, campaign["text_b"][-5000:]
-    assert _junit_failures(campaign["out_b"] / "junit.xml") == (0, 0)
+    _verified(campaign["runs"], [Path(f).stem for f in GROUP_B])
 
 
 def test_nominal_theta_pattern_of_the_paper(campaign):
-    r = _load(campaign["out_b"], "dtg_nominal")
+    r = _load(campaign, "dtg_nominal")
     half = r.time >= 30.0
     for axis in "xy":
         th = np.array([r.signal(f"diag.dtg.theta_{axis}[{i}]")[half].mean()
@@ -158,7 +153,7 @@ def test_nominal_theta_pattern_of_the_paper(campaign):
 
 
 def test_fine_band_lies_beyond_the_nominal_spread(campaign):
-    r = _load(campaign["out_b"], "dtg_nominal")
+    r = _load(campaign, "dtg_nominal")
     after = r.time >= 10.0
     eta = np.array([[r.signal(f"diag_fine.dtg.eta_{a}[{i}]")[after] for i in (3, 4)]
                     for a in "xy"])
@@ -170,7 +165,7 @@ def test_fine_band_lies_beyond_the_nominal_spread(campaign):
 
 
 def test_physical_faults_detected_in_the_fine_band_only(campaign):
-    spin = _load(campaign["out_b"], "dtg_physical_spin_slowdown")
+    spin = _load(campaign, "dtg_physical_spin_slowdown")
     t = spin.time
     d_spin = detection_delay_s(t, spin.signal("diag_fine.dtg.alarm"), 12.0)
     assert 0.0 < d_spin < 8.0
@@ -181,7 +176,7 @@ def test_physical_faults_detected_in_the_fine_band_only(campaign):
                 pytest.approx(0.9, abs=0.02)
     assert not np.any(spin.signal("diag.dtg.alarm") > 0.5)  # paper band: blind
     assert spin.signal("diag.dtg.eta_x[3]")[late].mean() == pytest.approx(0.9, abs=0.03)
-    torq = _load(campaign["out_b"], "dtg_physical_torquer_scale")
+    torq = _load(campaign, "dtg_physical_torquer_scale")
     d_torq = detection_delay_s(torq.time, torq.signal("diag_fine.dtg.alarm"), 12.0)
     assert 0.0 < d_torq < 5.0
     eta5 = torq.signal("diag_fine.dtg.eta_x[5]")[torq.time >= 20.0].mean()
@@ -190,23 +185,16 @@ def test_physical_faults_detected_in_the_fine_band_only(campaign):
 
 # ----------------------------------------------------------------- system (DESIGN §5)
 @pytest.fixture(scope="module")
-def system_runs(fmu_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> dict:
-    """Spin scenario and its fault-free control, two ``verify`` processes in parallel."""
-    fmu = ["--fmu-dir", str(fmu_dir), "--no-progress"]
+def system_runs(gyrodiag_run) -> dict:
+    """Spin scenario and its fault-free control, from the session's run cache."""
     t0 = time.perf_counter()
-    outs = {name: tmp_path_factory.mktemp(name) for name in SYSTEM}
-    procs = {name: subprocess.Popen(_cmd("verify", str(SCEN / f"{name}.toml"), "--out",
-                                         str(outs[name]), *fmu),
-                                    cwd=ROOT, env=_env(), stdout=subprocess.PIPE,
-                                    stderr=subprocess.STDOUT, text=True)
-             for name in SYSTEM}
-    texts = {name: p.communicate(timeout=600)[0] for name, p in procs.items()}
-    return {"out": outs, "rc": {n: p.returncode for n, p in procs.items()}, "text": texts,
-            "wall_s": time.perf_counter() - t0}
+    runs = dict(zip(SYSTEM, gyrodiag_run.many([SCEN / f"{n}.toml" for n in SYSTEM]),
+                    strict=True))
+    return {"runs": runs, "wall_s": time.perf_counter() - t0}
 
 
 def _system(runs: dict, name: str) -> RunResult:
-    return _load(runs["out"][name], name)
+    return runs["runs"][name]
 
 
 def _theta34(r: RunResult, t0: float, t1: float) -> np.ndarray:
@@ -223,9 +211,7 @@ def _eta_range(r: RunResult, t0: float, t1: float) -> tuple[float, float]:
 
 
 def test_system_scenarios_verify(system_runs, capsys):
-    for name in SYSTEM:
-        assert system_runs["rc"][name] == 0, system_runs["text"][name][-5000:]
-        assert _junit_failures(system_runs["out"][name] / "junit.xml") == (0, 0)
+    _verified(system_runs["runs"], SYSTEM)
     with capsys.disabled():
         print(f"\nsystem scenarios wall time: {system_runs['wall_s']:.0f} s")
 
@@ -312,7 +298,7 @@ def test_file_parameter_errors_name_the_key(tmp_path):
     with pytest.raises(ScenarioError, match=r"fmus.diag.files.dtg.signature_file: .*results "
                                             r"folder, but none"):
         resolve_file_parameters(s)
-    with pytest.raises(ScenarioError, match=r"lib\.json not found"):
+    with pytest.raises(ScenarioError, match=r"lib\.json not found in "):
         resolve_file_parameters(s, tmp_path)
     (tmp_path / "lib.json").write_text("{}")
     got = resolve_file_parameters(s, tmp_path)

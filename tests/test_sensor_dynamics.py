@@ -149,7 +149,10 @@ def test_bad_models_and_files_are_named(tmp_path: Path) -> None:
 
 # --------------------------------------------------------------------- system chain
 def _df_run(o: dict[str, np.ndarray], equalise: bool, calibrate_s: float) -> tuple:
-    cfg = DFChannelConfig(sample_period_s=1e-3, calibrate_s=calibrate_s, burn_in_s=2.0)
+    # the paper's rule and the plain pairing, as measured (the channel's default became
+    # the sequential decision with automatic alignment, issue 11)
+    cfg = DFChannelConfig(sample_period_s=1e-3, calibrate_s=calibrate_s, burn_in_s=2.0,
+                          decision="paper", align_auto=False)
     ch = DFChannel(cfg)
     eq = None
     if equalise:

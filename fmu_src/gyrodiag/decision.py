@@ -269,6 +269,8 @@ class ThresholdDecision:
                     f"monitored must be {n} booleans with at least one True, got {monitored!r}"
                 )
             self.monitored = m
+        self._abs_theta0 = np.abs(self.theta0).tolist()
+        self._monitored_list = self.monitored.tolist()
         self.reset()
 
     def reset(self) -> None:
@@ -298,6 +300,35 @@ class ThresholdDecision:
             self._first_alarm = self._count
         self._count += 1
         return DecisionOutput(eta, oob, violation, alarm, self._first_alarm)
+
+    def step(self, theta: Sequence[float]) -> tuple[list[float], bool]:
+        """:meth:`update` on plain floats, unchecked (the per-sample hot path of a
+        channel that has checked its sample): returns (η, alarm) with the same values
+        and the same state change.
+
+        Parameters
+        ----------
+        theta : sequence of float
+            n finite estimates.
+        """
+        abs0 = self._abs_theta0
+        low, high = self.low, self.high
+        eta = [abs(t) / a for t, a in zip(theta, abs0, strict=True)]
+        violation = False
+        for e, m in zip(eta, self._monitored_list, strict=True):
+            if m and (e < low or e > high):
+                violation = True
+                break
+        hist = self._history
+        hist.append(violation)
+        alarm = sum(hist) >= self.persistence_k
+        if self.latch:
+            self._latched = self._latched or alarm
+            alarm = self._latched
+        if alarm and self._first_alarm < 0:
+            self._first_alarm = self._count
+        self._count += 1
+        return eta, alarm
 
     def get_state(self) -> dict[str, Any]:
         """Copy of the persistence history, latch and counters."""

@@ -1,15 +1,46 @@
-"""The detection-filter diagnosis channel: design, calibration, detection, isolation.
+"""The detection-filter diagnosis channel: design, calibration, alignment, decisions.
 
 One object per monitored linear plant, fed one sample of (u, y) per sample period. It
-designs the Beard–Jones gain from (A, C, eigenvalues) with fault directions F = I,
-builds a :class:`~gyrodiag.isolation.SensorFaultIsolator` (main detection filter plus
-a bank of observers, each without one sensor), and either takes residual thresholds
-as given or learns them from an initial fault-free calibration window (k·σ of the
-residuals after a burn-in). The Diagnoser FMU only maps its variables onto this class.
+designs the Beard–Jones gain from (A, C, eigenvalues) with fault directions F = I and
+decides in one of two ways:
+
+``decision="sequential"`` (default)
+    :class:`~gyrodiag.sequential_diagnosis.SequentialDiagnoser`: whitened residuals,
+    CUSUM tests with thresholds for a stated false-alarm rate, isolation of one or two
+    faulty sensors by hypothesis observers, fault typing by a likelihood ratio on the
+    residual, episodes that end when the fault does.
+``decision="paper"``
+    The paper's rule: per-sample k·σ thresholds with k-of-n persistence on the
+    detection filter's residual, isolation by the generalised observer scheme,
+    detection latched (:class:`~gyrodiag.isolation.SensorFaultIsolator`).
+
+Calibration and alignment
+-------------------------
+The first ``calibrate_s`` seconds are assumed fault-free and only stored. When they end,
+the channel (1) chooses the *alignment* of inputs and measurements, (2) estimates the
+sensor noise and (3) sets its thresholds, all from the stored window, then goes on with
+the filters in the state they reach at the end of it.
+
+The filter pairs the measurement y_k with the input u_k that drives the plant from that
+sample on. A co-simulation master delivers them as the coupling order makes them: with
+Gauss-Seidel and the Diagnoser after the plant they arrive together; with Jacobi
+coupling (libcosim's default) every FMU boundary adds a step, so y arrives one or more
+steps after its u. ``input_delay_samples`` d pairs y_k with u_{k−d} (d < 0: with a later
+input, i.e. y is held back |d| samples and the outputs describe the sample |d| steps
+before the current one). With ``align_auto`` the channel tries every d in
+[−align_max, align_max] on the stored window and keeps the one whose residual has the
+least variance (summed log variance over the sensors): a wrong pairing adds the input's
+step-to-step change, through the input matrix, to the residual, so the right one is the
+whitest. It looks at the data only, not at the master: any host works. If the inputs did
+not move in the window, every d scores the same; the configured d is kept then.
+
+Noise: ``noise_std`` if given, else the sensor variances that explain the residual
+variances of the window (:func:`~gyrodiag.residual_model.estimate_sensor_variances`).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -18,15 +49,23 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._validation import (
     check_finite_array,
+    check_in_range,
     check_int,
     check_nonnegative,
     check_positive,
 )
 from .aircraft import seed_aircraft
-from .detection_filter import ResidualThresholds, design_detection_filter
+from .detection_filter import DetectionFilter, ResidualThresholds, design_detection_filter
 from .isolation import FaultType, SensorFaultIsolator
+from .residual_model import ResidualModel, estimate_sensor_variances
+from .sequential_diagnosis import FaultKind, SequentialDiagnoser, SequentialSettings
 
-__all__ = ["DFChannel", "DFChannelConfig", "DFChannelOutput"]
+__all__ = ["DECISIONS", "DFChannel", "DFChannelConfig", "DFChannelOutput"]
+
+#: Decision rules, by FMU code (``df.decision``).
+DECISIONS = ("paper", "sequential")
+#: ``isolated_sensor`` values besides a sensor number (1-based).
+NONE_DETECTED, NOT_ISOLATED, MULTIPLE = 0, -1, -2
 
 
 def _seed_a() -> NDArray[np.float64]:
@@ -53,24 +92,44 @@ class DFChannelConfig:
         Eigenvalues of A − KC, 1/s (real, distinct, negative); default −1 … −n.
     sample_period_s : float
         Sample period, s.
+    decision : {"sequential", "paper"}
+        Decision rule (module notes).
     calibrate_s : float
-        Length of the initial fault-free calibration window, s. 0: use the given
-        thresholds instead.
+        Length of the initial fault-free window, s. 0: no window; then the paper rule
+        needs ``main_thresholds``/``bank_thresholds`` and the sequential rule
+        ``noise_std``, and the alignment is ``input_delay_samples``.
     burn_in_s : float
-        Start of the calibration window ignored while the observers converge, s.
+        Start of the window ignored while the observers converge, s.
     k_sigma : float
-        Thresholds at k standard deviations of the calibration residuals.
-    main_thresholds : array_like, shape (m,), optional
-        Main-filter residual thresholds (sensor units), when ``calibrate_s`` = 0.
-    bank_thresholds : array_like, shape (m, m − 1), optional
-        Row j: thresholds of observer j (without sensor j) on the other sensors.
+        Paper rule: thresholds at k standard deviations of the window's residuals.
+    main_thresholds, bank_thresholds : array_like, optional
+        Paper rule with ``calibrate_s`` = 0: main-filter thresholds (m,) and row j the
+        thresholds of observer j (m × (m − 1)), sensor units.
     noise_std : array_like, shape (m,), optional
-        Sensor noise standard deviations for the stuck/failure tests; default
-        ``main_thresholds / k_sigma``.
+        Sensor noise standard deviations, sensor units. Paper rule: for the
+        stuck/failure tests (default thresholds / k_sigma). Sequential rule: the noise
+        model (default estimated from the window).
     persistence_k, persistence_n : int
-        k-of-n persistence of every residual alarm.
+        Paper rule: k-of-n persistence of every residual alarm.
     confirm_samples : int
-        Consecutive samples of one isolation pattern before it is latched.
+        Paper rule: consecutive samples of one isolation pattern before it is latched.
+    false_alarms_per_h : float
+        Sequential rule: design false-alarm rate of the detection, 1/h.
+    cusum_k : float
+        Sequential rule: CUSUM reference, σ of the whitened residual.
+    variance_ratio : float
+        Sequential rule: variance increase the variance CUSUMs are designed for.
+    max_faults : int
+        Sequential rule: 1 or 2 simultaneously faulty sensors to isolate.
+    history_s, memory_s : float
+        Sequential rule: samples kept to start isolation before the change, s; how long
+        after the last episode the isolation keeps running, s.
+    input_delay_samples : int
+        Alignment d (module notes), used as is unless ``align_auto``.
+    align_auto : bool
+        Choose the alignment on the calibration window.
+    align_max : int
+        Largest |d| tried.
     x0 : array_like, shape (n,), optional
         Initial state estimate of every observer (default zeros).
     """
@@ -80,6 +139,7 @@ class DFChannelConfig:
     C: ArrayLike = field(default_factory=_seed_c)
     eigenvalues: ArrayLike | None = None
     sample_period_s: float = 0.01
+    decision: str = "sequential"
     calibrate_s: float = 10.0
     burn_in_s: float = 2.0
     k_sigma: float = 6.0
@@ -89,6 +149,15 @@ class DFChannelConfig:
     persistence_k: int = 3
     persistence_n: int = 5
     confirm_samples: int = 5
+    false_alarms_per_h: float = 1e-3
+    cusum_k: float = 0.5
+    variance_ratio: float = 4.0
+    max_faults: int = 2
+    history_s: float = 4.0
+    memory_s: float = 10.0
+    input_delay_samples: int = 0
+    align_auto: bool = True
+    align_max: int = 2
     x0: ArrayLike | None = None
 
     def matrices(self) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
@@ -107,21 +176,35 @@ class DFChannelConfig:
         x0 = np.zeros(n) if self.x0 is None else check_finite_array("x0", self.x0, shape=(n,))
         return A, B, C, eig, x0
 
+    def settings(self) -> SequentialSettings:
+        """The sequential rule's settings."""
+        return SequentialSettings(
+            false_alarms_per_h=self.false_alarms_per_h, cusum_k=self.cusum_k,
+            variance_ratio=self.variance_ratio, max_faults=self.max_faults,
+            history_s=self.history_s, memory_s=self.memory_s,
+        )
+
     def validate(self) -> None:
         """Raise ValueError/TypeError naming the first invalid setting."""
         _, _, C, _, _ = self.matrices()
         m = C.shape[0]
         period = check_positive("sample_period_s", self.sample_period_s)
+        if self.decision not in DECISIONS:
+            raise ValueError(f"decision must be one of {DECISIONS}, got {self.decision!r}")
         calibrate = check_nonnegative("calibrate_s", self.calibrate_s)
         burn = check_nonnegative("burn_in_s", self.burn_in_s)
         check_positive("k_sigma", self.k_sigma)
+        if self.noise_std is not None:
+            std = check_finite_array("noise_std", self.noise_std, shape=(m,))
+            if np.any(std <= 0):
+                raise ValueError("noise_std must be > 0 on every sensor")
         if calibrate > 0.0:
             if calibrate - burn < 10 * period:
                 raise ValueError(
                     "calibrate_s must exceed burn_in_s by at least 10 samples, got "
                     f"calibrate_s={self.calibrate_s!r}, burn_in_s={self.burn_in_s!r}"
                 )
-        else:
+        elif self.decision == "paper":
             if self.main_thresholds is None or self.bank_thresholds is None:
                 raise ValueError(
                     "main_thresholds and bank_thresholds are required when calibrate_s = 0"
@@ -132,15 +215,25 @@ class DFChannelConfig:
             )
             if np.any(main <= 0) or np.any(bank <= 0):
                 raise ValueError("main_thresholds and bank_thresholds must be > 0")
-            if self.noise_std is not None:
-                std = check_finite_array("noise_std", self.noise_std, shape=(m,))
-                if np.any(std <= 0):
-                    raise ValueError("noise_std must be > 0 on every sensor")
+        elif self.noise_std is None:
+            raise ValueError("noise_std is required by the sequential decision when "
+                             "calibrate_s = 0 (no window to estimate the noise from)")
         pk = check_int("persistence_k", self.persistence_k, minimum=1)
         pn = check_int("persistence_n", self.persistence_n, minimum=1)
         if pk > pn:
             raise ValueError(f"persistence_k must be <= persistence_n ({pn}), got {pk}")
         check_int("confirm_samples", self.confirm_samples, minimum=1)
+        self.settings().validate()
+        limit = check_int("align_max", self.align_max, minimum=0)
+        if limit > 50:
+            raise ValueError(f"align_max must be <= 50, got {limit}")
+        d = self.input_delay_samples
+        if isinstance(d, bool) or not isinstance(d, (int, np.integer)):
+            raise TypeError(f"input_delay_samples must be an integer, got {d!r}")
+        check_in_range("input_delay_samples", float(d), -50.0, 50.0)
+        if self.align_auto and calibrate == 0.0:
+            raise ValueError("align_auto needs a calibration window (calibrate_s > 0); "
+                             "set input_delay_samples and align_auto = False")
 
 
 @dataclass(frozen=True)
@@ -152,30 +245,54 @@ class DFChannelOutput:
     valid : bool
         False when u or y had NaN/Inf; the sample was skipped, state untouched.
     calibrating : bool
-        Thresholds are still being learned; no decision yet.
+        The calibration window is still being recorded; no decision yet.
     residual : ndarray, shape (m,)
         Main detection-filter residual γ = y − C x̂ (sensor units).
     alarms : ndarray of bool, shape (m,)
-        Per-sensor residual alarms of the main filter at this sample.
+        Per-sensor alarm of the main residual (paper: k-of-n threshold test;
+        sequential: CUSUM).
+    statistic : ndarray, shape (m,)
+        Per sensor, the alarm statistic in units of its threshold (alarm at 1).
     detected : bool
-        A fault has been detected (latched until reset).
+        Paper: a fault was detected (latched). Sequential: a fault episode is on.
+    episodes : int
+        Fault episodes since reset.
     isolated_sensor : int
-        1-based index of the isolated sensor; 0 none detected; −1 detected, not isolated.
+        1-based sensor of the diagnosis; 0 nothing detected; −1 detected, not
+        isolated; −2 several sensors (see ``isolated_mask``; 0 there when they could
+        not be told apart).
+    isolated_mask : int
+        Bit i−1 set for every isolated sensor i.
     fault_type : int
-        :class:`~gyrodiag.isolation.FaultType` code (−1 unknown, 0 none, 1 bias,
-        2 gain, 3 stuck, 4 complete failure).
+        Type of the isolated sensor's fault (:class:`FaultKind` code; for two sensors
+        their common type, else −1).
     magnitude : float
-        Bias (sensor units), gain factor, stuck value, 0 for failure; NaN if unknown.
+        Its size (bias, gain factor, stuck value, 0 for failure, ramp rate per s, noise
+        std ratio); 0 when ``magnitude_valid`` is False.
+    magnitude_valid : bool
+    sensor_fault_type : ndarray of int, shape (m,)
+        Type per sensor (0 where none).
+    sensor_magnitude : ndarray, shape (m,)
+        Size per sensor (0 where none or unknown).
+    input_delay : int
+        Alignment in use (module notes).
     """
 
     valid: bool
     calibrating: bool
     residual: NDArray[np.float64]
     alarms: NDArray[np.bool_]
+    statistic: NDArray[np.float64]
     detected: bool
+    episodes: int
     isolated_sensor: int
+    isolated_mask: int
     fault_type: int
     magnitude: float
+    magnitude_valid: bool
+    sensor_fault_type: NDArray[np.int_]
+    sensor_magnitude: NDArray[np.float64]
+    input_delay: int
 
     @property
     def alarm(self) -> bool:
@@ -184,7 +301,7 @@ class DFChannelOutput:
 
 
 class DFChannel:
-    """Streaming detection-filter diagnoser with isolation.
+    """Streaming detection-filter diagnoser (module notes).
 
     Parameters
     ----------
@@ -197,127 +314,44 @@ class DFChannel:
         config.validate()
         self.config = config
         A, B, C, eig, x0 = config.matrices()
+        self.A, self.B, self.C = A, B, C
         self.n, self.p, self.m = A.shape[0], B.shape[1], C.shape[0]
         self.K = design_detection_filter(A, C, np.eye(self.n), eig)
-        self._x0 = x0
-        self._iso = SensorFaultIsolator(
-            A, B, C, self.K, config.sample_period_s,
-            persistence_k=config.persistence_k, persistence_n=config.persistence_n,
-            confirm_samples=config.confirm_samples,
-        )
         self.T = float(config.sample_period_s)
+        self._x0 = x0
         self._n_cal = round(config.calibrate_s / self.T)
-        self._n_burn = round(config.burn_in_s / self.T)
+        self._n_burn = min(round(config.burn_in_s / self.T), max(self._n_cal - 10, 0))
+        self._monitor = DetectionFilter(A, B, C, self.K, self.T)
         self.reset()
+
+    # ------------------------------------------------------------------ set-up
 
     def reset(self) -> None:
         """Return to the state right after construction."""
         c = self.config
+        m, p = self.m, self.p
         self._n_samples = 0
-        self._installed: dict[str, Any] | None = None
-        self._cal_res: list[list[NDArray[np.float64]]] = [[] for _ in range(self.m + 1)]
-        if self._n_cal > 0:
-            self._calibrated = False
-            self._reset_observers()
-        else:
-            k = float(c.k_sigma)
-            main = np.asarray(c.main_thresholds, dtype=float)
-            bank = np.asarray(c.bank_thresholds, dtype=float)
-            std = (
-                main / k if c.noise_std is None else np.asarray(c.noise_std, dtype=float)
-            )
-            self._install([_thresholds(main, k)] + [_thresholds(row, k) for row in bank], std)
-            self._iso.reset(self._x0)
-            self._calibrated = True
-        self._last = DFChannelOutput(
-            True, not self._calibrated, np.zeros(self.m), np.zeros(self.m, dtype=bool),
-            False, 0, int(FaultType.NONE), 0.0,
+        self._delay = int(c.input_delay_samples)
+        self._u_line: list[NDArray[np.float64]] = []
+        self._y_line: list[NDArray[np.float64]] = []
+        self._cal_u = np.zeros((self._n_cal, p))
+        self._cal_y = np.zeros((self._n_cal, m))
+        self._engine: SensorFaultIsolator | SequentialDiagnoser | None = None
+        self._thresholds: list[NDArray[np.float64]] | None = None
+        self._noise_std: NDArray[np.float64] | None = None
+        self._monitor.reset(self._x0)
+        self._calibrated = False
+        self._last = self._initial_output()
+        if self._n_cal == 0:
+            self._install(None, None)
+
+    def _initial_output(self) -> DFChannelOutput:
+        m = self.m
+        return DFChannelOutput(
+            True, self._n_cal > 0, np.zeros(m), np.zeros(m, dtype=bool), np.zeros(m),
+            False, 0, NONE_DETECTED, 0, int(FaultType.NONE), 0.0, False,
+            np.zeros(m, dtype=int), np.zeros(m), self._delay,
         )
-
-    def _reset_observers(self) -> None:
-        self._iso.main_filter.reset(self._x0)
-        for b in self._iso.bank:
-            b.observer.reset(self._x0)
-
-    def update(self, u: ArrayLike, y: ArrayLike) -> DFChannelOutput:
-        """Process one sample of inputs ``u`` (p,) and measurements ``y`` (m,)."""
-        uu = np.asarray(u, dtype=float).reshape(-1)
-        yy = np.asarray(y, dtype=float).reshape(-1)
-        if uu.shape != (self.p,):
-            raise ValueError(f"u must have shape ({self.p},), got {uu.shape}")
-        if yy.shape != (self.m,):
-            raise ValueError(f"y must have shape ({self.m},), got {yy.shape}")
-        if not (np.all(np.isfinite(uu)) and np.all(np.isfinite(yy))):
-            self._last = DFChannelOutput(
-                False, self._last.calibrating, self._last.residual, self._last.alarms,
-                self._last.detected, self._last.isolated_sensor, self._last.fault_type,
-                self._last.magnitude,
-            )
-            return self._last
-        self._n_samples += 1
-        if not self._calibrated:
-            self._calibrate_step(uu, yy)
-            return self._last
-        res = self._iso.update(uu, yy)
-        residual = self._iso.main_filter.residual.copy()
-        if res.isolated >= 0:
-            isolated = res.isolated + 1
-        else:
-            isolated = -1 if res.detected else 0
-        self._last = DFChannelOutput(
-            True, False, residual, res.main_alarms.copy(), res.detected, isolated,
-            int(res.fault_type), float(res.magnitude),
-        )
-        return self._last
-
-    def _calibrate_step(self, u: NDArray[np.float64], y: NDArray[np.float64]) -> None:
-        main = self._iso.main_filter.update(u, y)
-        self._cal_res[0].append(main)
-        for j, b in enumerate(self._iso.bank):
-            self._cal_res[j + 1].append(b.observer.update(u, y[b.used]))
-        if self._n_samples >= self._n_cal:
-            self._finish_calibration()
-        self._last = DFChannelOutput(
-            True, not self._calibrated, main, np.zeros(self.m, dtype=bool), False, 0,
-            int(FaultType.NONE), 0.0,
-        )
-
-    def _finish_calibration(self) -> None:
-        k = float(self.config.k_sigma)
-        burn = min(self._n_burn, self._n_cal - 2)
-        thresholds = [
-            ResidualThresholds.from_fault_free(np.array(r), k_sigma=k, burn_in=burn)
-            for r in self._cal_res
-        ]
-        # set_thresholds() restarts the observers: keep their converged states.
-        saved = self._observer_states()
-        self._install(thresholds, None)
-        self._restore_observer_states(saved)
-        self._cal_res = [[] for _ in range(self.m + 1)]
-        self._calibrated = True
-
-    def _install(
-        self, thresholds: list[ResidualThresholds], noise_std: NDArray[np.float64] | None
-    ) -> None:
-        """Give the isolator its thresholds and remember them for the saved state."""
-        self._iso.set_thresholds(thresholds[0], thresholds[1:], noise_std)
-        self._installed = {
-            "mean": [t.mean.copy() for t in thresholds],
-            "std": [t.std.copy() for t in thresholds],
-            "threshold": [t.threshold.copy() for t in thresholds],
-            "k_sigma": float(thresholds[0].k_sigma),
-            "noise_std": None if noise_std is None else np.asarray(noise_std).copy(),
-        }
-
-    def _observer_states(self) -> list[dict[str, Any]]:
-        return [self._iso.main_filter.get_state()] + [
-            b.observer.get_state() for b in self._iso.bank
-        ]
-
-    def _restore_observer_states(self, states: list[dict[str, Any]]) -> None:
-        self._iso.main_filter.set_state(states[0])
-        for b, s in zip(self._iso.bank, states[1:], strict=True):
-            b.observer.set_state(s)
 
     @property
     def last_output(self) -> DFChannelOutput:
@@ -325,55 +359,356 @@ class DFChannel:
         return self._last
 
     @property
+    def input_delay(self) -> int:
+        """Alignment in use (chosen when the calibration window ends)."""
+        return self._delay
+
+    @property
     def thresholds(self) -> list[NDArray[np.float64]] | None:
-        """Thresholds in use: main filter first, then observer j; None while calibrating."""
-        if self._installed is None:
+        """Paper rule: residual thresholds, main filter first, then observer j. None
+        while calibrating and with the sequential rule (see :attr:`cusum_thresholds`)."""
+        if self._thresholds is None:
             return None
-        return [t.copy() for t in self._installed["threshold"]]
+        return [t.copy() for t in self._thresholds]
+
+    @property
+    def cusum_thresholds(self) -> tuple[float, float] | None:
+        """Sequential rule: (mean-CUSUM threshold σ, variance-CUSUM threshold)."""
+        if isinstance(self._engine, SequentialDiagnoser):
+            return self._engine.thresholds
+        return None
+
+    @property
+    def noise_std(self) -> NDArray[np.float64] | None:
+        """Sensor noise standard deviations in use (sensor units), once calibrated."""
+        return None if self._noise_std is None else self._noise_std.copy()
+
+    @property
+    def engine(self) -> SensorFaultIsolator | SequentialDiagnoser | None:
+        """The decision object (None while calibrating)."""
+        return self._engine
+
+    # ------------------------------------------------------------------ streaming
+
+    def update(self, u: ArrayLike, y: ArrayLike) -> DFChannelOutput:
+        """Process one sample of inputs ``u`` (p,) and measurements ``y`` (m,).
+
+        Shapes are checked (ValueError); a non-finite value skips the sample, leaves the
+        state untouched and clears ``valid``.
+        """
+        uu = np.asarray(u, dtype=float).reshape(-1)
+        yy = np.asarray(y, dtype=float).reshape(-1)
+        if uu.shape != (self.p,):
+            raise ValueError(f"u must have shape ({self.p},), got {uu.shape}")
+        if yy.shape != (self.m,):
+            raise ValueError(f"y must have shape ({self.m},), got {yy.shape}")
+        if not (math.isfinite(float(uu.sum())) and math.isfinite(float(yy.sum()))):
+            if not (np.all(np.isfinite(uu)) and np.all(np.isfinite(yy))):
+                self._last = _invalid(self._last)
+                return self._last
+        k = self._n_samples
+        self._n_samples = k + 1
+        if not self._calibrated:
+            self._cal_u[k], self._cal_y[k] = uu, yy
+            res = self._monitor_step(uu, yy)
+            if self._n_samples >= self._n_cal:
+                self._finish_calibration()
+            self._last = DFChannelOutput(
+                True, not self._calibrated, res, np.zeros(self.m, dtype=bool),
+                np.zeros(self.m), False, 0, NONE_DETECTED, 0, int(FaultType.NONE), 0.0,
+                False, np.zeros(self.m, dtype=int), np.zeros(self.m), self._delay,
+            )
+            return self._last
+        pair = self._aligned(uu, yy)
+        if pair is None:
+            return self._last
+        self._last = self._decide(*pair)
+        return self._last
+
+    def _monitor_step(self, u: NDArray[np.float64], y: NDArray[np.float64]
+                      ) -> NDArray[np.float64]:
+        """Residual shown while the window is recorded (configured alignment)."""
+        pair = self._aligned(u, y)
+        if pair is None:
+            return np.zeros(self.m)
+        return self._monitor.update(*pair)
+
+    def _aligned(self, u: NDArray[np.float64], y: NDArray[np.float64]
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """Apply the alignment: None while the delay line fills."""
+        d = self._delay
+        if d == 0:
+            return u, y
+        if d > 0:
+            self._u_line.append(u)
+            if len(self._u_line) <= d:
+                return None
+            return self._u_line.pop(0), y
+        self._y_line.append(y)
+        if len(self._y_line) <= -d:
+            return None
+        return u, self._y_line.pop(0)
+
+    def _decide(self, u: NDArray[np.float64], y: NDArray[np.float64]) -> DFChannelOutput:
+        engine = self._engine
+        m = self.m
+        if isinstance(engine, SequentialDiagnoser):
+            out = engine.update(np.concatenate((u, y)))
+            if out.status == "single":
+                iso = out.isolated[0] + 1
+            else:
+                iso = {"none": NONE_DETECTED, "not isolated": NOT_ISOLATED,
+                       "pair": MULTIPLE, "multiple": MULTIPLE}[out.status]
+            mask = sum(1 << i for i in out.isolated)
+            types = out.fault_type
+            if out.isolated:
+                kinds = {int(types[i]) for i in out.isolated}
+                ftype = kinds.pop() if len(kinds) == 1 else int(FaultKind.UNKNOWN)
+            else:
+                ftype = int(FaultKind.UNKNOWN) if out.status != "none" else 0
+            valid = len(out.isolated) == 1 and bool(out.magnitude_valid[out.isolated[0]])
+            mag = float(out.magnitude[out.isolated[0]]) if valid else 0.0
+            return DFChannelOutput(
+                True, False, out.residual, out.alarms, out.statistic, out.detected,
+                out.episodes, iso, mask, ftype, mag, valid, types, out.magnitude,
+                self._delay,
+            )
+        assert isinstance(engine, SensorFaultIsolator)
+        res = engine.update(u, y)
+        residual = engine.main_filter.residual
+        if res.isolated >= 0:
+            iso = res.isolated + 1
+        else:
+            iso = NOT_ISOLATED if res.detected else NONE_DETECTED
+        mask = (1 << res.isolated) if res.isolated >= 0 else 0
+        sensor_types = np.zeros(m, dtype=int)
+        sensor_mags = np.zeros(m)
+        valid = bool(math.isfinite(res.magnitude)) and res.isolated >= 0
+        if res.isolated >= 0:
+            sensor_types[res.isolated] = int(res.fault_type)
+            sensor_mags[res.isolated] = res.magnitude if valid else 0.0
+        return DFChannelOutput(
+            True, False, residual, res.main_alarms, np.abs(res.main_normalised),
+            res.detected, int(res.detected), iso, mask, int(res.fault_type),
+            float(res.magnitude) if valid else 0.0, valid, sensor_types, sensor_mags,
+            self._delay,
+        )
+
+    # ------------------------------------------------------------------ calibration
+
+    def _pairs(self, d: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Aligned (u, y) rows of the stored window for alignment d."""
+        u, y = self._cal_u, self._cal_y
+        if d > 0:
+            return u[:-d], y[d:]
+        if d < 0:
+            return u[-d:], y[:d]
+        return u, y
+
+    def _residuals(self, u: NDArray[np.float64], y: NDArray[np.float64],
+                   x_start: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+        f = DetectionFilter(self.A, self.B, self.C, self.K, self.T)
+        f.reset(self._x0 if x_start is None else x_start)
+        return np.array([f.update(u[j], y[j]) for j in range(u.shape[0])])
+
+    def _initial_state(self, u: NDArray[np.float64], y: NDArray[np.float64]
+                       ) -> NDArray[np.float64]:
+        """The state at the window's first sample that best explains it.
+
+        A host seldom starts the plant and the Diagnoser on the same sample from the
+        same state (with Gauss-Seidel the plant has already moved one step, at the
+        elevator's first value, when the Diagnoser sees its first sample: 0.26 rad/s of
+        q error on the seed loop); the observers' transient (slowest pole 1/s, and the
+        whitening filters' 10 s) would count as noise. The residual is linear in the
+        initial error: γ_k = γ_k(x0) − C Fᵏ Δx0; Δx0 by weighted least squares over the
+        window (weights: each channel's residual spread after the burn-in)."""
+        res = self._residuals(u, y)
+        f = self._monitor
+        closed = f.closed_loop_matrix
+        n_rows = res.shape[0]
+        weight = 1.0 / np.maximum(res[self._n_burn:].std(axis=0), 1e-300)
+        blocks = np.empty((n_rows, self.m, self.n))
+        power = np.eye(self.n)
+        for k in range(n_rows):
+            blocks[k] = self.C @ power
+            power = closed @ power
+        lhs = (blocks * weight[None, :, None]).reshape(-1, self.n)
+        rhs = (res * weight[None, :]).reshape(-1)
+        delta = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+        return self._x0 + delta
+
+    def _choose_alignment(self) -> int:
+        c = self.config
+        if not c.align_auto:
+            return int(c.input_delay_samples)
+        scores = {}
+        for d in range(-int(c.align_max), int(c.align_max) + 1):
+            u, y = self._pairs(d)
+            burn = min(self._n_burn, max(u.shape[0] - 10, 0))
+            res = self._residuals(u, y)[burn:]
+            var = res.var(axis=0, ddof=1)
+            scores[d] = float(np.sum(np.log(np.maximum(var, 1e-300))))
+        best = min(scores.values())
+        configured = int(c.input_delay_samples)
+        # equal within rounding: the inputs did not move; keep the configured pairing
+        if configured in scores and scores[configured] - best <= 1e-9 * max(1.0, abs(best)):
+            return configured
+        return min(scores, key=scores.__getitem__)
+
+    def _finish_calibration(self) -> None:
+        self._delay = self._choose_alignment()
+        u, y = self._pairs(self._delay)
+        burn = min(self._n_burn, max(u.shape[0] - 10, 0))
+        self._install(u, y, burn)
+        # the delay line continues from the end of the window
+        d = self._delay
+        self._u_line = [row for row in self._cal_u[self._n_cal - d:]] if d > 0 else []
+        self._y_line = [row for row in self._cal_y[self._n_cal + d:]] if d < 0 else []
+        self._cal_u = np.zeros((0, self.p))
+        self._cal_y = np.zeros((0, self.m))
+        self._calibrated = True
+
+    def _install(self, u: NDArray[np.float64] | None, y: NDArray[np.float64] | None,
+                 burn: int = 0) -> None:
+        """Build the decision engine from the aligned window (or from the given
+        thresholds / noise when there is no window)."""
+        c = self.config
+        if c.decision == "paper":
+            iso = SensorFaultIsolator(
+                self.A, self.B, self.C, self.K, self.T,
+                persistence_k=c.persistence_k, persistence_n=c.persistence_n,
+                confirm_samples=c.confirm_samples,
+            )
+            if u is None or y is None:
+                k = float(c.k_sigma)
+                main = np.asarray(c.main_thresholds, dtype=float)
+                bank = np.asarray(c.bank_thresholds, dtype=float)
+                std = main / k if c.noise_std is None else np.asarray(c.noise_std, float)
+                thresholds = [_thresholds(main, k)] + [_thresholds(row, k) for row in bank]
+                iso.set_thresholds(thresholds[0], thresholds[1:], std)
+                iso.reset(self._x0)
+                self._noise_std = std
+            else:
+                # The same computation the streaming filters would do: run them over the
+                # window, thresholds from the residuals after the burn-in, then go on.
+                iso.calibrate(u, y, k_sigma=c.k_sigma, burn_in=burn, x0=self._x0)
+                for j in range(u.shape[0]):
+                    iso.main_filter.update(u[j], y[j])
+                    for b in iso.bank:
+                        b.observer.update(u[j], y[j][b.used])
+                self._noise_std = iso.noise_std
+            self._thresholds = [iso.main_thresholds.threshold] + [
+                t.threshold for t in iso.bank_thresholds]
+            self._engine = iso
+            self._calibrated = True
+            return
+        x_start = self._x0 if u is None or y is None else self._initial_state(u, y)
+        if c.noise_std is not None:
+            variances = np.asarray(c.noise_std, dtype=float) ** 2
+        else:
+            assert u is not None and y is not None
+            f = DetectionFilter(self.A, self.B, self.C, self.K, self.T)
+            model = ResidualModel(f.closed_loop_matrix, f.discrete_gain, self.C)
+            variances = estimate_sensor_variances(
+                self._residuals(u, y, x_start)[burn:], model)
+            # A noise-free sensor would make rounding look like faults: floor at 1e−7
+            # of the signal's RMS (plus 1e−12 absolute).
+            rms = np.sqrt(np.mean(y**2, axis=0))
+            variances = np.maximum(variances, (1e-7 * rms + 1e-12) ** 2)
+        self._noise_std = np.sqrt(variances)
+        engine = SequentialDiagnoser(self.A, self.B, self.C, self.K, self.T, variances,
+                                     c.settings(), x0=self._x0)
+        if u is not None and y is not None:
+            engine.calibrate_scales(np.hstack([u, y]), burn, x_start=x_start)
+        self._engine = engine
+        self._thresholds = None
+        self._calibrated = True
+
+    # ------------------------------------------------------------------ state
 
     def get_state(self) -> dict[str, Any]:
-        """Full internal state (observers, thresholds, decisions, calibration data)."""
+        """Full internal state (engine, alignment, window, outputs)."""
+        engine = self._engine
         return {
-            "iso": self._iso.get_state(),
-            "observers": self._observer_states(),
             "n_samples": self._n_samples,
             "calibrated": self._calibrated,
-            "installed": self._installed,
-            "cal_res": [np.array(r).reshape(-1, self._res_width(j))
-                        for j, r in enumerate(self._cal_res)],
-            "last": {
-                "valid": self._last.valid, "calibrating": self._last.calibrating,
-                "residual": self._last.residual.copy(), "alarms": self._last.alarms.copy(),
-                "detected": self._last.detected, "isolated": self._last.isolated_sensor,
-                "fault_type": self._last.fault_type, "magnitude": self._last.magnitude,
-            },
+            "delay": self._delay,
+            "u_line": np.array(self._u_line).reshape(-1, self.p),
+            "y_line": np.array(self._y_line).reshape(-1, self.m),
+            "cal_u": self._cal_u.copy(), "cal_y": self._cal_y.copy(),
+            "monitor": self._monitor.get_state(),
+            "noise_std": None if self._noise_std is None else self._noise_std.copy(),
+            # the variances the engine was built from, exactly (σ² of a saved σ may
+            # differ in the last bit, and so would every matrix designed from it)
+            "noise_var": (engine.sensor_variances.copy()
+                          if isinstance(engine, SequentialDiagnoser) else None),
+            "engine": None if engine is None else engine.get_state(),
+            "thresholds": None if self._thresholds is None else [
+                t.copy() for t in self._thresholds],
+            "last": _output_state(self._last),
         }
-
-    def _res_width(self, j: int) -> int:
-        return self.m if j == 0 else self.m - 1
 
     def set_state(self, state: dict[str, Any]) -> None:
         """Restore a state produced by :meth:`get_state` of an identically configured
-        channel."""
-        inst = state["installed"]
-        if inst is not None:
-            thresholds = [
-                ResidualThresholds(mean=mu, std=sd, threshold=th, k_sigma=inst["k_sigma"])
-                for mu, sd, th in zip(inst["mean"], inst["std"], inst["threshold"], strict=True)
-            ]
-            self._install(thresholds, inst["noise_std"])
-        self._iso.set_state(state["iso"])
-        self._restore_observer_states(state["observers"])
+        channel (the engine is rebuilt from the saved noise and thresholds)."""
+        snapshot = self.get_state() if self._calibrated or self._n_samples else None
+        try:
+            self._apply_state(state)
+        except (KeyError, TypeError, ValueError) as exc:
+            if snapshot is not None:
+                self._apply_state(snapshot)
+            else:
+                self.reset()
+            if isinstance(exc, KeyError):
+                raise ValueError(f"state is missing key {exc}") from None
+            raise
+
+    def _apply_state(self, state: dict[str, Any]) -> None:
+        c = self.config
+        calibrated = bool(state["calibrated"])
+        delay = int(state["delay"])
+        noise = state["noise_std"]
+        if calibrated:
+            self._delay = delay
+            if c.decision == "paper":
+                self._install(None, None) if self._n_cal == 0 else self._rebuild_paper(state)
+            else:
+                variances = np.asarray(state["noise_var"], dtype=float)
+                self._engine = SequentialDiagnoser(
+                    self.A, self.B, self.C, self.K, self.T, variances, c.settings(),
+                    x0=self._x0)
+                self._noise_std = np.asarray(noise, dtype=float).copy()
+                self._thresholds = None
+            assert self._engine is not None
+            self._engine.set_state(state["engine"])
+        else:
+            self._engine, self._thresholds, self._noise_std = None, None, None
+        self._calibrated = calibrated
+        self._delay = delay
         self._n_samples = int(state["n_samples"])
-        self._calibrated = bool(state["calibrated"])
-        self._cal_res = [list(np.asarray(r, dtype=float)) for r in state["cal_res"]]
-        last = state["last"]
-        self._last = DFChannelOutput(
-            bool(last["valid"]), bool(last["calibrating"]),
-            np.asarray(last["residual"], dtype=float).copy(),
-            np.asarray(last["alarms"], dtype=bool).copy(), bool(last["detected"]),
-            int(last["isolated"]), int(last["fault_type"]), float(last["magnitude"]),
-        )
+        self._u_line = list(np.asarray(state["u_line"], dtype=float).reshape(-1, self.p))
+        self._y_line = list(np.asarray(state["y_line"], dtype=float).reshape(-1, self.m))
+        cal_u = np.asarray(state["cal_u"], dtype=float)
+        cal_y = np.asarray(state["cal_y"], dtype=float)
+        if not calibrated and (cal_u.shape != (self._n_cal, self.p)
+                               or cal_y.shape != (self._n_cal, self.m)):
+            raise ValueError("state['cal_u'] / state['cal_y'] do not fit the calibration "
+                             "window of this channel")
+        self._cal_u, self._cal_y = cal_u.copy(), cal_y.copy()
+        self._monitor.set_state(state["monitor"])
+        self._last = _output_from_state(state["last"])
+
+    def _rebuild_paper(self, state: dict[str, Any]) -> None:
+        c = self.config
+        thresholds = [np.asarray(t, dtype=float) for t in state["thresholds"]]
+        noise = np.asarray(state["noise_std"], dtype=float)
+        iso = SensorFaultIsolator(
+            self.A, self.B, self.C, self.K, self.T, persistence_k=c.persistence_k,
+            persistence_n=c.persistence_n, confirm_samples=c.confirm_samples)
+        k = float(c.k_sigma)
+        iso.set_thresholds(_thresholds(thresholds[0], k),
+                           [_thresholds(t, k) for t in thresholds[1:]], noise)
+        self._engine, self._thresholds, self._noise_std = iso, thresholds, noise
 
 
 def _thresholds(threshold: NDArray[np.float64], k_sigma: float) -> ResidualThresholds:
@@ -381,3 +716,28 @@ def _thresholds(threshold: NDArray[np.float64], k_sigma: float) -> ResidualThres
     return ResidualThresholds(
         mean=np.zeros_like(thr), std=thr / k_sigma, threshold=thr, k_sigma=k_sigma
     )
+
+
+def _invalid(last: DFChannelOutput) -> DFChannelOutput:
+    d = dict(last.__dict__)
+    d["valid"] = False
+    return DFChannelOutput(**d)
+
+
+def _output_state(out: DFChannelOutput) -> dict[str, Any]:
+    return {k: (v.copy() if isinstance(v, np.ndarray) else v)
+            for k, v in out.__dict__.items()}
+
+
+def _output_from_state(state: dict[str, Any]) -> DFChannelOutput:
+    d = dict(state)
+    for key, dtype in (("residual", float), ("alarms", bool), ("statistic", float),
+                       ("sensor_fault_type", int), ("sensor_magnitude", float)):
+        d[key] = np.asarray(d[key], dtype=dtype).copy()
+    for key in ("valid", "calibrating", "detected", "magnitude_valid"):
+        d[key] = bool(d[key])
+    for key in ("episodes", "isolated_sensor", "isolated_mask", "fault_type",
+                "input_delay"):
+        d[key] = int(d[key])
+    d["magnitude"] = float(d["magnitude"])
+    return DFChannelOutput(**d)

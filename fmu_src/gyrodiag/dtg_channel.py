@@ -1,14 +1,27 @@
 """The DTG diagnosis channel: prefilter → regressors → estimators → decision → class.
 
 One object per monitored gyro, fed one sample of (Utx, Uty, Ux, Uy) per sample period.
-It identifies θ on both axes with its own estimator each, learns the nominal θ0 from an
-initial fault-free window (or takes it as given), judges each axis with the ratio
-thresholds and classifies an alarm by the nearest signature. The Diagnoser FMU only
-maps its variables onto this class.
+It identifies θ on both axes with its own estimator each and learns the nominal θ0 from
+an initial fault-free window (or takes it as given). Two classifiers:
+
+* ``"paper"`` (the paper's rule, kept so that the seed scenarios reproduce it): each
+  axis is judged by the ratio band on η = |θ|/|θ0| and an alarm is classified by the
+  nearest decade signature C = round(log10 η).
+* ``"pattern"`` (default): the learning window is checked and frozen as a nominal
+  reference (:mod:`gyrodiag.dtg_reference`); residual tests against it keep an alarm for
+  as long as a fault lasts; an alarm is classified by fitting the learned response
+  patterns of every fault type on every signal (:mod:`gyrodiag.dtg_patterns`), which
+  names the fault type, the signal and axis, a distance and the fault's size. The ratio
+  band on η still alarms too (physical faults move θ without changing the residuals
+  much) and such an alarm is classified against the physical classes.
+
+The Diagnoser FMU only maps its variables onto this class.
 """
 
 from __future__ import annotations
 
+import math
+from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -30,15 +43,41 @@ from .decision import (
     WindowedMedianFeature,
     feature_vector,
 )
-from .dtg import N_THETA, DTGRegressor, physical_from_theta
+from .dtg import N_THETA, DTGRegressor
+from .dtg_patterns import PatternClassifier, PatternLibrary, PatternResult
+from .dtg_reference import (
+    N_CHANNELS,
+    REFERENCE_STATUS,
+    NominalPrior,
+    NominalReference,
+    ReferenceLearner,
+    ResidualMonitor,
+    ResidualThresholds,
+)
 from .estimators import RLS, ForgettingRLS, SlidingWindowLS
 from .prefilter import ButterworthPrefilter
 
-__all__ = ["ESTIMATOR_KINDS", "DTGChannel", "DTGChannelConfig", "DTGChannelOutput"]
+__all__ = [
+    "CLASSIFIERS",
+    "ESTIMATOR_KINDS",
+    "DTGChannel",
+    "DTGChannelConfig",
+    "DTGChannelOutput",
+]
 
 EstimatorKind = Literal["batch", "rls", "forgetting"]
 #: Estimator kinds with their Integer codes used by the FMU (0, 1, 2).
 ESTIMATOR_KINDS: tuple[EstimatorKind, ...] = ("batch", "rls", "forgetting")
+ClassifierKind = Literal["paper", "pattern"]
+#: Classifiers (the FMU's String parameter ``dtg.classifier``).
+CLASSIFIERS: tuple[ClassifierKind, ...] = ("paper", "pattern")
+#: Block length of the reference statistics, s (rounded to whole samples).
+BLOCK_S = 0.025
+#: Reference status when the guard could not run (paper classifier, too little data).
+STATUS_NOT_CHECKED = 4
+#: Reference status when learning ended without any usable reference (no excitation in
+#: the window, e.g. a host's default zero inputs): the channel never alarms.
+STATUS_FAILED = 5
 
 
 @dataclass
@@ -64,7 +103,9 @@ class DTGChannelConfig:
     window : int
         Window length of the batch estimator, samples (each sample adds one row).
     forgetting : float
-        Forgetting factor of the "forgetting" estimator (paper: 0.99).
+        Forgetting factor of the "forgetting" estimator. Paper: 0.99; default 0.999
+        (on the DTG FMU chain 0.99 scatters θ3/θ4 by 14 % and false-alarms in the paper
+        band, docs/notes.md).
     p0 : float
         Initial covariance scale of the RLS estimators.
     theta0 : sequence of 5 floats or None
@@ -85,11 +126,31 @@ class DTGChannelConfig:
     max_distance : float or None
         Feature vectors farther than this from every signature are "unknown".
     classify_window_s : float
-        An alarm is classified by the median feature of the alarm samples in the last
-        ``classify_window_s`` seconds, both ends included (round(w/T) + 1 samples;
-        :func:`~gyrodiag.decision.median_feature`), the rule by which signatures are
-        learned (``harness learn-signatures``, 0.5 s); the per-sample feature flickers
-        between classes. 0: each sample's own feature (the paper's rule).
+        Paper classifier: an alarm is classified by the median feature of the alarm
+        samples in the last ``classify_window_s`` seconds, both ends included
+        (round(w/T) + 1 samples; :func:`~gyrodiag.decision.median_feature`), the rule by
+        which signatures are learned (``harness learn-signatures``, 0.5 s); the
+        per-sample feature flickers between classes. 0: each sample's own feature (the
+        paper's rule).
+    classifier : {"pattern", "paper"}
+        Pattern classification with the frozen reference and its residual tests
+        (default), or the paper's decade signatures (``signatures``).
+    patterns : PatternLibrary or None
+        Learned pattern library of the "pattern" classifier (None: alarms are
+        "unknown"). Its nominal prior, if any, guards the reference learning.
+    window_s : float
+        Window of the residual level and variance tests, s (also the shortest window an
+        alarm is classified on).
+    long_window_s : float
+        Window of the long variance test and the longest classification window, s.
+    level_threshold, var_threshold, long_var_threshold : float
+        Raise thresholds of the residual tests (:class:`~gyrodiag.dtg_reference.
+        ResidualThresholds`): level z, short- and long-window variance ratios.
+    theta_spread_threshold : float
+        Learning guard: a segment's θ spread against the segments before it.
+    clear_after_s : float
+        An alarm of the residual tests clears this long after the last block in which a
+        test exceeded its hold threshold.
     """
 
     sample_period_s: float = 1e-3
@@ -99,7 +160,7 @@ class DTGChannelConfig:
     prefilter_highpass_hz: float | None = None
     estimator: EstimatorKind = "forgetting"
     window: int = 500
-    forgetting: float = 0.99
+    forgetting: float = 0.999
     p0: float = 1e6
     theta0: Sequence[float] | None = None
     learn_start_s: float = 1.0
@@ -113,6 +174,30 @@ class DTGChannelConfig:
     signatures: Mapping[str, Sequence[float]] = field(default_factory=dict)
     max_distance: float | None = None
     classify_window_s: float = 0.5
+    classifier: ClassifierKind = "pattern"
+    patterns: PatternLibrary | None = None
+    window_s: float = 0.5
+    long_window_s: float = 2.0
+    level_threshold: float = 6.0
+    var_threshold: float = 4.0
+    long_var_threshold: float = 2.0
+    theta_spread_threshold: float = 30.0
+    clear_after_s: float = 0.5
+
+    @property
+    def thresholds(self) -> ResidualThresholds:
+        """The residual-test thresholds."""
+        return ResidualThresholds(self.level_threshold, self.var_threshold,
+                              self.long_var_threshold, self.theta_spread_threshold)
+
+    @property
+    def block_samples(self) -> int:
+        """Samples per reference block (:data:`BLOCK_S`, at least one)."""
+        return max(1, round(BLOCK_S / self.sample_period_s))
+
+    def blocks(self, seconds: float) -> int:
+        """Whole blocks in ``seconds`` (at least one)."""
+        return max(1, round(seconds / (self.block_samples * self.sample_period_s)))
 
     def validate(self) -> None:
         """Raise ValueError/TypeError naming the first invalid setting."""
@@ -133,7 +218,9 @@ class DTGChannelConfig:
             t0 = check_finite_array("theta0", self.theta0, shape=(N_THETA,))
             if np.any(t0 == 0.0):
                 raise ValueError(f"theta0 must have no zero entry, got {list(t0)}")
-        else:
+        # the pattern classifier measures its nominal statistics over the learning window
+        # even when θ0 is given
+        if self.theta0 is None or self.classifier == "pattern":
             check_nonnegative("learn_start_s", self.learn_start_s)
             end = check_positive("learn_end_s", self.learn_end_s)
             if end < self.learn_start_s + self.sample_period_s:
@@ -152,6 +239,101 @@ class DTGChannelConfig:
         elif self.max_distance is not None:
             check_nonnegative("max_distance", self.max_distance)
         check_nonnegative("classify_window_s", self.classify_window_s)
+        if self.classifier not in CLASSIFIERS:
+            raise ValueError(
+                f"classifier must be one of {CLASSIFIERS}, got {self.classifier!r}")
+        check_positive("window_s", self.window_s)
+        check_positive("long_window_s", self.long_window_s)
+        if self.long_window_s < self.window_s:
+            raise ValueError(f"long_window_s must be >= window_s ({self.window_s!r} s), "
+                             f"got {self.long_window_s!r}")
+        self.thresholds.validate()
+        check_nonnegative("clear_after_s", self.clear_after_s)
+        if self.classifier == "pattern":
+            if self.signatures:
+                raise ValueError(
+                    "signatures (decade signatures) belong to classifier 'paper'; the "
+                    "'pattern' classifier takes a pattern library (patterns)")
+            if self.patterns is not None:
+                if not isinstance(self.patterns, PatternLibrary):
+                    raise TypeError("patterns must be a PatternLibrary, got "
+                                    f"{type(self.patterns).__name__}")
+                block_s = self.block_samples * self.sample_period_s
+                for name, mine, theirs in (
+                        ("sample_period_s", self.sample_period_s,
+                         self.patterns.sample_period_s),
+                        ("block_s", block_s, self.patterns.block_s)):
+                    if abs(mine - theirs) > 1e-6 * theirs:
+                        raise ValueError(
+                            f"patterns were learned with {name} = {theirs!r}, this channel "
+                            f"has {mine!r}: learn the patterns at this sample period")
+            span = self.learn_end_s - self.learn_start_s
+            block_s = self.block_samples * self.sample_period_s
+            if span < 2 * block_s - 1e-12:
+                raise ValueError(
+                    "learn_end_s - learn_start_s must hold at least two reference blocks "
+                    f"({2 * block_s:g} s) for the pattern classifier, got {span!r} s")
+
+
+@dataclass(frozen=True)
+class DTGDiagnosis:
+    """Block-rate outputs of the reference, the residual tests and the classification.
+
+    Updated at the end of each reference block (``block`` counts the updates); the same
+    object is shared by the samples in between.
+
+    Attributes
+    ----------
+    reference_status : int
+        :data:`~gyrodiag.dtg_reference.REFERENCE_STATUS` code (0 learning, 1 valid,
+        2 change inside the learning window, 3 prior mismatch: prior in use), or
+        :data:`STATUS_NOT_CHECKED` (4, paper classifier with too little data) or
+        :data:`STATUS_FAILED` (5, no usable data in the learning window: no reference,
+        no alarm).
+    residual_alarm : bool
+        The residual tests are in alarm (pattern classifier).
+    class_name : str
+        Name of the class in ``fault_code`` ("" none, "unknown").
+    fault_type, fault_signal, fault_axis : int
+        Codes of :data:`~gyrodiag.dtg_patterns.FAULT_TYPES` (1 step, 2 noise, 3 loss,
+        4 drift, 5 spin, 6 torquer), :data:`~gyrodiag.dtg_patterns.SIGNALS` (1 Utx,
+        2 Uty, 3 Ux, 4 Uy; 0 physical) and axes (1 x, 2 y, 3 both); 0 no alarm, −1
+        unknown.
+    distance : float
+        χ² per channel of the class (NaN if none).
+    size, rate, ratio : float
+        Estimated fault size (V), drift rate (V/s), physical ratio (NaN if undefined).
+    level, log_variance : ndarray, shape (6,)
+        Statistics of the test window (no alarm) or the classification window (alarm):
+        level shift in block-spread units and log10 variance ratio of Utx, Uty, Ux, Uy,
+        ex, ey.
+    growth : float
+        Growth of the residual level in that window (drift witness).
+    window_s : float
+        Length of that window, s.
+    tests : ndarray, shape (6,)
+        Residual test statistics: level z of ex, ey, short variance ratios of ex, ey,
+        long variance ratios of ex, ey.
+    block : int
+        Update counter.
+    """
+
+    reference_status: int = REFERENCE_STATUS["learning"]
+    residual_alarm: bool = False
+    class_name: str = ""
+    fault_type: int = 0
+    fault_signal: int = 0
+    fault_axis: int = 0
+    distance: float = math.nan
+    size: float = math.nan
+    rate: float = math.nan
+    ratio: float = math.nan
+    level: NDArray[np.float64] = field(default_factory=lambda: np.zeros(N_CHANNELS))
+    log_variance: NDArray[np.float64] = field(default_factory=lambda: np.zeros(N_CHANNELS))
+    growth: float = 0.0
+    window_s: float = 0.0
+    tests: NDArray[np.float64] = field(default_factory=lambda: np.zeros(6))
+    block: int = 0
 
 
 @dataclass(frozen=True)
@@ -181,6 +363,8 @@ class DTGChannelOutput:
         ``classify_window_s``.
     first_alarm_time_s : float
         Time of the first alarm since reset, s (NaN if none).
+    diagnosis : DTGDiagnosis
+        Reference, residual tests and pattern classification (block rate).
     """
 
     valid: bool
@@ -192,6 +376,7 @@ class DTGChannelOutput:
     fault_code: int
     feature: NDArray[np.int64]
     first_alarm_time_s: float
+    diagnosis: DTGDiagnosis = field(default_factory=DTGDiagnosis)
 
 
 class DTGChannel:
@@ -207,6 +392,21 @@ class DTGChannel:
         config.validate()
         self.config = config
         self.T = float(config.sample_period_s)
+        self._nb = config.block_samples
+        self._short_blocks = config.blocks(config.window_s)
+        self._long_blocks = max(config.blocks(config.long_window_s), self._short_blocks)
+        self._clear_blocks = max(1, round(config.clear_after_s / (self._nb * self.T)))
+        # sample indices of the learning window [n_start, n_end)
+        self._n_start = math.ceil(config.learn_start_s / self.T - 1e-9)
+        self._n_end = max(math.ceil(config.learn_end_s / self.T - 1e-9), self._n_start + 1)
+        # rows left out after a skipped sample: the two regression rows that span it and
+        # the prefilter's memory (impulse response above 1e-3 of its peak)
+        self._gap_samples = 2 + (_ringing_samples(config, self.T)
+                                 if config.prefilter_enabled else 0)
+        self._pattern = (PatternClassifier(config.patterns)
+                         if config.patterns is not None else None)
+        self._prior: NominalPrior | None = (
+            config.patterns.prior if config.patterns is not None else None)
         self.reset()
 
     # -- construction helpers -------------------------------------------------
@@ -240,6 +440,7 @@ class DTGChannel:
         )
         self._regressor = DTGRegressor()
         self._estimators = [self._make_estimator(), self._make_estimator()]
+        self._theta_now = tuple(tuple(e.theta.tolist()) for e in self._estimators)
         self._classifier = (
             SignatureClassifier(c.signatures, c.max_distance) if c.signatures else None
         )
@@ -253,6 +454,29 @@ class DTGChannel:
         self._first_alarm_time = float("nan")
         # both ends of the window, as the training window of harness.campaigns.signatures
         self._features = WindowedMedianFeature(N_THETA, round(c.classify_window_s / self.T) + 1)
+        # reference blocks: raw (nb, 4), filtered with the two samples before (nb + 2, 4),
+        # fast-estimator θ of both axes (nb, 10)
+        # the current block (plain lists; arrays at its end) and the two filtered samples
+        # before it
+        self._blk_raw: list[tuple[float, ...]] = []
+        self._blk_filtered: list[tuple[float, ...]] = []
+        self._blk_theta: list[tuple[float, ...]] = []
+        self._blk_valid: list[bool] = []
+        self._hist_filtered: list[tuple[float, ...]] = [(0.0,) * 4, (0.0,) * 4]
+        self._gap = 0
+        # pattern classifier: when the residual tests clear, the fast estimators are
+        # rolled back to their state half a test window before the alarm rose (a fault's
+        # data would take them seconds to forget: a 0.3 V noise burst on a pick-off
+        # raises their information ~1000-fold, i.e. ~7 s of forgetting 0.999, and the
+        # ratio band would hold the alarm that long); during the alarm they go on
+        # tracking, so that a physical fault shows in η
+        self._rollback: tuple[Any, ...] | None = None
+        self._snapshots: deque[tuple[Any, ...]] = deque(maxlen=self._short_blocks + 1)
+        self._learner: ReferenceLearner | None = ReferenceLearner(
+            self._nb, self._short_blocks, self._long_blocks, c.thresholds, self._nb * self.T)
+        self.reference: NominalReference | None = None
+        self._monitor: ResidualMonitor | None = None
+        self._diagnosis = DTGDiagnosis()
         self._last = self._initial_output()
 
     def _initial_output(self) -> DTGChannelOutput:
@@ -260,8 +484,13 @@ class DTGChannel:
             valid=True, learning=self.theta0 is None, theta=np.zeros((2, N_THETA)),
             eta=np.ones((2, N_THETA)), physical=np.full(N_THETA, np.nan), alarm=False,
             fault_code=0, feature=np.zeros(N_THETA, dtype=np.int64),
-            first_alarm_time_s=float("nan"),
+            first_alarm_time_s=float("nan"), diagnosis=self._diagnosis,
         )
+
+    @property
+    def pattern_mode(self) -> bool:
+        """The pattern classifier is configured."""
+        return self.config.classifier == "pattern"
 
     # -- streaming ------------------------------------------------------------
     def update(self, Utx: float, Uty: float, Ux: float, Uy: float) -> DTGChannelOutput:
@@ -270,34 +499,47 @@ class DTGChannel:
         A sample with any NaN/Inf is skipped: the state is untouched and the previous
         outputs are returned with ``valid=False``.
         """
-        raw = np.array([Utx, Uty, Ux, Uy], dtype=float)
-        if not np.all(np.isfinite(raw)):
+        raw = (float(Utx), float(Uty), float(Ux), float(Uy))
+        if not (math.isfinite(raw[0]) and math.isfinite(raw[1]) and math.isfinite(raw[2])
+                and math.isfinite(raw[3])):
+            # the regression rows spanning the gap, and the prefilter's ringing after it,
+            # are left out of the reference statistics (a one-sample jump would look
+            # like a burst of noise)
+            self._gap = self._gap_samples
             self._last = _replace(self._last, valid=False)
             return self._last
-        t = self._n_samples * self.T
+        n = self._n_samples
+        t = n * self.T
         self._n_samples += 1
         # raw was checked finite above; the stages downstream need not check again
-        sample = (
-            self._prefilter.update(raw, validate=False) if self._prefilter is not None else raw
-        )
-        rows = self._regressor.update(*sample, validate=False)
+        sample = tuple(self._prefilter.step(raw)) if self._prefilter is not None else raw
+        rows = self._regressor.step(*sample)
         if rows is not None:
-            self._estimators[0].update(rows[0], rows[1], validate=False)
-            self._estimators[1].update(rows[2], rows[3], validate=False)
-        theta = np.vstack([e.theta for e in self._estimators])
+            self._theta_now = (self._estimators[0].step(rows[0], rows[1]),
+                               self._estimators[1].step(rows[2], rows[3]))
+        th_x, th_y = self._theta_now
+        block_done = self._collect(n, raw, sample, th_x + th_y)
+        th_x, th_y = self._theta_now  # rolled back if the residual alarm just cleared
+        theta = np.array((th_x, th_y))
 
-        if self.theta0 is None:
+        if self.theta0 is None and not self.pattern_mode:
             self._learn(t, theta)
         if self.theta0 is None or self._decisions is None:
             self._last = DTGChannelOutput(
-                True, True, theta, np.ones((2, N_THETA)), _physical(theta, self.T), False, 0,
-                np.zeros(N_THETA, dtype=np.int64), self._first_alarm_time,
+                True, not self.reference_failed, theta, np.ones((2, N_THETA)),
+                _physical(th_x, th_y, self.T), False, 0, np.zeros(N_THETA, dtype=np.int64),
+                self._first_alarm_time, self._diagnosis,
             )
             return self._last
 
-        decisions = [d.update(th) for d, th in zip(self._decisions, theta, strict=True)]
-        eta = np.vstack([d.eta for d in decisions])
-        alarm = any(d.alarm for d in decisions)
+        eta_x, alarm_x = self._decisions[0].step(th_x)
+        eta_y, alarm_y = self._decisions[1].step(th_y)
+        eta = np.array((eta_x, eta_y))
+        band_alarm = alarm_x or alarm_y
+        physical = _physical(th_x, th_y, self.T)
+        if self.pattern_mode:
+            return self._pattern_output(t, theta, eta, physical, band_alarm, block_done)
+        alarm = band_alarm
         feats = [feature_vector(e) for e in eta]
         worst = int(np.argmax([np.abs(f).sum() for f in feats]))
         feature = feats[worst]
@@ -316,10 +558,182 @@ class DTGChannel:
                 else UNKNOWN_CODE
             )
         self._last = DTGChannelOutput(
-            True, False, theta, eta, _physical(theta, self.T), alarm, code, feature,
-            self._first_alarm_time,
+            True, False, theta, eta, physical, alarm, code, feature,
+            self._first_alarm_time, self._diagnosis,
         )
         return self._last
+
+    def _pattern_output(self, t: float, theta: NDArray[np.float64],
+                        eta: NDArray[np.float64], physical: NDArray[np.float64],
+                        band_alarm: bool, block_done: bool) -> DTGChannelOutput:
+        mon = self._monitor
+        residual_alarm = mon is not None and mon.alarm
+        alarm = band_alarm or residual_alarm
+        if alarm and np.isnan(self._first_alarm_time):
+            self._first_alarm_time = t
+        d = self._diagnosis
+        if block_done or (alarm and d.fault_type == 0) or (not alarm and d.fault_type != 0):
+            self._diagnosis = d = self._diagnose(band_alarm)
+        code = 0
+        if alarm:
+            code = UNKNOWN_CODE if d.fault_type <= 0 else self._class_code(d.class_name)
+        self._last = DTGChannelOutput(
+            True, False, theta, eta, physical, alarm, code, _NO_FEATURE,
+            self._first_alarm_time, d,
+        )
+        return self._last
+
+    def _class_code(self, name: str) -> int:
+        assert self.config.patterns is not None
+        return self.config.patterns.names.index(name) + 1
+
+    def _diagnose(self, band_alarm: bool) -> DTGDiagnosis:
+        """Classify the current state (at block ends, and when the alarm changes)."""
+        mon = self._monitor
+        ref = self.reference
+        status = ref.status if ref is not None else REFERENCE_STATUS["learning"]
+        block = self._diagnosis.block + 1
+        if mon is None:
+            return DTGDiagnosis(reference_status=status, block=block)
+        result: PatternResult | None = None
+        stats = mon.classification_statistics() if mon.alarm else None
+        if mon.alarm:
+            if stats is not None and self._pattern is not None:
+                result = self._pattern.classify_signal_fault(stats)
+                if self._pattern.has_physical:
+                    # a large physical fault (e.g. torquer scale 0.6) also raises the
+                    # residual variance, inside the ratio band: the family that
+                    # explains more wins (a signal fault corrupts one axis' estimates,
+                    # which no physical class explains)
+                    physical = self._pattern.classify_physical(
+                        mon.window_statistics(self._long_blocks))
+                    if physical.fault_type > 0 and (
+                            result.fault_type < 0 or physical.distance < result.distance):
+                        result = physical
+        elif band_alarm:
+            stats = mon.window_statistics(self._long_blocks)
+            if self._pattern is not None:
+                result = self._pattern.classify_physical(stats)
+        if stats is None:
+            # pending classification: the blocks of the alarm so far (the test window
+            # without alarm), so that the outputs never mix in data from before the alarm
+            k = mon.blocks_in_alarm if mon.alarm else self._short_blocks
+            stats = mon.window_statistics(max(1, min(k, self._short_blocks)))
+        alarm = mon.alarm or band_alarm
+        if not alarm:
+            kind = (0, 0, 0, "")
+        elif result is None or result.fault_type < 0:
+            kind = (-1, -1, -1, "unknown")
+        else:
+            kind = (result.fault_type, result.signal, result.axis, result.name)
+        return DTGDiagnosis(
+            reference_status=status, residual_alarm=mon.alarm, class_name=kind[3],
+            fault_type=kind[0], fault_signal=kind[1], fault_axis=kind[2],
+            distance=math.nan if result is None or not alarm else result.distance,
+            size=math.nan if result is None or not alarm else result.size,
+            rate=math.nan if result is None or not alarm else result.rate,
+            ratio=math.nan if result is None or not alarm else result.ratio,
+            level=stats.level, log_variance=stats.log_variance, growth=stats.growth,
+            window_s=stats.window_s, tests=mon.statistics.copy(), block=block)
+
+    def _collect(self, n: int, raw: tuple[float, ...], sample: tuple[float, ...],
+                 theta: tuple[float, ...]) -> bool:
+        """Buffer one sample into the reference blocks; True when a runtime block ended.
+
+        Blocks start at the learning window's first sample and again at its end (the
+        partial block before the end is dropped); the learner gets the learning blocks,
+        the residual monitor the blocks after.
+        """
+        if n == self._n_start or n == self._n_end:
+            # restart the block grid; the two samples before become the history
+            self._hist_filtered = (self._hist_filtered + self._blk_filtered)[-2:]
+            self._clear_block()
+            if n == self._n_start and self._learner is not None:
+                self._learner.set_history(np.array(self._hist_filtered))
+            if n == self._n_end:
+                self._finish_learning()
+        self._blk_raw.append(raw)
+        self._blk_filtered.append(sample)
+        self._blk_theta.append(theta)
+        gap = self._gap
+        self._blk_valid.append(gap == 0)
+        if gap:
+            self._gap = gap - 1
+        if len(self._blk_raw) < self._nb:
+            return False
+        done = False
+        if self._n_start <= n < self._n_end:
+            if self._learner is not None:
+                self._learner.push_block(np.array(self._blk_raw), np.array(self._blk_filtered),
+                                         np.array(self._blk_theta), np.array(self._blk_valid))
+        elif n >= self._n_end and self._monitor is not None:
+            was = self._monitor.alarm
+            now = self._monitor.push_block(np.array(self._blk_raw),
+                                           np.array(self._hist_filtered + self._blk_filtered),
+                                           np.array(self._blk_theta),
+                                           np.array(self._blk_valid))
+            self._hold_estimators(was, now)
+            done = True
+        self._hist_filtered = self._blk_filtered[-2:]
+        self._clear_block()
+        return done
+
+    def _hold_estimators(self, was: bool, now: bool) -> None:
+        """Snapshot the estimators at quiet block ends; keep the oldest snapshot when the
+        residual tests alarm and restore it when they clear."""
+        if now:
+            if not was and self._snapshots:
+                self._rollback = self._snapshots[0]
+            return
+        if was and self._rollback is not None:
+            sx, sy, theta = self._rollback
+            self._estimators[0].set_state(sx)
+            self._estimators[1].set_state(sy)
+            self._theta_now = theta
+            self._rollback = None
+            self._snapshots.clear()
+        self._snapshots.append((self._estimators[0].get_state(),
+                                self._estimators[1].get_state(), self._theta_now))
+
+    def _clear_block(self) -> None:
+        self._blk_raw = []
+        self._blk_filtered = []
+        self._blk_theta = []
+        self._blk_valid = []
+
+    def _finish_learning(self) -> None:
+        """Build the checked reference at the end of the learning window."""
+        c = self.config
+        learner = self._learner
+        if learner is None:
+            return
+        try:
+            ref = learner.finish(None if c.theta0 is None else np.asarray(c.theta0, float),
+                                 self._prior)
+        except ValueError:
+            self._learner = None
+            if self.pattern_mode:
+                # no reference to test against: no alarm rather than a failure of every
+                # later sample (see reference_failed)
+                self._diagnosis = DTGDiagnosis(reference_status=STATUS_FAILED,
+                                               block=self._diagnosis.block + 1)
+                return
+            # the paper classifier does not need the reference: report it unchecked
+            self._diagnosis = DTGDiagnosis(reference_status=STATUS_NOT_CHECKED,
+                                           block=self._diagnosis.block + 1)
+            return
+        self.reference = ref
+        if self.pattern_mode:
+            mon = ResidualMonitor(ref, self._nb, self._nb * self.T, self._short_blocks,
+                                  self._long_blocks, c.thresholds, self._clear_blocks)
+            mon.prefill(*learner.reference_blocks(ref, self._long_blocks))
+            self._monitor = mon
+            if self.theta0 is None:
+                self.theta0 = ref.theta0_eta.copy()
+                self._decisions = self._make_decisions(self.theta0)
+        self._learner = None  # its data are no longer needed
+        self._diagnosis = DTGDiagnosis(reference_status=ref.status,
+                                       block=self._diagnosis.block + 1)
 
     def _learn(self, t: float, theta: NDArray[np.float64]) -> None:
         c = self.config
@@ -328,17 +742,28 @@ class DTGChannel:
             self._learn_count += 1
         elif t >= c.learn_end_s and self._learn_count > 0:
             theta0 = self._learn_sum / self._learn_count
+            self._learn_count = 0
             if np.any(theta0 == 0.0):
-                raise ValueError(
-                    "learned theta0 has a zero entry (no excitation in the learning window?)"
-                    f": {list(theta0)}"
-                )
+                # No excitation in the learning window (e.g. a host's default zero
+                # inputs): no reference, so no ratios and no alarm, rather than a failure
+                # of every later sample. See reference_failed.
+                return
             self.theta0 = theta0
             self._decisions = self._make_decisions(theta0)
 
+    @property
+    def reference_failed(self) -> bool:
+        """True once the learning window has ended without a usable θ0 (a zero entry:
+        no excitation); the channel then never alarms."""
+        if self.pattern_mode:
+            return self._diagnosis.reference_status == STATUS_FAILED
+        return (self.theta0 is None and self._learn_count == 0
+                and self._n_samples * self.T > self.config.learn_end_s)
+
     # -- state ----------------------------------------------------------------
     def get_state(self) -> dict[str, Any]:
-        """Full internal state (filters, estimators, decisions, learning, outputs)."""
+        """Full internal state (filters, estimators, decisions, learning, reference,
+        residual tests, outputs)."""
         return {
             "prefilter": None if self._prefilter is None else self._prefilter.get_state(),
             "regressor": self._regressor.get_state(),
@@ -352,6 +777,19 @@ class DTGChannel:
             else [d.get_state() for d in self._decisions],
             "first_alarm_time": self._first_alarm_time,
             "features": self._features.get_state(),
+            "buffers": {"raw": np.array(self._blk_raw, dtype=float).reshape(-1, 4),
+                        "filtered": np.array(self._blk_filtered, dtype=float).reshape(-1, 4),
+                        "theta": np.array(self._blk_theta, dtype=float).reshape(
+                            -1, 2 * N_THETA),
+                        "valid": np.array(self._blk_valid, dtype=bool),
+                        "history": np.array(self._hist_filtered, dtype=float),
+                        "gap": self._gap},
+            "rollback": None if self._rollback is None else list(self._rollback),
+            "snapshots": [list(snap) for snap in self._snapshots],
+            "learner": None if self._learner is None else self._learner.get_state(),
+            "reference": None if self.reference is None else self.reference.get_state(),
+            "monitor": None if self._monitor is None else self._monitor.get_state(),
+            "diagnosis": _diagnosis_to_dict(self._diagnosis),
             "last": _output_to_dict(self._last),
         }
 
@@ -362,6 +800,11 @@ class DTGChannel:
             self._features.set_state(state["features"])
         except ValueError as exc:
             raise ValueError(f"state['features'] (classify_window_s): {exc}") from exc
+        buffers = state["buffers"]
+        raw = np.asarray(buffers["raw"], dtype=float).reshape(-1, 4)
+        if raw.shape[0] >= self._nb:
+            raise ValueError(f"state['buffers'] hold {raw.shape[0]} samples of a block, this "
+                             f"channel's blocks have {self._nb} (another sample period?)")
         if (state["prefilter"] is None) != (self._prefilter is None):
             raise ValueError("state['prefilter'] does not match prefilter_enabled")
         if self._prefilter is not None:
@@ -382,7 +825,45 @@ class DTGChannel:
             for d, s in zip(self._decisions, state["decisions"], strict=True):
                 d.set_state(s)
         self._first_alarm_time = float(state["first_alarm_time"])
-        self._last = _output_from_dict(state["last"])
+        k = raw.shape[0]
+        self._blk_raw = [tuple(r) for r in raw.tolist()]
+        self._blk_filtered = [tuple(r) for r in np.asarray(
+            buffers["filtered"], dtype=float).reshape(k, 4).tolist()]
+        self._blk_theta = [tuple(r) for r in np.asarray(
+            buffers["theta"], dtype=float).reshape(k, 2 * N_THETA).tolist()]
+        self._blk_valid = [bool(v) for v in np.asarray(buffers["valid"], dtype=bool)
+                           .reshape(k).tolist()]
+        self._hist_filtered = [tuple(r) for r in np.asarray(
+            buffers["history"], dtype=float).reshape(2, 4).tolist()]
+        self._gap = int(buffers["gap"])
+        self._theta_now = tuple(tuple(e.theta.tolist()) for e in self._estimators)
+        def snapshot(raw: Any) -> tuple[Any, ...]:
+            sx, sy, theta = raw
+            return sx, sy, tuple(tuple(float(v) for v in row) for row in theta)
+
+        self._rollback = None if state["rollback"] is None else snapshot(state["rollback"])
+        self._snapshots.clear()
+        for raw_snap in state["snapshots"]:
+            self._snapshots.append(snapshot(raw_snap))
+        c = self.config
+        if state["learner"] is None:
+            self._learner = None
+        else:
+            self._learner = ReferenceLearner(self._nb, self._short_blocks, self._long_blocks,
+                                             c.thresholds, self._nb * self.T)
+            self._learner.set_state(state["learner"])
+        ref = state["reference"]
+        self.reference = None if ref is None else NominalReference.from_state(ref)
+        if state["monitor"] is None:
+            self._monitor = None
+        else:
+            assert self.reference is not None
+            self._monitor = ResidualMonitor(self.reference, self._nb, self._nb * self.T,
+                                            self._short_blocks, self._long_blocks,
+                                            c.thresholds, self._clear_blocks)
+            self._monitor.set_state(state["monitor"])
+        self._diagnosis = _diagnosis_from_dict(state["diagnosis"])
+        self._last = _output_from_dict(state["last"], self._diagnosis)
 
     @property
     def last_output(self) -> DTGChannelOutput:
@@ -390,17 +871,40 @@ class DTGChannel:
         return self._last
 
 
-def _physical(theta: NDArray[np.float64], T: float) -> NDArray[np.float64]:
-    mean = theta.mean(axis=0)
-    if mean[1] == 0.0:
+_NO_FEATURE = np.zeros(N_THETA, dtype=np.int64)
+
+
+def _ringing_samples(config: DTGChannelConfig, T: float) -> int:
+    """Samples after which the prefilter's impulse response stays below 1e-3 of its
+    peak."""
+    f = ButterworthPrefilter(config.prefilter_order, config.prefilter_cutoff_hz, 1.0 / T,
+                             highpass_hz=config.prefilter_highpass_hz)
+    # sample by sample (the record path needs SciPy, which a lean host may not have)
+    h = np.abs([f.step((1.0 if k == 0 else 0.0,))[0] for k in range(4096)])
+    above = np.flatnonzero(h > 1e-3 * h.max())
+    return int(above[-1]) + 1 if above.size else 0
+
+
+def _physical(th_x: tuple[float, ...], th_y: tuple[float, ...],
+              T: float) -> NDArray[np.float64]:
+    """:func:`~gyrodiag.dtg.physical_from_theta` of the mean θ of both axes, on plain
+    floats (same operations, same values); NaN where the inversion is undefined."""
+    t1 = (th_x[0] + th_y[0]) / 2.0
+    t2 = (th_x[1] + th_y[1]) / 2.0
+    if t2 == 0.0:
         return np.full(N_THETA, np.nan)
-    return physical_from_theta(mean, T).as_array()
+    t3 = (th_x[2] + th_y[2]) / 2.0
+    t4 = (th_x[3] + th_y[3]) / 2.0
+    t5 = (th_x[4] + th_y[4]) / 2.0
+    T2 = T**2
+    return np.array([(t1 - 2.0 * t2) / (t2 * T), (1.0 - t1 + t2) / (t2 * T2),
+                     t4 / (t2 * T), (t3 - t4) / (t2 * T2), t5 / (t2 * T2)])
 
 
 def _replace(out: DTGChannelOutput, **changes: Any) -> DTGChannelOutput:
     d = _output_to_dict(out)
     d.update(changes)
-    return _output_from_dict(d)
+    return _output_from_dict(d, out.diagnosis)
 
 
 def _output_to_dict(out: DTGChannelOutput) -> dict[str, Any]:
@@ -412,7 +916,7 @@ def _output_to_dict(out: DTGChannelOutput) -> dict[str, Any]:
     }
 
 
-def _output_from_dict(d: dict[str, Any]) -> DTGChannelOutput:
+def _output_from_dict(d: dict[str, Any], diagnosis: DTGDiagnosis) -> DTGChannelOutput:
     return DTGChannelOutput(
         valid=bool(d["valid"]), learning=bool(d["learning"]),
         theta=np.asarray(d["theta"], dtype=float).reshape(2, N_THETA),
@@ -420,6 +924,31 @@ def _output_from_dict(d: dict[str, Any]) -> DTGChannelOutput:
         physical=np.asarray(d["physical"], dtype=float).reshape(N_THETA),
         alarm=bool(d["alarm"]), fault_code=int(d["fault_code"]),
         feature=np.asarray(d["feature"], dtype=np.int64).reshape(N_THETA),
-        first_alarm_time_s=float(d["first_alarm_time_s"]),
+        first_alarm_time_s=float(d["first_alarm_time_s"]), diagnosis=diagnosis,
+    )
+
+
+def _diagnosis_to_dict(d: DTGDiagnosis) -> dict[str, Any]:
+    return {
+        "reference_status": d.reference_status, "residual_alarm": d.residual_alarm,
+        "class_name": d.class_name, "fault_type": d.fault_type,
+        "fault_signal": d.fault_signal, "fault_axis": d.fault_axis, "distance": d.distance,
+        "size": d.size, "rate": d.rate, "ratio": d.ratio, "level": d.level.copy(),
+        "log_variance": d.log_variance.copy(), "growth": d.growth, "window_s": d.window_s,
+        "tests": d.tests.copy(), "block": d.block,
+    }
+
+
+def _diagnosis_from_dict(d: dict[str, Any]) -> DTGDiagnosis:
+    return DTGDiagnosis(
+        reference_status=int(d["reference_status"]), residual_alarm=bool(d["residual_alarm"]),
+        class_name=str(d["class_name"]), fault_type=int(d["fault_type"]),
+        fault_signal=int(d["fault_signal"]), fault_axis=int(d["fault_axis"]),
+        distance=float(d["distance"]), size=float(d["size"]), rate=float(d["rate"]),
+        ratio=float(d["ratio"]),
+        level=np.asarray(d["level"], dtype=float).reshape(N_CHANNELS),
+        log_variance=np.asarray(d["log_variance"], dtype=float).reshape(N_CHANNELS),
+        growth=float(d["growth"]), window_s=float(d["window_s"]),
+        tests=np.asarray(d["tests"], dtype=float).reshape(6), block=int(d["block"]),
     )
 

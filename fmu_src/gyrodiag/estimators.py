@@ -366,6 +366,14 @@ class SlidingWindowLS(_Estimator):
         self._track_convergence(theta_new.copy())
         return self.theta
 
+    def step(self, phi: Sequence[float], y: float) -> tuple[float, ...]:
+        """:meth:`update` for a checked sample of plain floats; θ as a tuple.
+
+        The same interface as :meth:`RLS.step`, so a channel can drive any estimator the
+        same way; the cost is the window's least-squares solve, not the call.
+        """
+        return tuple(self.update(np.asarray(phi, dtype=float), y, validate=False).tolist())
+
     def get_state(self) -> dict[str, Any]:
         """Copy of the window contents, θ and the counters."""
         return {

@@ -621,6 +621,27 @@ class SensorFaultIsolator:
         """True once thresholds are set."""
         return self._main_eval is not None
 
+    @property
+    def main_thresholds(self) -> ResidualThresholds:
+        """Main-filter thresholds (RuntimeError before they are set)."""
+        if self._main_eval is None:
+            raise RuntimeError("SensorFaultIsolator is not calibrated")
+        return self._main_thr
+
+    @property
+    def bank_thresholds(self) -> list[ResidualThresholds]:
+        """Observer j's thresholds, in bank order (RuntimeError before they are set)."""
+        if self._bank_eval is None:
+            raise RuntimeError("SensorFaultIsolator is not calibrated")
+        return list(self._bank_thr)
+
+    @property
+    def noise_std(self) -> _FloatArray:
+        """Sensor noise std of the stuck/failure tests (RuntimeError before set)."""
+        if self._noise_std is None:
+            raise RuntimeError("SensorFaultIsolator is not calibrated")
+        return self._noise_std.copy()
+
     def set_thresholds(
         self,
         main: ResidualThresholds,
@@ -643,6 +664,7 @@ class SensorFaultIsolator:
                                  "channels")
         noise = main.std if noise_std is None else noise_std
         self._noise_std = check_finite_array("noise_std", noise, shape=(self._m,))
+        self._main_thr, self._bank_thr = main, list(bank)
         self._main_eval = ResidualEvaluator(main, self._pk, self._pn)
         self._bank_eval = [ResidualEvaluator(t, self._pk, self._pn) for t in bank]
         self.reset()

@@ -28,22 +28,29 @@ skips every id that has a record (``--retry-failed`` re-runs the failed ones).
 What a run records
 ------------------
 Not the signals: a small record (:func:`simulate_run`) with, for the channel's alarm
-``A(t)`` (detection filter: any main-residual alarm ``diag.df.alarm[i]``, k-of-n,
-unlatched; DTG: ``diag.dtg.alarm``):
+``A(t)`` (detection filter with the paper's rule, ``df.decision = 0``: any main-residual
+alarm ``diag.df.alarm[i]``, k-of-n, unlatched; with the sequential rule (the default):
+``diag.df.detected``, a fault episode; DTG: ``diag.dtg.alarm``):
 
 * ``detected`` / ``delay_s``: ``A`` on at some sample at or after the onset, delay from
   the onset to the first such sample;
 * ``false_alarms`` / ``fault_free_s``: rising edges of ``A`` in the fault-free time from
   the end of calibration (DF) or learning (DTG) to the onset (the whole run if nominal);
-* ``diagnosed``: isolated sensor (``diag.df.isolated_sensor``) or DTG fault code at the
-  end of the run, and ``injected``, what it should be;
+* ``diagnosed``: isolated sensor (``diag.df.isolated_sensor``; several isolated sensors
+  joined by "+", e.g. "alpha+q", from ``diag.df.isolated_mask``) or DTG fault code at the
+  end of the run, and ``injected``, what it should be (a sweep's ``also`` faults make it
+  a pair); sequential DF also ``typed`` (fault type at the end), ``expected_type``,
+  ``size``, ``episodes`` and ``input_delay`` (the alignment it chose);
 * the threshold sweep: the alarm statistic ``s(t)`` in threshold units is rebuilt from the
   recorded outputs, so that ``A_T(t) = s(t) > T`` reproduces the alarm at any threshold
   ``T``, and detection, delay and false alarms are evaluated on the class's threshold
   grid.  DF: ``s(t) = max_i kth_largest(|r_i - mu_i| / sigma_i over the last n
   samples)`` with ``mu_i``, ``sigma_i`` (ddof 1) re-estimated from the recorded main
   residuals over the calibration window after the burn-in, exactly as the channel does;
-  ``T`` is in standard deviations (the FMU uses ``df.k_sigma``).  DTG: ``s(t) =
+  ``T`` is in standard deviations (the FMU uses ``df.k_sigma``); sequential DF: the
+  recorded ``diag.df.statistic[i]`` (CUSUM over its threshold, capped at 1), so only
+  ``T <= 1`` is meaningful and the alarm ``df.detected`` (episode logic) differs from
+  ``s > 1`` after the first alarm (``sweep_mismatch`` shows how much).  DTG: ``s(t) =
   max |eta - 1|`` over the monitored ratios of both axes after learning; ``T`` is the
   half-width of a band symmetric about 1 (the paper's 0.5/1.5 is ``T = 0.5``).
   ``sweep_mismatch`` is the fraction of samples where ``s > T_config`` disagrees with the
@@ -71,6 +78,7 @@ from __future__ import annotations
 import hashlib
 import importlib
 import json
+import logging
 import math
 import os
 import shutil
@@ -93,6 +101,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from harness.cosim.scenario import FAULT_TYPE_PARAMETERS, ScenarioError
 
+log = logging.getLogger(__name__)
 REPO_ROOT = Path(__file__).resolve().parents[2]
 #: The per-run function used unless the spec or the caller names another.
 DEFAULT_RUNNER = "harness.campaigns.campaign:simulate_run"
@@ -178,6 +187,14 @@ class Sweep(_Strict):
     duration_s: float | None = Field(default=None, gt=0)
     post_onset_s: float | None = Field(default=None, gt=0)
     extra: dict[str, float] = Field(default_factory=dict)
+    #: Other diagnoses that count as right, for classes that cannot be told apart at
+    #: these magnitudes (e.g. a DTG signal loss that leaves more noise than the signal
+    #: had is a noise fault for every statistic: ``accept = ["utx_noise"]``).
+    accept: list[str] = Field(default_factory=list)
+    #: Further faults from the same onset in every run of the sweep (two faulty sensors at
+    #: once): injector fault tables without ``name``/``injector``/``start_s``, e.g.
+    #: ``{ channel = 2, type = "bias", magnitude = 0.005 }``.
+    also: list[dict[str, float | int | str]] = Field(default_factory=list)
 
     model_config = ConfigDict(extra="forbid", populate_by_name=True)
 
@@ -203,6 +220,9 @@ class Sweep(_Strict):
         if needs is not None and not has_mag:
             raise ValueError(f"magnitudes: fault type {self.type!r} needs magnitudes "
                              f"(they set its {needs!r})")
+        for i, other in enumerate(self.also):
+            if other.get("type") not in FAULT_TYPE_PARAMETERS or "channel" not in other:
+                raise ValueError(f"also[{i}]: needs a known 'type' and a 'channel'")
         return self
 
 
@@ -229,9 +249,10 @@ class CampaignSpec(_Strict):
     #: What ``${out}/`` stands for in the base scenarios' ``files`` (default: the
     #: campaign's output folder).
     results_dir: str | None = None
-    #: DTG training scenarios: learned into ``<results_dir>/dtg_signatures.json`` first
-    #: when that file is missing.
+    #: DTG training scenarios: learned into ``<results_dir>/<signatures_file>`` first
+    #: when that file is missing (a pattern training set gives a pattern library).
     signatures_training: str | None = None
+    signatures_file: str = Field(default="dtg_signatures.json", pattern=r"^[\w.-]+\.json$")
     classes: dict[str, FaultClass] = Field(min_length=1)
     conditions: dict[str, Condition] = Field(default_factory=dict)
     sweeps: list[Sweep] = Field(default_factory=list)
@@ -298,6 +319,8 @@ class RunSpec(_Strict):
     condition: str | None = None       # flight condition name (None: the base scenario's)
     group: str | None = None           # its group ("level", "manoeuvre", ...)
     manoeuvres: list[dict[str, Any]] | None = None  # replace the base's when not None
+    accepted: list[str] = Field(default_factory=list)  # also right (merged classes)
+    also: list[dict[str, Any]] = Field(default_factory=list)  # further simultaneous faults
     thresholds: list[float]
     fmu_dir: str | None = None
     results_dir: str | None = None
@@ -334,6 +357,8 @@ def expand_runs(spec: CampaignSpec, base_dir: Path, out_dir: Path | None = None)
         ident = {"class": cls_name, "scenario": os.path.relpath(scenario, base_dir),
                  "kind": kind, "duration_s": duration, "fault": fault,
                  "replicate": replicate, "base_seed": spec.base_seed}
+        if meta.get("also"):
+            ident["also"] = meta["also"]
         # the seed does not depend on the condition: a fault under every condition is
         # flown with the same noise (a paired comparison of the conditions)
         seed = _seed(spec.base_seed, json.dumps(ident, sort_keys=True))
@@ -377,11 +402,15 @@ def expand_runs(spec: CampaignSpec, base_dir: Path, out_dir: Path | None = None)
                     duration = (onset + sw.post_onset_s if sw.post_onset_s is not None
                                 else sw.duration_s or _base_duration(base_dir / c.scenario))
                     label = sw.label or sw.type or sw.set.partition(".")[2]
+                    also = [{"name": f"campaign_fault_{j + 2}", "injector": c.injector,
+                             "start_s": onset, **other} for j, other in enumerate(sw.also)]
                     if c.channel == "system":
                         injected = sw.expected or "q"
                     elif c.channel == "df":
-                        injected = (AIRCRAFT_SENSORS[ch - 1] if ch <= len(AIRCRAFT_SENSORS)
-                                    else str(ch))
+                        chans = sorted({ch, *(int(o["channel"]) for o in sw.also)})
+                        injected = "+".join(AIRCRAFT_SENSORS[k - 1]
+                                            if k <= len(AIRCRAFT_SENSORS) else str(k)
+                                            for k in chans)
                     else:
                         injected = label
                     for cond in sw.conditions or [None]:
@@ -391,7 +420,8 @@ def expand_runs(spec: CampaignSpec, base_dir: Path, out_dir: Path | None = None)
                                              magnitude=None if math.isnan(mag) else mag,
                                              onset_s=onset,
                                              target=None if sw.set is not None else ch,
-                                             injected=injected))
+                                             injected=injected, accepted=list(sw.accept),
+                                             also=also))
     for nom in spec.nominal:
         for cond in nom.conditions or [None]:
             for r in range(nom.runs):
@@ -419,9 +449,15 @@ def _signals(run: RunSpec) -> list[str]:
     if run.channel == "df":
         return ([f"{d}.df.residual[{i}]" for i in range(1, 7)]
                 + [f"{d}.df.alarm[{i}]" for i in range(1, 7)]
-                + [f"{d}.df.detected", f"{d}.df.isolated_sensor", f"{d}.df.calibrating"])
+                + [f"{d}.df.statistic[{i}]" for i in range(1, 7)]
+                + [f"{d}.df.detected", f"{d}.df.isolated_sensor", f"{d}.df.calibrating",
+                   f"{d}.df.isolated_mask", f"{d}.df.fault_type", f"{d}.df.fault_magnitude",
+                   f"{d}.df.episodes", f"{d}.df.input_delay_in_use"])
     return ([f"{d}.dtg.eta_{ax}[{i}]" for ax in "xy" for i in range(1, 6)]
-            + [f"{d}.dtg.alarm", f"{d}.dtg.learning", f"{d}.dtg.fault_code"])
+            + [f"{d}.dtg.alarm", f"{d}.dtg.learning", f"{d}.dtg.fault_code",
+               f"{d}.dtg.fault_axis", f"{d}.dtg.reference_status"]
+            + [f"{d}.dtg.residual_{name}[{a}]" for name in
+               ("level_z", "var_ratio", "long_var_ratio") for a in (1, 2)])
 
 
 def build_scenario(run: RunSpec) -> Any:
@@ -433,7 +469,7 @@ def build_scenario(run: RunSpec) -> Any:
     data = tomllib.loads(path.read_text(encoding="utf-8"))
     data["name"] = run.run_id
     data["duration_s"] = run.duration_s
-    data["faults"] = [run.fault] if run.fault is not None else []
+    data["faults"] = ([run.fault, *run.also] if run.fault is not None else [])
     if run.manoeuvres is not None:
         data["manoeuvres"] = run.manoeuvres
     data["expect"] = []
@@ -469,6 +505,16 @@ def alarm_statistic(run: RunSpec, scenario: Any, t: np.ndarray,
     which the channel judges (end of calibration / learning) and its configured
     threshold."""
     d = run.diagnoser
+    if run.channel == "df" and _df_sequential(scenario, d):
+        # the channel's own statistic: the largest CUSUM per sensor over its threshold
+        # (capped at 1), so thresholds T <= 1 of the sweep are exact up to the first
+        # alarm; the alarm itself is df.detected (an episode, cleared when the fault is)
+        stat = np.column_stack([sig[f"{d}.df.statistic[{i}]"] for i in range(1, 7)])
+        ready = np.flatnonzero(sig[f"{d}.df.calibrating"] < 0.5)
+        ready = ready[ready > 0]
+        t_ready = float(t[ready[0]]) if ready.size else float(t[-1])
+        s = np.where(t >= t_ready, stat.max(axis=1), 0.0)
+        return s, t_ready, 1.0
     if run.channel == "df":
         period = float(_param(scenario, d, "sample_period_s", scenario.step_s))
         cal_s = float(_param(scenario, d, "df.calibrate_s", 10.0))
@@ -498,13 +544,54 @@ def alarm_statistic(run: RunSpec, scenario: Any, t: np.ndarray,
     learning = sig[f"{d}.dtg.learning"] > 0.5
     dev = np.abs(eta - 1.0)
     dev = np.where(np.isfinite(dev), dev, np.inf)
-    s = np.where(learning, 0.0, dev.max(axis=1))
-    ready = np.flatnonzero(~learning & (t > 0))
-    t_ready = float(t[ready[0]]) if ready.size else float(t[-1])
     if not math.isclose(1.0 - low, high - 1.0, rel_tol=1e-9):
         raise ValueError(f"{d}: dtg.low/dtg.high ({low}, {high}) are not symmetric about 1: "
                          "the threshold sweep needs a symmetric band")
+    if str(_param(scenario, d, "dtg.classifier", "pattern")) == "pattern":
+        return _pattern_statistic(scenario, d, t, sig, dev.max(axis=1) / (high - 1.0))
+    s = np.where(learning, 0.0, dev.max(axis=1))
+    ready = np.flatnonzero(~learning & (t > 0))
+    t_ready = float(t[ready[0]]) if ready.size else float(t[-1])
     return s, t_ready, high - 1.0
+
+
+def _pattern_statistic(scenario: Any, d: str, t: np.ndarray, sig: dict[str, np.ndarray],
+                       band: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """Pattern classifier: the largest raise statistic in units of its threshold —
+    residual level z / dtg.level_threshold, log variance ratios / log of their
+    thresholds, and the ratio band's |η − 1| / (high − 1). ``T = 1`` is the configured
+    setting; the FMU's alarm also holds below the raise thresholds (hold thresholds,
+    ``dtg.clear_after_s``), which ``sweep_mismatch`` shows."""
+    z_thr = float(_param(scenario, d, "dtg.level_threshold", 6.0))
+    v_thr = float(_param(scenario, d, "dtg.var_threshold", 4.0))
+    vl_thr = float(_param(scenario, d, "dtg.long_var_threshold", 2.0))
+    parts = [band]
+    for a in (1, 2):
+        parts.append(sig[f"{d}.dtg.residual_level_z[{a}]"] / z_thr)
+        parts.append(np.log10(np.maximum(sig[f"{d}.dtg.residual_var_ratio[{a}]"], 1e-12))
+                     / math.log10(v_thr))
+        parts.append(np.log10(np.maximum(sig[f"{d}.dtg.residual_long_var_ratio[{a}]"],
+                                         1e-12)) / math.log10(vl_thr))
+    s = np.max(np.column_stack(parts), axis=1)
+    # judged from the first sample with a reference (status >= 1), as the channel
+    ready_mask = (sig[f"{d}.dtg.reference_status"] > 0.5) & (t > 0)
+    s = np.where(ready_mask, s, 0.0)
+    ready = np.flatnonzero(ready_mask)
+    t_ready = float(t[ready[0]]) if ready.size else float(t[-1])
+    return s, t_ready, 1.0
+def _df_sequential(scenario: Any, diagnoser: str) -> bool:
+    """The detection-filter channel decides sequentially (``df.decision`` = 1, the
+    default) rather than by the paper's rule (0)."""
+    return int(_param(scenario, diagnoser, "df.decision", 1)) == 1
+
+
+#: Fault type name the detection filter should report, per injector fault type.
+EXPECTED_DF_TYPE = {"bias": "bias", "step": "bias", "gain": "gain", "stuck_last": "stuck",
+                    "stuck_value": "stuck", "failure": "failure", "noise": "noise",
+                    "ramp": "ramp", "intermittent": "intermittent"}
+#: df.fault_type codes.
+DF_TYPE_NAMES = {-1: "unknown", 0: "none", 1: "bias", 2: "gain", 3: "stuck", 4: "failure",
+                 5: "noise", 6: "ramp", 7: "intermittent"}
 
 
 def _rising_edges(on: np.ndarray) -> np.ndarray:
@@ -559,6 +646,7 @@ def simulate_run(run_dict: dict[str, Any]) -> dict[str, Any]:
     from harness.cosim.master import run_scenario
 
     run = RunSpec.model_validate(run_dict)
+    extra: dict[str, Any] = {}
     scenario = build_scenario(run)
     result = run_scenario(scenario, fmu_dir=run.fmu_dir, progress=False,
                           results_dir=run.results_dir)
@@ -568,19 +656,38 @@ def simulate_run(run_dict: dict[str, Any]) -> dict[str, Any]:
     if run.channel == "system":
         return _judge_system(run, t, sig, result.wall_time_s)
     if run.channel == "df":
-        alarm = np.any(np.column_stack([sig[f"{d}.df.alarm[{i}]"] > 0.5
-                                        for i in range(1, 7)]), axis=1)
+        sequential = _df_sequential(scenario, d)
+        if sequential:
+            alarm = sig[f"{d}.df.detected"] > 0.5
+        else:
+            alarm = np.any(np.column_stack([sig[f"{d}.df.alarm[{i}]"] > 0.5
+                                            for i in range(1, 7)]), axis=1)
         diagnosed_value = int(np.rint(sig[f"{d}.df.isolated_sensor"][-1]))
-        diagnosed = (AIRCRAFT_SENSORS[diagnosed_value - 1]
-                     if 1 <= diagnosed_value <= len(AIRCRAFT_SENSORS)
-                     else {0: "none", -1: "not isolated"}.get(diagnosed_value,
-                                                              str(diagnosed_value)))
+        mask = int(np.rint(sig[f"{d}.df.isolated_mask"][-1]))
+        if 1 <= diagnosed_value <= len(AIRCRAFT_SENSORS):
+            diagnosed = AIRCRAFT_SENSORS[diagnosed_value - 1]
+        elif diagnosed_value == -2:
+            diagnosed = ("+".join(name for k, name in enumerate(AIRCRAFT_SENSORS)
+                                  if mask >> k & 1) or "multiple")
+        else:
+            diagnosed = {0: "none", -1: "not isolated"}.get(diagnosed_value,
+                                                             str(diagnosed_value))
+        if sequential:
+            code = int(np.rint(sig[f"{d}.df.fault_type"][-1]))
+            extra = {"typed": DF_TYPE_NAMES.get(code, str(code)),
+                     "expected_type": (EXPECTED_DF_TYPE.get(run.fault_type or "")
+                                       if not run.also else None),
+                     "size": float(sig[f"{d}.df.fault_magnitude"][-1]),
+                     "episodes": int(np.rint(sig[f"{d}.df.episodes"][-1])),
+                     "input_delay": int(np.rint(sig[f"{d}.df.input_delay_in_use"][-1]))}
     else:
         alarm = sig[f"{d}.dtg.alarm"] > 0.5
         code = int(np.rint(sig[f"{d}.dtg.fault_code"][-1]))
         names = _signature_names(scenario, run)
         diagnosed = (names[code - 1] if 1 <= code <= len(names)
                      else {0: "none", -1: "unknown"}.get(code, f"code {code}"))
+        axis = f"{d}.dtg.fault_axis"
+        extra["diagnosed_axis"] = int(np.rint(sig[axis][-1])) if axis in sig else None
     stat, t_ready, t_config = alarm_statistic(run, scenario, t, sig)
     detected, delay, n_false, free = judge(t, alarm, t_ready, run.onset_s)
     judged = t >= t_ready
@@ -600,7 +707,7 @@ def simulate_run(run_dict: dict[str, Any]) -> dict[str, Any]:
         "threshold_config": t_config, "sweep": sweep, "sweep_mismatch": mismatch,
         "peak_before": float(before.max()) if before.size else None,
         "peak_after": float(after.max()) if after.size else None,
-        "sim_wall_s": result.wall_time_s,
+        "sim_wall_s": result.wall_time_s, **extra,
     }
 
 
@@ -643,13 +750,17 @@ def _judge_system(run: RunSpec, t: np.ndarray, sig: dict[str, np.ndarray],
 
 
 def _signature_names(scenario: Any, run: RunSpec) -> list[str]:
+    """Class names in code order: of the decade signatures, or of a pattern library."""
     from harness.cosim.scenario import resolve_file_parameters
 
     files = resolve_file_parameters(scenario, run.results_dir, must_exist=False)
     path = files.get(run.diagnoser, {}).get("dtg.signature_file")
     if path is None or not Path(path).is_file():
         return []
-    return list(json.loads(Path(path).read_text(encoding="utf-8"))["signatures"])
+    data = json.loads(Path(path).read_text(encoding="utf-8"))
+    if "patterns" in data:
+        return [c["name"] for c in data["patterns"]["classes"]]
+    return list(data["signatures"])
 
 
 # --------------------------------------------------------------------------- guard
@@ -915,11 +1026,11 @@ def prepare(spec: CampaignSpec, base_dir: Path, out_dir: Path) -> None:
     if spec.signatures_training is None:
         return
     results = (base_dir / spec.results_dir).resolve() if spec.results_dir else out_dir
-    target = results / "dtg_signatures.json"
+    target = results / spec.signatures_file
     if target.is_file():
         return
     training = (base_dir / spec.signatures_training).resolve()
-    print(f"learning the DTG signatures from {training} -> {target}", flush=True)
+    log.info("learning the DTG signatures from %s -> %s", training, target)
     cmd = [sys.executable, "-m", "harness", "learn-signatures", str(training), "--out",
            str(target)]
     if spec.fmu_dir:

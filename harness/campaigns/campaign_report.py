@@ -86,6 +86,23 @@ def _delay_stats(delays: list[float]) -> dict[str, Any]:
             "p95_s": float(np.percentile(d, 95)), "max_s": float(d.max())}
 
 
+def _diagnosed_right(record: dict[str, Any]) -> bool:
+    """The diagnosis is the injected class, or one the sweep accepts as merged with it."""
+    run = record["run"]
+    return record["diagnosed"] == run["injected"] or record["diagnosed"] in run.get(
+        "accepted", [])
+
+
+def _axis_right(record: dict[str, Any]) -> bool | None:
+    """DTG pattern classifier: the reported axis (dtg.fault_axis) is the injected
+    signal's (injector channels 1, 3 feed x; 2, 4 feed y); None when not recorded."""
+    run = record["run"]
+    axis = record.get("diagnosed_axis")
+    if run.get("channel") != "dtg" or axis is None or run.get("target") is None:
+        return None
+    return int(axis) == (1 if int(run["target"]) in (1, 3) else 2)
+
+
 def summarize(records: list[dict[str, Any]], n_planned: int | None = None) -> dict[str, Any]:
     """Campaign figures from run records (module docstring); a JSON-able dict."""
     ok = sorted((r for r in records if r.get("status") == "ok"),
@@ -102,11 +119,19 @@ def summarize(records: list[dict[str, Any]], n_planned: int | None = None) -> di
     for (cls, ftype, mag), rs in sorted(groups.items(),
                                         key=lambda kv: (kv[0][0], kv[0][1], kv[0][2] or 0.0)):
         k = sum(bool(r["detected"]) for r in rs)
-        right = sum(r["diagnosed"] == r["run"]["injected"] for r in rs)
+        right = sum(_diagnosed_right(r) for r in rs)
         lo, hi = clopper_pearson(k, len(rs))
-        detection.append({"class": cls, "fault_type": ftype, "magnitude": mag, "n": len(rs),
-                          "detected": k, "rate": k / len(rs), "ci_low": lo, "ci_high": hi,
-                          "isolated": right, "isolation_rate": right / len(rs)})
+        row = {"class": cls, "fault_type": ftype, "magnitude": mag, "n": len(rs),
+               "detected": k, "rate": k / len(rs), "ci_low": lo, "ci_high": hi,
+               "isolated": right, "isolation_rate": right / len(rs)}
+        axes = [_axis_right(r) for r in rs]
+        if all(a is not None for a in axes):
+            row["axis_right"] = sum(bool(a) for a in axes)
+        typed = [r for r in rs if r.get("expected_type")]
+        if typed:  # channels that type the fault (sequential detection filter)
+            row["typed"] = sum(r.get("typed") == r["expected_type"] for r in typed)
+            row["n_typed"] = len(typed)
+        detection.append(row)
 
     false_alarms: dict[str, dict[str, Any]] = {}
     for ch in sorted({r["run"]["channel"] for r in ok}):
@@ -142,7 +167,7 @@ def summarize(records: list[dict[str, Any]], n_planned: int | None = None) -> di
         m = np.zeros((len(inj), len(diag)), dtype=int)
         for r in rs:
             m[inj.index(r["run"]["injected"]), diag.index(r["diagnosed"])] += 1
-        right = sum(m[i, diag.index(lab)] for i, lab in enumerate(inj))
+        right = sum(_diagnosed_right(r) for r in rs)
         confusion[ch] = {"injected": inj, "diagnosed": diag, "matrix": m.tolist(),
                          "correct": int(right), "n": len(rs)}
 
@@ -385,9 +410,12 @@ def markdown_summary(summary: dict[str, Any], title: str = "campaign") -> str:
                      f"{c.get('correct', 0)} of {c.get('n', 0)}"])
     lines += _md_table(["channel", "false alarms / h (95 % upper)", "detected",
                         "delay median / p95 / max, s", "isolated right"], rows)
-    lines += _md_table(["class", "fault", "magnitude", "detected", "isolated right"],
+    lines += _md_table(["class", "fault", "magnitude", "detected", "isolated right",
+                        "axis right", "typed right"],
                        [[r["class"], r["fault_type"], r["magnitude"],
-                         f"{r['detected']} of {r['n']}", f"{r.get('isolated', '–')} of {r['n']}"]
+                         f"{r['detected']} of {r['n']}", f"{r.get('isolated', '–')} of {r['n']}",
+                         f"{r['axis_right']} of {r['n']}" if "axis_right" in r else "–",
+                         f"{r['typed']} of {r['n_typed']}" if "typed" in r else "–"]
                         for r in summary["detection"]])
     lines += _witness_markdown(summary.get("witnesses") or {})
     for key, sw in summary["threshold_sweep"].items():

@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from harness.campaigns.pattern_learning import pattern_signal_names
 from harness.cosim.results import RunResult
 from harness.cosim.scenario import Scenario, ScenarioError
 
@@ -222,14 +223,39 @@ def check_training_scenarios(scenarios: Sequence[Scenario]) -> dict[str, int]:
         raise ValueError("no training scenarios given")
     codes: dict[str, int] = {}
     owner: dict[int, str] = {}
+    kinds = set()
     for s in scenarios:
         tr = s.training
         if tr is None:
             raise ScenarioError(s.source, [("training", "missing [training] table: "
                                                         "learn-signatures needs the fault class "
                                                         "(signature) and its code")])
+        kinds.add(tr.classifier)
+        if len(kinds) > 1:
+            raise ScenarioError(s.source, [("training.classifier",
+                                            "a training set is either 'paper' or 'pattern', "
+                                            "not both")])
+        if tr.diagnoser not in s.fmus:
+            raise ScenarioError(s.source, [("training.diagnoser",
+                                            f"unknown instance {tr.diagnoser!r}")])
+        needed = (signal_names(tr.diagnoser) if tr.classifier == "paper"
+                  else pattern_signal_names(tr.diagnoser))
+        if tr.classifier == "pattern":
+            cls = s.fmus[tr.diagnoser].parameters.get("dtg.classifier", "pattern")
+            if cls != "pattern":
+                raise ScenarioError(s.source, [(
+                    f"fmus.{tr.diagnoser}.parameters.dtg.classifier",
+                    "pattern training needs the Diagnoser's pattern classifier (its "
+                    "statistics are what is learned)")])
+            if tr.type == "nominal":
+                if s.record.variables is not None:
+                    missing = [n for n in needed if n not in s.record.variables]
+                    if missing:
+                        raise ScenarioError(s.source, [(
+                            "record.variables", f"must include {', '.join(missing)}")])
+                continue
         if s.record.variables is not None:
-            missing = [n for n in signal_names(tr.diagnoser) if n not in s.record.variables]
+            missing = [n for n in needed if n not in s.record.variables]
             if missing:
                 raise ScenarioError(s.source, [("record.variables",
                                                 f"must include {', '.join(missing)} (the "
@@ -275,3 +301,48 @@ def learn_signatures(scenarios: Sequence[Scenario], results: Sequence[RunResult]
     for name in codes:
         signatures[name] = median_feature([r.feature for r in runs if r.signature == name])
     return SignatureLibrary(signatures, codes, runs, window_s)
+
+
+def is_pattern_training(scenarios: Sequence[Scenario]) -> bool:
+    """The training set is for the pattern classifier (checked to be uniform by
+    :func:`check_training_scenarios`)."""
+    return bool(scenarios) and all(s.training is not None
+                                   and s.training.classifier == "pattern" for s in scenarios)
+
+
+def learn_pattern_library(scenarios: Sequence[Scenario], results: Sequence[RunResult]
+                          ) -> tuple[Any, dict[str, Any]]:
+    """Learn the pattern library of a pattern training set (same order as ``results``).
+
+    The channel's sampling and window settings are read from the training Diagnosers'
+    parameters (they must agree). Returns the library and the file content
+    ``{"patterns": ..., "codes": ..., "training": ...}``.
+
+    Raises
+    ------
+    ScenarioError, ValueError, KeyError
+        See :func:`check_training_scenarios` and
+        :func:`harness.campaigns.pattern_learning.learn_patterns`.
+    """
+    from harness.campaigns.pattern_learning import learn_patterns, pattern_run
+
+    if len(scenarios) != len(results):
+        raise ValueError(f"{len(scenarios)} scenarios but {len(results)} runs")
+    codes = check_training_scenarios(scenarios)
+    settings = set()
+    for s in scenarios:
+        assert s.training is not None
+        p = s.fmus[s.training.diagnoser].parameters
+        settings.add((float(p.get("sample_period_s", 1e-3)), float(p.get("dtg.window_s", 0.5)),
+                      float(p.get("dtg.long_window_s", 2.0))))
+    if len(settings) != 1:
+        raise ValueError("the training Diagnosers differ in sample_period_s / dtg.window_s / "
+                         f"dtg.long_window_s: {sorted(settings)}; learn one library per "
+                         "setting")
+    period, short_s, long_s = settings.pop()
+    block_s = max(1, round(0.025 / period)) * period  # gyrodiag.dtg_channel.BLOCK_S
+    runs = [pattern_run(s, r) for s, r in zip(scenarios, results, strict=True)]
+    lib, record = learn_patterns(runs, codes, sample_period_s=period, block_s=block_s,
+                                 short_window_s=short_s, long_window_s=long_s)
+    content = {"patterns": lib.to_dict(), "codes": codes, "training": record}
+    return lib, content

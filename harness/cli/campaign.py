@@ -6,8 +6,8 @@ See :mod:`harness.campaigns.campaign` for the spec, the execution and what a run
 from __future__ import annotations
 
 import argparse
+import logging
 import os
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +21,8 @@ from harness.campaigns.campaign import (
     select,
 )
 from harness.campaigns.campaign_report import summarize, write_report
+
+log = logging.getLogger("harness.cli")
 
 
 def add_parser(sub: Any) -> None:
@@ -62,15 +64,15 @@ def cmd_campaign(args: argparse.Namespace) -> int:
                                    max_runs=args.max_runs, retry_failed=args.retry_failed,
                                    fraction=args.fraction, progress=not args.no_progress)
         except CampaignInterrupted as exc:
-            print(exc, file=sys.stderr)
+            log.warning("%s", exc)
             return 130
         records, n_total = outcome.records, outcome.n_total
-        print(f"{spec.name}: {outcome.n_executed} runs executed, {outcome.n_skipped} "
+        log.info(f"{spec.name}: {outcome.n_executed} runs executed, {outcome.n_skipped} "
               f"already done, {len(outcome.failed)} failed, in {outcome.wall_s:.0f} s")
     summary = summarize(records, n_planned=n_total)
     paths = write_report(summary, records, Path(out), title=spec.name)
-    print(summary_text(summary))
-    print(f"summary: {paths['json']}, {paths['markdown']}; report: {paths['html']}")
+    log.info("%s", summary_text(summary))
+    log.info("summary: %s, %s; report: %s", paths["json"], paths["markdown"], paths["html"])
     return 0 if summary["n_finished"] == n_total and not summary["n_failed"] else 1
 
 

@@ -1,35 +1,52 @@
-"""Command line of the harness: ``python -m harness run | verify | report | list``.
+"""Command line of the harness: ``python -m harness COMMAND``.
 
 ::
 
-    python -m harness run SCENARIO... [--out results] [--fmu-dir DIR] [--no-progress]
-    python -m harness verify SCENARIO... [--out results] [--fmu-dir DIR] [--no-progress]
+    python -m harness run SCENARIO... [--out DIR] [--fmu-dir DIR] [--workers N]
+    python -m harness verify SCENARIO... [--out DIR] [--fmu-dir DIR] [--workers N]
                                          [--junit PATH] [--html PATH]
-    python -m harness report SCENARIO... [--out results] [--junit PATH] [--html PATH]
+    python -m harness report SCENARIO... [--out DIR] [--junit PATH] [--html PATH]
     python -m harness list [DIR]
-    python -m harness all [--out results] [--scenarios DIR] [--fmu-dir DIR] [--no-build]
+    python -m harness all [--out DIR] [--scenarios DIR] [--fmu-dir DIR] [--no-build]
+                          [--workers N]
     python -m harness campaign SPEC.toml [--out DIR] [--workers N] [--dask local|ADDRESS]
                                [--timeout S] [--fraction F] [--report-only]
     python -m harness isolability [--out FILE] [--format text|json|html]
-    python -m harness learn-signatures SCENARIO... --out FILE.json [--runs-out DIR]
+    python -m harness learn-signatures SCENARIO... [--out FILE.json] [--runs-out DIR]
                                        [--window-s S] [--saved] [--fmu-dir DIR]
+    python -m harness export-csv RUN... [--out FILE]
+    python -m harness export-ssp SCENARIO --out FILE.ssp [--fmu-dir DIR] [--results DIR]
+    python -m harness schema [--markdown] [--campaign]
+
+Every command takes ``-v`` (debug) and ``-q`` (warnings and errors only).
 
 A SCENARIO argument is a ``.toml`` file or a folder (all its ``*.toml``, sorted).
-``run`` writes ``<out>/<name>/signals.csv`` and ``run.json`` per scenario and prints one
-line per scenario.  ``verify`` runs the scenarios, evaluates their ``[[expect]]`` tables
-and writes a JUnit XML and an HTML report (default ``<out>/junit.xml``,
-``<out>/report.html``).  ``report`` does the same from runs saved earlier in ``<out>``
-without running anything.  ``isolability`` prints which sensor faults of the seed aircraft
-are detectable and isolable (:mod:`harness.verification.isolability`, analysis only).
-``learn-signatures`` runs DTG training scenarios and writes the fault-signature library
-that verification scenarios load through a ``files`` parameter
-(:mod:`harness.campaigns.signatures`).
+Without ``--out``, ``run``, ``verify``, ``all`` and ``learn-signatures`` write into a
+new folder ``results/<command>-<YYYYmmdd-HHMMSS>/`` and point ``results/latest`` to it,
+so that no command overwrites another one's results; ``report`` reads and writes
+``results/latest`` unless told otherwise.  ``run`` writes ``<out>/<name>/signals.npz``
+and ``run.json`` per scenario and logs one line per scenario.  ``verify`` runs the
+scenarios, evaluates their ``[[expect]]`` tables and writes a JUnit XML and an HTML
+report (default ``<out>/junit.xml``, ``<out>/report.html``).  ``report`` does the same
+from runs saved earlier in ``<out>`` without running anything.  ``isolability`` prints
+which sensor faults of the seed aircraft are detectable and isolable
+(:mod:`harness.verification.isolability`, analysis only).  ``learn-signatures`` runs DTG
+training scenarios and writes the fault-signature library that verification scenarios
+load through a ``files`` parameter (:mod:`harness.campaigns.signatures`).
+``export-csv`` writes a saved run's signals as CSV.  ``export-ssp`` writes a scenario as
+an SSP package for other SSP tools (:mod:`harness.cosim.ssp`).  ``schema`` prints the JSON Schema
+of scenario files (for editors), or with ``--markdown`` the reference of
+``docs/scenarios.md``.
+
+Scenarios run in worker processes, ``--workers`` at a time (default: the number of
+CPUs); the results are the same for any number of workers.
 
 Exit status: 0 all good; 1 a run stopped on an FMU error or an expectation failed;
-2 invalid scenario files or command line.
+2 invalid scenario files or command line; 130 stopped by Ctrl-C or SIGTERM (the runs in
+flight are saved as far as they got, marked interrupted, and reported).
 
 Every command mirrors the Python API: :func:`harness.cosim.scenario.load_scenario`,
-:func:`harness.cosim.master.run_scenario`,
+:func:`harness.cosim.master.run_scenario`, :func:`harness.cosim.batch.run_all`,
 ``harness.verification.expectations.verify_results`` and
 ``harness.reporting.report.write_report``.
 """
@@ -37,32 +54,51 @@ Every command mirrors the Python API: :func:`harness.cosim.scenario.load_scenari
 from __future__ import annotations
 
 import argparse
-import sys
+import json
+import logging
 from collections.abc import Sequence
 from pathlib import Path
 
-from harness.cli import campaign, learn_signatures, pipeline
-from harness.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, verify_and_report
-from harness.cosim.batch import load_all, run_all
-from harness.cosim.results import RunResult
-from harness.cosim.scenario import ScenarioError, load_scenario
+from harness.cli import campaign, learn_signatures, pipeline, ssp
+from harness.cli.common import (
+    DEFAULT_RESULTS_ROOT,
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    EXIT_USAGE,
+    add_verbosity,
+    add_workers,
+    configure_logging,
+    latest_results_folder,
+    new_results_folder,
+    verify_and_report,
+)
+from harness.cosim.batch import load_all, preflight_all, run_all
+from harness.cosim.interrupt import BatchInterrupted
+from harness.cosim.results import META_FILE, RunResult
+from harness.cosim.scenario import Scenario, ScenarioError, load_scenario
 
-DEFAULT_OUT = "results"
 DEFAULT_SCENARIO_DIR = "scenarios"
+
+log = logging.getLogger("harness.cli")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status."""
     parser = _parser()
     args = parser.parse_args(argv)
+    configure_logging(getattr(args, "verbosity", 0))
     try:
         return int(args.func(args))
     except ScenarioError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        log.error("%s", exc)
         return EXIT_USAGE
     except FileNotFoundError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        log.error("%s", exc)
         return EXIT_USAGE
+    except KeyboardInterrupt as exc:  # outside any run (a run's stop is handled in place)
+        log.error("interrupted%s", f": {exc}" if str(exc) else "")
+        return EXIT_INTERRUPTED
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -70,19 +106,26 @@ def _parser() -> argparse.ArgumentParser:
         prog="python -m harness",
         description="Run gyrodiag co-simulation scenarios (fmpy master), verify their "
                     "expectations and report.")
+    add_verbosity(parser, top=True)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     def scenario_args(p: argparse.ArgumentParser, running: bool) -> None:
         p.add_argument("scenarios", nargs="+", metavar="SCENARIO", type=Path,
                        help="scenario .toml files or folders of them")
-        p.add_argument("--out", type=Path, default=Path(DEFAULT_OUT),
-                       help=f"results folder, one sub-folder per scenario (default "
-                            f"{DEFAULT_OUT}/)")
         if running:
+            p.add_argument("--out", type=Path, default=None,
+                           help=f"results folder, one sub-folder per scenario (default: a "
+                                f"new {DEFAULT_RESULTS_ROOT}/<command>-<time>/, "
+                                f"{DEFAULT_RESULTS_ROOT}/latest points to it)")
             p.add_argument("--fmu-dir", type=Path, default=None,
                            help="folder of the .fmu files (default: the scenario's fmu_dir, "
                                 "$GYRODIAG_FMU_DIR or build/fmus)")
+            add_workers(p)
             p.add_argument("--no-progress", action="store_true", help="no progress bar")
+        else:
+            p.add_argument("--out", type=Path, default=None,
+                           help=f"results folder of the saved runs, where the report is "
+                                f"written too (default {DEFAULT_RESULTS_ROOT}/latest)")
 
     def report_args(p: argparse.ArgumentParser) -> None:
         p.add_argument("--junit", type=Path, default=None,
@@ -120,45 +163,140 @@ def _parser() -> argparse.ArgumentParser:
                        help="format of FILE (default from its suffix); printing is text")
     p_iso.set_defaults(func=cmd_isolability)
 
+    p_csv = sub.add_parser("export-csv", help="write the signals of saved runs as CSV")
+    p_csv.add_argument("runs", nargs="+", type=Path, metavar="RUN",
+                       help="a run folder (with run.json) or a results folder (every run "
+                            "in it)")
+    p_csv.add_argument("--out", type=Path, default=None, metavar="FILE",
+                       help="CSV file, for a single run (default: signals.csv in each run "
+                            "folder)")
+    p_csv.set_defaults(func=cmd_export_csv)
+
+    p_schema = sub.add_parser("schema", help="print the JSON Schema of scenario files (for "
+                                             "editors) or their Markdown reference")
+    p_schema.add_argument("--markdown", action="store_true",
+                          help="the Markdown reference (docs/scenarios.md) instead")
+    p_schema.add_argument("--campaign", action="store_true",
+                          help="the JSON Schema of campaign specs instead")
+    p_schema.set_defaults(func=cmd_schema)
+
     learn_signatures.add_parser(sub)
     pipeline.add_parser(sub)
     campaign.add_parser(sub)
+    ssp.add_parser(sub)
+    for p in sub.choices.values():
+        add_verbosity(p)
     return parser
+
+
+def output_folder(out: Path | None, command: str, scenarios: Sequence[Scenario],
+                  fmu_dir: Path | None) -> Path:
+    """``out`` or a new ``results/<command>-<time>/``, created once every scenario passed
+    its checks (an invalid scenario leaves no empty folder behind)."""
+    planned = out if out is not None else DEFAULT_RESULTS_ROOT / f"{command}-<time>"
+    preflight_all(scenarios, fmu_dir, planned)
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        return out
+    folder = new_results_folder(command)
+    log.info("results: %s", folder)
+    return folder
+
+
+def run_scenarios(scenarios: Sequence[Scenario], out: Path,
+                  args: argparse.Namespace) -> tuple[list[RunResult], BatchInterrupted | None]:
+    """Run with the command's options; a stop request returns what was saved."""
+    try:
+        return run_all(scenarios, out, args.fmu_dir, not args.no_progress,
+                       workers=args.workers), None
+    except BatchInterrupted as stop:
+        return stop.results, stop
+
+
+def log_interruption(stop: BatchInterrupted, out: Path) -> None:
+    """Say what a stop request left behind."""
+    partial = [r.scenario for r in stop.results if r.interrupted]
+    log.warning("stopped by %s: %d run(s) finished, %s, %d not started; saved in %s",
+                stop.reason, sum(not r.interrupted for r in stop.results),
+                f"{len(partial)} interrupted ({', '.join(partial)})" if partial
+                else "none interrupted", len(stop.not_started), out)
 
 
 # --------------------------------------------------------------------------- commands
 def cmd_run(args: argparse.Namespace) -> int:
     scenarios = load_all(args.scenarios)
-    results = run_all(scenarios, args.out, args.fmu_dir, not args.no_progress)
+    out = output_folder(args.out, "run", scenarios, args.fmu_dir)
+    results, stop = run_scenarios(scenarios, out, args)
+    if stop is not None:
+        log_interruption(stop, out)
+        return EXIT_INTERRUPTED
     return EXIT_FAILED if any(r.error is not None for r in results) else EXIT_OK
 
 
 def cmd_verify(args: argparse.Namespace) -> int:
     scenarios = load_all(args.scenarios)
-    results = run_all(scenarios, args.out, args.fmu_dir, not args.no_progress)
-    return verify_and_report(results, scenarios, args.out, args.junit, args.html)
+    out = output_folder(args.out, "verify", scenarios, args.fmu_dir)
+    results, stop = run_scenarios(scenarios, out, args)
+    if stop is not None:
+        log_interruption(stop, out)
+    return verify_and_report(results, scenarios, out, args.junit, args.html,
+                             not_started=stop.not_started if stop else (),
+                             interrupted_by=stop.reason if stop else None)
 
 
 def cmd_report(args: argparse.Namespace) -> int:
     scenarios = load_all(args.scenarios)
+    out = args.out if args.out is not None else latest_results_folder()
     results = []
     for s in scenarios:
-        directory = args.out / s.name
+        directory = out / s.name
         try:
             results.append(RunResult.load(directory))
         except FileNotFoundError:
-            print(f"{s.name}: no saved run in {directory} (run it first)", file=sys.stderr)
-    return verify_and_report(results, scenarios, args.out, args.junit, args.html)
+            log.warning("%s: no saved run in %s (run it first)", s.name, directory)
+    return verify_and_report(results, scenarios, out, args.junit, args.html)
 
 
 def cmd_isolability(args: argparse.Namespace) -> int:
     from harness.verification.isolability import render, seed_isolability_report, write
 
     report = seed_isolability_report()
-    print(render(report, "text"), end="")
+    log.info("%s", render(report, "text").rstrip("\n"))
     if args.out is not None:
         path = write(args.out, report, args.format)
-        print(f"written: {path}")
+        log.info("written: %s", path)
+    return EXIT_OK
+
+
+def cmd_export_csv(args: argparse.Namespace) -> int:
+    runs: list[Path] = []
+    for p in args.runs:
+        if (p / META_FILE).is_file():
+            runs.append(p)
+        elif p.is_dir():
+            found = sorted(m.parent for m in p.rglob(META_FILE))
+            if not found:
+                raise FileNotFoundError(f"{p}: no saved run in this folder")
+            runs += found
+        else:
+            raise FileNotFoundError(f"{p}: not a run folder (no {META_FILE})")
+    if args.out is not None and len(runs) != 1:
+        log.error("--out names one file, but %d runs were given", len(runs))
+        return EXIT_USAGE
+    for run in runs:
+        path = RunResult.load(run).export_csv(args.out or run / "signals.csv")
+        log.info("%s", path)
+    return EXIT_OK
+
+
+def cmd_schema(args: argparse.Namespace) -> int:
+    from harness.cli import reference
+
+    if args.markdown:
+        log.info("%s", reference.markdown().rstrip("\n"))
+    else:
+        schema = reference.campaign_schema() if args.campaign else reference.scenario_schema()
+        log.info("%s", json.dumps(schema, indent=2))
     return EXIT_OK
 
 
@@ -174,7 +312,7 @@ def cmd_list(args: argparse.Namespace) -> int:
             s = load_scenario(f)
         except ScenarioError as exc:
             bad += 1
-            print(f"invalid: {exc}", file=sys.stderr)
+            log.error("invalid: %s", exc)
             continue
         fmus = ", ".join(f"{n}={i.fmu}" for n, i in s.fmus.items())
         rows.append((s.name, f"{s.duration_s:g} s", fmus, str(len(s.expect)), str(f)))
@@ -182,7 +320,8 @@ def cmd_list(args: argparse.Namespace) -> int:
         header = ("NAME", "DURATION", "FMUS", "EXPECT", "FILE")
         widths = [max(len(r[j]) for r in [header, *rows]) for j in range(len(header) - 1)]
         for r in [header, *rows]:
-            print("  ".join(c.ljust(w) for c, w in zip(r[:-1], widths, strict=True)) + "  "
-                  + r[-1])
-    print(f"{len(rows)} scenario(s) in {directory}" + (f", {bad} invalid" if bad else ""))
+            log.info("%s", "  ".join(c.ljust(w) for c, w in zip(r[:-1], widths, strict=True))
+                     + "  " + r[-1])
+    log.info("%s", f"{len(rows)} scenario(s) in {directory}" + (f", {bad} invalid" if bad
+                                                                 else ""))
     return EXIT_USAGE if bad else EXIT_OK

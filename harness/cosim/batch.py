@@ -1,17 +1,57 @@
-"""Running many scenarios: expand folders, load them all, run them one after the other.
+"""Running many scenarios: expand folders, load them all, run them in worker processes.
 
-Used by the command line (``run``, ``verify``, ``all``, ``learn-signatures``) and by
-anything else that runs a list of scenarios.
+Used by the command line (``run``, ``verify``, ``all``, ``learn-signatures``), the pytest
+plugin and anything else that runs a list of scenarios.
+
+:func:`run_all` checks every scenario first (files, FMUs, variable names: an invalid
+one stops the batch before anything runs), then runs each scenario in a fresh process
+(:mod:`harness.cosim.worker`; DESIGN §6.11: pythonfmu FMUs are not loaded twice into
+one process), ``workers`` at a time, the longest first.  Each run saves its files as it
+ends; results come back in scenario order and are the same whatever the number of
+workers (every run is deterministic and alone in its process).
+
+Ctrl-C or SIGTERM: no new run starts, the runs in flight get the signal once, stop
+between two steps and save what they recorded (marked interrupted), and
+:class:`~harness.cosim.interrupt.BatchInterrupted` is raised with the results so far.
+A second signal kills the runs still going.
 """
 
 from __future__ import annotations
 
+import json
+import logging
+import os
+import pickle
+import signal
+import subprocess
 import sys
+import tempfile
+import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
-from harness.cosim.results import RunResult
+import numpy as np
+
+from harness.cosim.interrupt import BatchInterrupted, stop_on_signals, stop_requested
+from harness.cosim.master import fault_windows, preflight
+from harness.cosim.results import META_FILE, RunResult
 from harness.cosim.scenario import Scenario, ScenarioError, load_scenario
+from harness.cosim.worker import Job
+
+log = logging.getLogger(__name__)
+
+#: After forwarding a stop request, how long the runs get to stop and save, s.
+STOP_GRACE_S = 30.0
+_POLL_S = 0.05
+
+
+def default_workers() -> int:
+    """Number of parallel runs by default: the CPUs this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
 
 
 def scenario_files(paths: Sequence[Path]) -> list[Path]:
@@ -64,25 +104,181 @@ def summary_line(result: RunResult, out_dir: Path | None) -> str:
                 f"{result.stop_time_s:g} s simulated in {result.wall_time_s:.1f} s{where}")
     first = result.error.strip().splitlines()[0] if result.error.strip() else "error"
     t_end = f"{result.time[-1]:g} s" if n else "nothing"
-    return (f"{result.scenario}: ERROR ({t_end} recorded of {result.stop_time_s:g} s): "
+    outcome = "INTERRUPTED" if result.interrupted else "ERROR"
+    return (f"{result.scenario}: {outcome} ({t_end} recorded of {result.stop_time_s:g} s): "
             f"{first}{where}")
 
 
-def run_all(scenarios: Sequence[Scenario], out: Path, fmu_dir: Path | None,
-            progress: bool) -> list[RunResult]:
-    """Run scenarios one after the other, saving each into ``out/<name>``."""
-    from harness.cosim.master import run_scenario
+@dataclass
+class _Running:
+    index: int
+    process: subprocess.Popen[bytes]
+    job_file: Path
+    status_file: Path
+    killed: bool = False
 
-    results = []
+
+def _cost(s: Scenario) -> float:
+    # FMU steps to take: what a run's wall time grows with (longest first packs best)
+    return s.n_steps * sum(1.0 / i.step_ratio for i in s.fmus.values())
+
+
+def run_all(scenarios: Sequence[Scenario], out: Path, fmu_dir: Path | None = None,
+            progress: bool = True, *, workers: int | None = 1,
+            results_dir: Path | None = None) -> list[RunResult]:
+    """Run scenarios, each in a process of its own, saving each into ``out/<name>``.
+
+    Parameters
+    ----------
+    scenarios : sequence of Scenario
+        Loaded scenarios (:func:`load_all`), names unique.
+    out : Path
+        Results folder; ``out/<scenario name>/`` per run.
+    fmu_dir : Path, optional
+        Folder of the FMUs (default: per scenario, see
+        :func:`harness.cosim.scenario.resolve_fmu_dir`).
+    progress : bool
+        Progress bar of the run in flight (one worker, terminal only).
+    workers : int, optional
+        Runs at the same time, >= 1; None: :func:`default_workers`.
+    results_dir : Path, optional
+        What ``${out}/`` stands for in ``files`` parameters (default ``out``).
+
+    Returns
+    -------
+    list of RunResult
+        In scenario order.
+
+    Raises
+    ------
+    ScenarioError, FileNotFoundError
+        Before anything runs: every problem of every scenario at once.
+    BatchInterrupted
+        Ctrl-C or SIGTERM (see the module's doc).
+    """
+    if workers is None:
+        workers = default_workers()
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+    out = Path(out)
+    results_dir = out if results_dir is None else Path(results_dir)
+    preflight_all(scenarios, fmu_dir, results_dir)
+    order = sorted(range(len(scenarios)), key=lambda i: -_cost(scenarios[i]))
+    results: list[RunResult | None] = [None] * len(scenarios)
+    running: dict[int, _Running] = {}
+    not_started: list[int] = []
+    forwarded_at: float | None = None
+
+    def kill_all(signum: int) -> None:
+        for r in running.values():
+            _signal(r.process, signal.SIGKILL)
+            r.killed = True
+
+    with tempfile.TemporaryDirectory(prefix="gyrodiag-batch-") as tmp, \
+            stop_on_signals(on_second=kill_all):
+        pending = list(order)
+        while pending or running:
+            reason = stop_requested()
+            if reason is not None and forwarded_at is None:
+                not_started = sorted(pending)
+                pending.clear()
+                signum = getattr(signal, reason, signal.SIGTERM) if reason.startswith("SIG") \
+                    else signal.SIGTERM
+                for r in running.values():
+                    _signal(r.process, signum)
+                forwarded_at = time.monotonic()
+                if running:
+                    log.warning("%s: stopping %d run(s) in flight, starting nothing new",
+                                reason, len(running))
+            while pending and len(running) < workers:
+                i = pending.pop(0)
+                running[i] = _start(scenarios[i], i, out, fmu_dir, results_dir, Path(tmp),
+                                    progress and workers == 1)
+            for i, r in list(running.items()):
+                if r.process.poll() is None:
+                    continue
+                del running[i]
+                results[i] = _collect(scenarios[i], out / scenarios[i].name, r)
+                _log_result(results[i], out / scenarios[i].name)
+            if forwarded_at is not None and time.monotonic() - forwarded_at > STOP_GRACE_S:
+                kill_all(signal.SIGKILL)
+            if running:
+                time.sleep(_POLL_S)
+    reason = stop_requested()
+    if reason is not None:
+        raise BatchInterrupted(reason, [r for r in results if r is not None],
+                               [scenarios[i].name for i in not_started])
+    return [r for r in results if r is not None]
+
+
+def preflight_all(scenarios: Sequence[Scenario], fmu_dir: Path | None,
+                  results_dir: Path) -> None:
+    """:func:`harness.cosim.master.preflight` of every scenario; raises one ScenarioError
+    naming every problem of every scenario (FileNotFoundError for a missing FMU)."""
+    errors: list[ScenarioError] = []
     for s in scenarios:
-        target = out / s.name
-        result = run_scenario(s, fmu_dir=fmu_dir, progress=progress, out_dir=target,
-                              results_dir=out)
-        print(summary_line(result, target), flush=True)
-        if result.error is not None and "\n" in result.error.strip():
-            print(_indent(result.error), file=sys.stderr, flush=True)
-        results.append(result)
-    return results
+        try:
+            preflight(s, fmu_dir, results_dir)
+        except ScenarioError as exc:
+            errors.append(exc)
+    if errors:
+        raise errors[0] if len(errors) == 1 else _merged(errors)
+
+
+def _start(scenario: Scenario, index: int, out: Path, fmu_dir: Path | None,
+           results_dir: Path, tmp: Path, progress: bool) -> _Running:
+    job_file = tmp / f"job-{index}.pickle"
+    status_file = tmp / f"status-{index}.json"
+    job = Job(scenario=scenario, out_dir=str(out / scenario.name),
+              fmu_dir=None if fmu_dir is None else str(fmu_dir),
+              results_dir=str(results_dir), status_file=str(status_file), progress=progress,
+              log_level=logging.getLogger("harness").getEffectiveLevel(),
+              parent_pid=os.getpid())
+    job_file.write_bytes(pickle.dumps(job))
+    log.debug("%s: starting", scenario.name)
+    # a session of its own: the terminal's Ctrl-C reaches the batch only, which forwards
+    # it exactly once (a second one would be "stop now" inside the run)
+    process = subprocess.Popen([sys.executable, "-m", "harness.cosim.worker", str(job_file)],
+                               stdin=subprocess.DEVNULL, start_new_session=True)
+    return _Running(index, process, job_file, status_file)
+
+
+def _signal(process: subprocess.Popen[bytes], signum: int) -> None:
+    if process.poll() is None:
+        try:
+            process.send_signal(signum)
+        except ProcessLookupError:
+            pass
+
+
+def _collect(scenario: Scenario, target: Path, run: _Running) -> RunResult:
+    status, message = "", ""
+    if run.status_file.is_file():
+        data = json.loads(run.status_file.read_text(encoding="utf-8"))
+        status, message = str(data.get("status", "")), str(data.get("message", ""))
+    if status in ("ok", "failed", "interrupted") and (target / META_FILE).is_file():
+        return RunResult.load(target)
+    if status == "crashed":
+        error = f"the harness failed in the run process:\n{message}"
+    else:
+        code = run.process.returncode
+        how = (f"was killed by {signal.Signals(-code).name}" if code < 0 else
+               f"exited with status {code}")
+        error = f"the run process {how} before saving its run"
+        if run.killed:
+            error += " (stopped at once on a second stop request)"
+    result = RunResult(scenario=scenario.name, time=np.zeros(0), signals={},
+                       fault_windows=fault_windows(scenario), step_s=scenario.step_s,
+                       error=error, stop_time_s=scenario.duration_s,
+                       interrupted=run.killed or stop_requested() is not None)
+    result.save(target)
+    return result
+
+
+def _log_result(result: RunResult, target: Path) -> None:
+    log.info("%s", summary_line(result, target))
+    if result.error is not None and not result.interrupted and "\n" in result.error.strip():
+        log.error("%s", _indent(result.error))
 
 
 def _indent(text: str) -> str:

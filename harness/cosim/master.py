@@ -36,6 +36,10 @@ Life of a run
 5. An FMU call that fails (fmi2Error/fmi2Fatal) stops the run: ``RunResult.error`` says
    which instance, which call, at what time, and quotes the FMU's log lines; the rows
    recorded so far are kept (and saved when ``out_dir`` is given).
+   Ctrl-C or SIGTERM (:mod:`harness.cosim.interrupt`) stops the run between two steps,
+   never inside an FMU call: the rows so far are kept and saved the same way, marked
+   ``interrupted``, and :func:`run_scenario` raises
+   :class:`~harness.cosim.interrupt.RunInterrupted` carrying the partial result.
 6. Instances are terminated and freed, but the shared libraries are **never unloaded**
    (fmpy's ``freeInstance`` would call ``freeLibrary``; unloading and reloading a
    pythonfmu binary in one process has crashed before, DESIGN §6.11).  Loading the same
@@ -47,6 +51,7 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import itertools
+import logging
 import math
 import os
 import shutil
@@ -60,6 +65,7 @@ from typing import Any
 
 import numpy as np
 
+from harness.cosim.interrupt import RunInterrupted, stop_on_signals, stop_requested
 from harness.cosim.results import FaultWindow, RunResult
 from harness.cosim.scenario import (
     Connection,
@@ -78,6 +84,7 @@ from harness.cosim.scenario import (
     split_name,
 )
 
+log = logging.getLogger(__name__)
 _STATUS = ["OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING"]
 _FMI_ERROR = 3
 _FMI_FATAL = 4
@@ -158,9 +165,13 @@ def _on_log(env: Any, instance_name: bytes | None, status: int, category: bytes 
         sink = _LOG_SINKS.get(int(env or 0))
         if sink is not None:
             sink.append((int(status), text))
+            if log.isEnabledFor(logging.DEBUG):
+                name = instance_name.decode("utf-8", "replace") if instance_name else "?"
+                label = _STATUS[status] if 0 <= status < len(_STATUS) else str(status)
+                log.debug("%s [%s] %s", name, label, text.rstrip())
         else:  # an FMU not run by this master: behave like fmpy's default logger
             label = _STATUS[status] if 0 <= status < len(_STATUS) else str(status)
-            print(f"[{label}] {text}", file=sys.stderr)
+            log.warning("[%s] %s", label, text)
     except Exception:  # an exception must never cross the C boundary
         pass
 
@@ -430,15 +441,56 @@ def run_scenario(scenario: Scenario | Path | str, fmu_dir: Path | str | None = N
         modelDescriptions before anything is instantiated), a missing ``files`` file.
     FileNotFoundError
         A missing FMU file.
+    RunInterrupted
+        Ctrl-C or SIGTERM (or :func:`harness.cosim.interrupt.request_stop`) stopped the
+        run between two steps; its ``result`` is the partial run (saved when
+        ``out_dir`` is given), marked ``interrupted``.  A KeyboardInterrupt.  The stop
+        request stays set, so that a loop over runs starts nothing new
+        (:func:`harness.cosim.interrupt.clear_stop` to go on on purpose).
     """
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
     files = resolve_file_parameters(scenario, results_dir)
-    run = _Run(scenario, resolve_fmu_dir(scenario, fmu_dir), files)
-    result = run.execute(progress)
-    if out_dir is not None:
-        result.save(Path(out_dir))
+    with stop_on_signals():
+        run = _Run(scenario, resolve_fmu_dir(scenario, fmu_dir), files)
+        result = run.execute(progress)
+        if out_dir is not None:
+            result.save(Path(out_dir))
+    if result.interrupted:
+        raise RunInterrupted(stop_requested() or "interrupted", result)
     return result
+
+
+def preflight(scenario: Scenario, fmu_dir: Path | str | None = None,
+              results_dir: Path | str | None = None) -> None:
+    """Every check :func:`run_scenario` makes before its first FMU call, without loading
+    any FMU library: ``files`` parameters, FMU files, variable names against the
+    modelDescriptions.  Safe in a process that must not run FMUs (a batch supervisor).
+
+    Raises
+    ------
+    ScenarioError, FileNotFoundError
+        As :func:`run_scenario` would.
+    """
+    resolve_file_parameters(scenario, results_dir)
+    directory = resolve_fmu_dir(scenario, fmu_dir)
+    models = {}
+    for name in scenario.fmus:
+        path = _fmu_path(scenario, name, directory)
+        md = _model_description(_extract(path))
+        if md.coSimulation is None:
+            raise ScenarioError(str(path), [("", "the FMU has no co-simulation interface")])
+        models[name] = model_info(md)
+    check_against_models(scenario, models)
+
+
+def _fmu_path(scenario: Scenario, instance: str, fmu_dir: Path) -> Path:
+    path = resolve_fmu_file(scenario, instance, fmu_dir)
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"{scenario.source}: fmus.{instance}.fmu: FMU file {path} not found "
+            f"(build it with 'python build_fmu.py' or pass --fmu-dir)")
+    return path
 
 
 def manoeuvre_windows(scenario: Scenario) -> list[FaultWindow]:
@@ -460,20 +512,17 @@ def fault_windows(scenario: Scenario) -> list[FaultWindow]:
     return windows
 
 
+class _Stop(Exception):
+    """A stop request seen between two steps."""
+
+
 class _Run:
     def __init__(self, scenario: Scenario, fmu_dir: Path,
                  files: dict[str, dict[str, str]] | None = None) -> None:
         self.s = scenario
         self.files = files or {}
         self.plan = plan_coupling(scenario)
-        paths = {}
-        for name in scenario.fmus:
-            path = resolve_fmu_file(scenario, name, fmu_dir)
-            if not path.is_file():
-                raise FileNotFoundError(
-                    f"{scenario.source}: fmus.{name}.fmu: FMU file {path} not found "
-                    f"(build it with 'python build_fmu.py' or pass --fmu-dir)")
-            paths[name] = path
+        paths = {name: _fmu_path(scenario, name, fmu_dir) for name in scenario.fmus}
         self.inst = {n: _Instance(n, paths[n], scenario.fmus[n].step_ratio)
                      for n in self.plan.order}
         check_against_models(scenario, {n: i.info for n, i in self.inst.items()})
@@ -621,14 +670,21 @@ class _Run:
         n_steps, h, dec = s.n_steps, s.step_s, s.record.decimation
         t0 = 0.0
         error: str | None = None
+        interrupted = False
         wall0 = time.perf_counter()
         bar = _progress_bar(s.name, n_steps, progress)
         try:
             t = t0
+            if stop_requested():
+                raise _Stop
             self._initialise(t0)
             self._record(t0)
+            log.debug("%s: initialised, stepping %d steps", s.name, n_steps)
             chunk = max(1, n_steps // 200)
             for k in range(n_steps):
+                # the only place a stop request acts: between two steps of every FMU
+                if stop_requested():
+                    raise _Stop
                 t = t0 + k * h
                 if self.events:
                     self._physical_faults(t)
@@ -639,6 +695,11 @@ class _Run:
                     bar.update(chunk)
         except FmuCallError as exc:
             error = str(exc)
+        except _Stop:
+            interrupted = True
+            recorded = f"{self.times[-1]:g} s recorded" if self.times else "nothing recorded"
+            error = (f"interrupted by {stop_requested()} after {recorded} of "
+                     f"{s.duration_s:g} s")
         finally:
             if bar is not None:
                 bar.close()
@@ -655,6 +716,7 @@ class _Run:
             error=error,
             wall_time_s=time.perf_counter() - wall0,
             stop_time_s=s.duration_s,
+            interrupted=interrupted,
         )
 
 

@@ -141,7 +141,10 @@ class ScenarioError(ValueError):
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+    # attribute docstrings are the field descriptions of the JSON Schema and of
+    # docs/scenarios.md (python -m harness schema)
+    model_config = ConfigDict(extra="forbid", populate_by_name=True,
+                              use_attribute_docstrings=True)
 
 
 class FmuInstance(_Strict):
@@ -150,16 +153,24 @@ class FmuInstance(_Strict):
     ``files`` holds String parameters that name a file (parameter name → path), e.g.
     ``files = { "dtg.signature_file" = "${out}/dtg_signatures.json" }``.  The harness
     resolves each path before the run and hands the FMU an absolute path: a path that
-    starts with ``${out}/`` is taken in the results folder of the command (``--out``), so
-    a file produced at run time (``python -m harness learn-signatures``) can be named;
-    any other relative path is taken relative to the scenario file's folder.  The file
-    must exist when the run starts (see :func:`resolve_file_parameters`).
+    starts with ``${out}/`` is taken in the results folder of the command (``--out``),
+    or, if it is not there, in the folder above it (``results/`` when the command writes
+    into ``results/verify-<time>/``), so that a file produced at run time (``python -m
+    harness learn-signatures ... --out results/dtg_signatures.json``) can be named; any
+    other relative path is taken relative to the scenario file's folder.  The file must
+    exist when the run starts (see :func:`resolve_file_parameters`).
     """
 
     fmu: str = Field(min_length=1)
+    """FMU name in the FMU folder (``"Aircraft"`` → ``Aircraft.fmu``), or a path ending
+    in ``.fmu`` (relative to the scenario file's folder, then its parents)."""
     step_ratio: int = Field(default=1, ge=1)
+    """The instance steps every ``step_ratio`` base steps, with ``step_ratio * step_s``."""
     parameters: dict[str, ParameterValue] = Field(default_factory=dict)
+    """Start values of parameters, by FMU variable name (Real, Integer, Boolean, String;
+    the FMU's type decides)."""
     files: dict[str, str] = Field(default_factory=dict)
+    """String parameters that name a file: parameter name → path (see above)."""
 
     @field_validator("files")
     @classmethod
@@ -173,7 +184,9 @@ class Connection(_Strict):
     """``from`` output → ``to`` input, both ``"instance.variable"``."""
 
     from_: str = Field(alias="from")
+    """Output, ``"instance.variable"``."""
     to: str
+    """Input, ``"instance.variable"``; at most one connection per input."""
 
     @field_validator("from_", "to")
     @classmethod
@@ -185,19 +198,33 @@ class InjectorFault(_Strict):
     """A fault on one FaultInjector channel, set as the injector's parameters."""
 
     name: str = Field(min_length=1)
+    """Fault name, unique in the scenario (expectations and reports refer to it)."""
     injector: str
+    """The FaultInjector instance."""
     channel: int = Field(ge=1)
+    """Injector channel (``in_<channel>`` → ``out_<channel>``); one fault per channel."""
     type: str
+    """Fault type (table below; ``stuck`` is accepted for ``stuck_value``)."""
     start_s: float = Field(ge=0.0, allow_inf_nan=False)
+    """Onset, s."""
     end_s: float = math.inf
+    """End, s (default: never; a ``step`` never ends)."""
     magnitude: float | None = Field(default=None, allow_inf_nan=False)
+    """Bias, step or intermittent amplitude, ramp slope (signal units, per s for a ramp)."""
     gain: float | None = Field(default=None, allow_inf_nan=False)
+    """Gain factor of a ``gain`` fault."""
     stuck_value: float | None = None
+    """Value held by a ``stuck_value`` fault."""
     noise_std: float | None = Field(default=None, ge=0.0, allow_inf_nan=False)
+    """Standard deviation of added (``noise``) or remaining (``signal_loss``) noise."""
     period: float | None = Field(default=None, gt=0.0, allow_inf_nan=False)
+    """Period of an ``intermittent`` fault, s."""
     duty: float | None = Field(default=None, ge=0.0, le=1.0)
+    """Fraction of each period an ``intermittent`` fault is on."""
     sat_min: float | None = None
+    """Lower limit of a ``saturation`` fault."""
     sat_max: float | None = None
+    """Upper limit of a ``saturation`` fault."""
 
     @field_validator("type")
     @classmethod
@@ -253,10 +280,15 @@ class PhysicalFault(_Strict):
     """A tunable parameter set to ``value`` at ``start_s`` (restored at ``end_s``)."""
 
     name: str = Field(min_length=1)
+    """Fault name, unique in the scenario."""
     set: str
+    """Tunable parameter, ``"instance.variable"``."""
     value: ParameterValue
+    """Value from ``start_s`` on."""
     start_s: float = Field(ge=0.0, allow_inf_nan=False)
+    """Onset, s."""
     end_s: float = math.inf
+    """When the original value is restored, s (default: never)."""
 
     @field_validator("set")
     @classmethod
@@ -290,18 +322,31 @@ class Manoeuvre(_Strict):
     """
 
     name: str = Field(min_length=1)
+    """Manoeuvre name, unique in the scenario."""
     kind: str
+    """``square_wave``, ``step``, ``doublet``, ``sine_sweep`` or ``off_trim``."""
     instance: str = Field(min_length=1)
+    """The PitchController (commands) or Aircraft (``off_trim``) instance."""
     start_s: float = Field(default=0.0, ge=0.0, allow_inf_nan=False)
+    """Start, s."""
     duration_s: float | None = Field(default=None, ge=0.0, allow_inf_nan=False)
+    """Length, s (commands: default to the end; ``off_trim``: time to return to trim)."""
     amplitude_rad: float | None = Field(default=None, allow_inf_nan=False)
+    """Command amplitude, rad."""
     period_s: float | None = Field(default=None, gt=0.0, allow_inf_nan=False)
+    """Square-wave period, s."""
     pulse_s: float | None = Field(default=None, gt=0.0, allow_inf_nan=False)
+    """Doublet pulse length, s."""
     f0_hz: float | None = Field(default=None, gt=0.0, allow_inf_nan=False)
+    """Sweep start frequency, Hz."""
     f1_hz: float | None = Field(default=None, gt=0.0, allow_inf_nan=False)
+    """Sweep end frequency, Hz."""
     theta0_rad: float | None = Field(default=None, allow_inf_nan=False)
+    """``off_trim``: initial pitch angle, rad."""
     q0_rad_s: float | None = Field(default=None, allow_inf_nan=False)
+    """``off_trim``: initial pitch rate, rad/s."""
     alpha0_rad: float | None = Field(default=None, allow_inf_nan=False)
+    """``off_trim``: initial angle of attack, rad."""
 
     @field_validator("kind")
     @classmethod
@@ -379,7 +424,10 @@ class Record(_Strict):
     ``decimation`` base steps (the first and the last sample are always recorded)."""
 
     variables: list[str] | None = None
+    """Signals to record, ``"instance.variable"`` (default: every non-String output of
+    every FMU); what an expectation reads is always recorded too."""
     decimation: int = Field(default=1, ge=1)
+    """Record every ``decimation`` base steps."""
 
     @field_validator("variables")
     @classmethod
@@ -398,10 +446,15 @@ class Expectation(BaseModel):
     model_config = ConfigDict(extra="allow")
 
     kind: str = Field(min_length=1)
+    """What is checked (see the kinds below)."""
     name: str | None = None
+    """Label in reports."""
     signal: str | None = None
+    """Recorded signal the check reads, ``"instance.variable"``."""
     fault: str | None = None
+    """A fault of this scenario, by name."""
     manoeuvre: str | None = None
+    """A manoeuvre of this scenario, by name."""
 
     def arguments(self) -> dict[str, Any]:
         """All keys of the entry except ``kind`` (extra keys included)."""
@@ -414,31 +467,88 @@ class Training(_Strict):
     Read by ``python -m harness learn-signatures`` (:mod:`harness.campaigns.signatures`), ignored by
     the other commands.  ``signature`` names the fault class, ``code`` is its fault code
     (1-based position in the learned library, i.e. the ``dtg.fault_code`` the Diagnoser
-    reports for it), ``diagnoser`` the Diagnoser instance whose ``dtg.eta_x``/``dtg.eta_y``
-    outputs give the feature vector.
+    reports for it), ``diagnoser`` the Diagnoser instance whose outputs are read.
+
+    ``classifier = "paper"`` (default): decade signatures from ``dtg.eta_x``/``dtg.eta_y``.
+    ``classifier = "pattern"``: response patterns (:mod:`harness.campaigns.pattern_learning`);
+    then ``type`` (step, drift, noise, loss, spin, torquer or nominal), ``signal`` (Utx,
+    Uty, Ux, Uy; signal faults) and ``fault`` (the ``[[faults]]`` entry giving the size
+    and the onset; default the only one) describe the example. A ``nominal`` run (code
+    0) only feeds the noise model and the nominal prior.
     """
 
     signature: str = Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")
-    code: int = Field(ge=1)
+    """Fault class name (an identifier; ``nominal`` for a nominal pattern run)."""
+    code: int = Field(ge=0)
+    """Its fault code: position in the learned library (``dtg.fault_code``); 0 for a
+    nominal pattern training run."""
     diagnoser: str = "diag"
+    """Diagnoser instance whose outputs are read."""
+    classifier: Literal["paper", "pattern"] = "paper"
+    """Which classifier the run trains: decade signatures or response patterns."""
+    type: Literal["step", "drift", "noise", "loss", "spin", "torquer", "nominal"] | None = None
+    """Pattern training: the fault type of the example."""
+    signal: Literal["Utx", "Uty", "Ux", "Uy"] | None = None
+    """Pattern training: the faulty signal (signal faults)."""
+    fault: str | None = None
+    """Pattern training: the ``[[faults]]`` entry giving the size and the onset (default:
+    the only one)."""
+
+    @model_validator(mode="after")
+    def _pattern_fields(self) -> Training:
+        if (self.code == 0) != (self.type == "nominal"):
+            raise ValueError("code must be >= 1 for a fault class, and 0 for a nominal "
+                             "(type = 'nominal') pattern training run")
+        if self.classifier == "paper":
+            if self.type is not None or self.signal is not None or self.fault is not None:
+                raise ValueError("type, signal and fault describe pattern training "
+                                 "(classifier = 'pattern')")
+            return self
+        if self.type is None:
+            raise ValueError("classifier 'pattern' needs type (step, drift, noise, loss, "
+                             "spin, torquer or nominal)")
+        if self.type in ("step", "drift", "noise", "loss") and self.signal is None:
+            raise ValueError(f"type {self.type!r} needs signal (Utx, Uty, Ux or Uy)")
+        if self.type in ("spin", "torquer", "nominal") and self.signal is not None:
+            raise ValueError(f"type {self.type!r} takes no signal")
+        return self
 
 
 class Scenario(_Strict):
     """A validated scenario; see the module docstring and the harness contract."""
 
     name: str = Field(min_length=1)
+    """Scenario name (default: the file name without ``.toml``); names the results
+    folder, so it must be unique among the scenarios of a command."""
     description: str = ""
+    """One line for people: shown in reports and as the pytest item's doc."""
     duration_s: float = Field(gt=0.0, allow_inf_nan=False)
+    """Simulated time, s; a whole number of base steps."""
     step_s: float = Field(gt=0.0, allow_inf_nan=False)
+    """Base communication step, s."""
     coupling: Literal["gauss-seidel", "jacobi"] = "gauss-seidel"
+    """Gauss-Seidel (instances in coupling order, no latency except to break a cycle) or
+    Jacobi (all from the outputs at t_k: one step of latency per FMU boundary)."""
     fmu_dir: str | None = None
+    """Folder of the FMUs (default ``build/fmus``, looked for from the scenario's folder
+    upwards; ``--fmu-dir`` and ``$GYRODIAG_FMU_DIR`` take precedence)."""
     fmus: dict[str, FmuInstance] = Field(min_length=1)
+    """FMU instances by instance name (an identifier), in this order when a coupling
+    cycle has to be broken."""
     connections: list[Connection] = Field(default_factory=list)
+    """Output → input connections."""
     faults: list[Fault] = Field(default_factory=list)
+    """Fault schedule: injector faults (``injector`` key) and physical faults (``set``
+    key)."""
     manoeuvres: list[Manoeuvre] = Field(default_factory=list)
+    """Manoeuvres flown during the run (``[[manoeuvres]]``): not faults; an alarm during one
+    is a false alarm."""
     record: Record = Field(default_factory=Record)
+    """What to record."""
     expect: list[Expectation] = Field(default_factory=list)
+    """What must hold in the run (``[[expect]]`` tables, kinds below)."""
     training: Training | None = None
+    """Marks a DTG signature training run (``learn-signatures``)."""
 
     _source: str = PrivateAttr(default="<scenario>")
     _path: Path | None = PrivateAttr(default=None)
@@ -788,8 +898,8 @@ def resolve_file_parameters(scenario: Scenario, results_dir: Path | str | None =
     scenario : Scenario
         The scenario.
     results_dir : path, optional
-        Results folder of the command (what ``${out}/`` stands for).  Required if a
-        path uses it.
+        Results folder of the command (what ``${out}/`` stands for; a file not found
+        there is looked for in its parent folder).  Required if a path uses it.
     must_exist : bool
         Check that every file exists.
 
@@ -815,7 +925,17 @@ def resolve_file_parameters(scenario: Scenario, results_dir: Path | str | None =
                     problems.append((key, f"{spec!r} names the results folder, but none was "
                                           "given (pass results_dir / --out)"))
                     continue
-                path = Path(results_dir) / spec[len(RESULTS_PREFIX):]
+                rest = spec[len(RESULTS_PREFIX):]
+                path = Path(results_dir) / rest
+                above = Path(results_dir).parent / rest
+                if must_exist and not path.is_file():
+                    if not above.is_file():
+                        problems.append((key, f"{rest} not found in {path.parent.resolve()} "
+                                              f"nor in {above.parent.resolve()} (produce it "
+                                              "first, e.g. with 'python -m harness "
+                                              f"learn-signatures ... --out {above}')"))
+                        continue
+                    path = above
             else:
                 path = Path(spec) if Path(spec).is_absolute() else base / spec
             path = path.resolve()

@@ -1,9 +1,11 @@
 """Verification reports: JUnit XML for CI and one self-contained HTML page for people.
 
 * :func:`write_junit` — one ``<testsuite>`` per scenario, one ``<testcase>`` per
-  expectation plus a ``run`` testcase (an ``<error>`` when the run failed or no run
-  result exists); failed expectations carry ``<failure message=...>``, every testcase
-  its message in ``<system-out>`` so passing cases show what was measured too.
+  expectation plus a ``run`` testcase (an ``<error>`` when the run failed, was
+  interrupted or no run result exists: the reason is said there, once); failed
+  expectations carry ``<failure message=...>``, expectations that could not be evaluated
+  (no complete run) ``<skipped>``, every testcase its message in ``<system-out>`` so
+  passing cases show what was measured too.
 * :func:`write_html` — summary table, and per scenario: run facts, fault windows,
   expectations (pass/fail, measured value, message), a table of standard metrics
   (:func:`summary_metrics`) and the plots of :func:`harness.reporting.plots.figures_for_result`
@@ -76,6 +78,10 @@ def _unique(names: list[str]) -> list[str]:
     return out
 
 
+def _evaluated(e: Any) -> bool:
+    return bool(getattr(e, "evaluated", True))
+
+
 # ------------------------------------------------------------------- JUnit
 def write_junit(
     verdicts: Sequence[ScenarioVerdict],
@@ -101,21 +107,25 @@ def write_junit(
     -------
     Path
         ``path``. Counts: ``tests`` = expectations + 1 run case per scenario,
-        ``failures`` = failed expectations, ``errors`` = failed or missing runs.
+        ``failures`` = failed expectations, ``errors`` = failed or missing runs,
+        ``skipped`` = expectations not evaluated for want of a complete run.
     """
     path = Path(path)
     runs = _by_name(results, lambda r: r.scenario)
     root = ET.Element("testsuites", name=suite_name)
-    totals = {"tests": 0, "failures": 0, "errors": 0}
+    totals = {"tests": 0, "failures": 0, "errors": 0, "skipped": 0}
     total_time = 0.0
     for v in verdicts:
         run = runs.get(v.scenario)
         wall = float(run.wall_time_s) if run is not None else 0.0
         total_time += wall
-        n_failures, n_errors = v.n_failed, int(v.error is not None)
+        n_skipped = sum(not _evaluated(e) for e in v.expectations)
+        n_failures = sum(not e.passed and _evaluated(e) for e in v.expectations)
+        n_errors = int(v.error is not None)
         suite = ET.SubElement(root, "testsuite", name=_xml_text(v.scenario),
                               tests=str(len(v.expectations) + 1), failures=str(n_failures),
-                              errors=str(n_errors), skipped="0", time=f"{wall:.3f}")
+                              errors=str(n_errors), skipped=str(n_skipped),
+                              time=f"{wall:.3f}")
         case = ET.SubElement(suite, "testcase", classname=_xml_text(v.scenario), name="run",
                              time=f"{wall:.3f}")
         if v.error is not None:
@@ -126,7 +136,9 @@ def write_junit(
                             strict=True):
             case = ET.SubElement(suite, "testcase", classname=_xml_text(v.scenario),
                                  name=_xml_text(label), time="0")
-            if not e.passed:
+            if not _evaluated(e):
+                ET.SubElement(case, "skipped", message=_xml_text(e.message))
+            elif not e.passed:
                 fail = ET.SubElement(case, "failure", message=_xml_text(e.message),
                                      type=e.kind or "expectation")
                 fail.text = _xml_text(e.message)
@@ -135,6 +147,7 @@ def write_junit(
         totals["tests"] += len(v.expectations) + 1
         totals["failures"] += n_failures
         totals["errors"] += n_errors
+        totals["skipped"] += n_skipped
     for key, value in totals.items():
         root.set(key, str(value))
     root.set("time", f"{total_time:.3f}")
@@ -246,6 +259,7 @@ table{border-collapse:collapse;margin:.5em 0 1em}
 th,td{border:1px solid #ccc;padding:.25em .5em;text-align:left;vertical-align:top;font-size:.9em}
 th{background:#f0f0f0}
 .pass{color:#176f2c;font-weight:bold}.fail{color:#b00020;font-weight:bold}
+.other{color:#8a5a00;font-weight:bold}
 pre{background:#f7f7f7;padding:.5em;white-space:pre-wrap}
 figure{margin:1em 0}img{max-width:100%;border:1px solid #ddd}
 """
@@ -253,6 +267,29 @@ figure{margin:1em 0}img{max-width:100%;border:1px solid #ddd}
 
 def _status(passed: bool) -> str:
     return '<span class="pass">PASS</span>' if passed else '<span class="fail">FAIL</span>'
+
+
+def verdict_status(v: ScenarioVerdict, run: RunResult | None) -> str:
+    """PASS, FAIL (an expectation failed), ERROR (the run failed), INTERRUPTED (a stop
+    request ended the run) or NOT RUN (no run result)."""
+    if v.passed:
+        return "PASS"
+    if run is None:
+        return "NOT RUN"
+    if getattr(run, "interrupted", False):
+        return "INTERRUPTED"
+    return "ERROR" if v.error is not None else "FAIL"
+
+
+def _status_html(status: str) -> str:
+    css = "pass" if status == "PASS" else "fail" if status in ("FAIL", "ERROR") else "other"
+    return f'<span class="{css}">{status}</span>'
+
+
+def _expectation_status(e: Any) -> str:
+    if not _evaluated(e):
+        return '<span class="other">NOT EVALUATED</span>'
+    return _status(e.passed)
 
 
 def _esc(x: Any) -> str:
@@ -276,7 +313,8 @@ def _table(header: Sequence[str], rows: list[list[str]]) -> str:
 def _scenario_section(
     v: ScenarioVerdict, result: RunResult | None, scenario: Any
 ) -> str:
-    parts = [f'<h2 id="{_anchor(v.scenario)}">{_esc(v.scenario)} {_status(v.passed)}</h2>']
+    status = _status_html(verdict_status(v, result))
+    parts = [f'<h2 id="{_anchor(v.scenario)}">{_esc(v.scenario)} {status}</h2>']
     desc = (scenario.get("description") if isinstance(scenario, dict)
             else getattr(scenario, "description", "")) if scenario is not None else ""
     if desc:
@@ -300,11 +338,15 @@ def _scenario_section(
                  "open" if math.isinf(w.end_s) else _num(w.end_s)]
                 for w in result.manoeuvre_windows]))
     if v.error is not None:
-        parts.append(f"<h3>Run error</h3><pre>{_esc(v.error)}</pre>")
+        heading = ("Run interrupted" if result is not None and getattr(result, "interrupted",
+                                                                        False)
+                   else "Not run" if result is None else "Run error")
+        parts.append(f"<h3>{heading}</h3><pre>{_esc(v.error)}</pre>")
     parts.append("<h3>Expectations</h3>")
     if v.expectations:
         parts.append(_table(["status", "expectation", "kind", "measured", "message"], [
-            [_status(e.passed), _esc(e.name), _esc(e.kind), _num(e.value), _esc(e.message)]
+            [_expectation_status(e), _esc(e.name), _esc(e.kind), _num(e.value),
+             _esc(e.message)]
             for e in v.expectations]))
     else:
         parts.append("<p>none</p>")
@@ -315,13 +357,13 @@ def _scenario_section(
             parts.append(_table(["metric", "signal", "condition", "value", "unit"], [
                 [_esc(r.metric), _esc(r.subject), _esc(r.condition), _esc(r.text),
                  _esc(r.unit)] for r in rows]))
-        parts.append(_figures_html(result, scenario))
+        parts.append(_figures_html(result, scenario, v))
     return "\n".join(parts)
 
 
-def _figures_html(result: RunResult, scenario: Any) -> str:
+def _figures_html(result: RunResult, scenario: Any, verdict: ScenarioVerdict) -> str:
     try:
-        figures = plots.figures_for_result(result, scenario)
+        figures = plots.figures_for_result(result, scenario, verdict)
     except Exception as exc:  # a broken plot must not hide the verdicts; show why instead
         return f'<p class="fail">plots failed: {_esc(repr(exc))}</p>'
     out = ["<h3>Plots</h3>"] if figures else []
@@ -361,7 +403,8 @@ def write_html(
     specs = _by_name(scenarios, _scenario_name)
     n_pass = sum(v.passed for v in verdicts)
     summary = _table(["scenario", "status", "expectations passed", "wall time (s)", "error"], [
-        [f'<a href="#{_anchor(v.scenario)}">{_esc(v.scenario)}</a>', _status(v.passed),
+        [f'<a href="#{_anchor(v.scenario)}">{_esc(v.scenario)}</a>',
+         _status_html(verdict_status(v, runs.get(v.scenario))),
          f"{len(v.expectations) - v.n_failed}/{len(v.expectations)}",
          f"{runs[v.scenario].wall_time_s:.2f}" if v.scenario in runs else "",
          _esc((v.error or "").strip().splitlines()[0] if (v.error or "").strip() else "")]

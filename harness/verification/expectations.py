@@ -97,6 +97,10 @@ class ExpectationResult:
         could be measured.
     kind : str
         The expectation's kind ("" if it could not be parsed).
+    evaluated : bool
+        False when there was nothing to evaluate it on (the run failed, was interrupted
+        or is missing): it does not pass, and the reason is the verdict's ``error``,
+        said once there rather than under every expectation.
     """
 
     name: str
@@ -104,6 +108,7 @@ class ExpectationResult:
     message: str
     value: float | None = None
     kind: str = ""
+    evaluated: bool = True
 
 
 @dataclass
@@ -146,7 +151,9 @@ class ScenarioLike(Protocol):
 
 # -------------------------------------------------------------------- models
 class _Base(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # attribute docstrings are the field descriptions of the JSON Schema and of
+    # docs/scenarios.md (python -m harness schema)
+    model_config = ConfigDict(extra="forbid", frozen=True, use_attribute_docstrings=True)
 
     name: str | None = Field(default=None, description="Label in reports")
 
@@ -163,9 +170,13 @@ class DetectedWithin(_Base):
 
     kind: Literal["detected_within"]
     signal: str
+    """Alarm signal (on where > ``level``)."""
     fault: str
+    """The fault whose start the delay counts from."""
     max_delay_s: float = Field(ge=0.0)
+    """Longest delay that passes, s."""
     level: float = metrics.DEFAULT_LEVEL
+    """Switching level of the alarm."""
 
     def _default_label(self) -> str:
         return f"detected_within({self.signal}, {self.fault}, {self.max_delay_s:g} s)"
@@ -176,8 +187,11 @@ class NoAlarmBefore(_Base):
 
     kind: Literal["no_alarm_before"]
     signal: str
+    """Alarm signal (on where > ``level``)."""
     t_s: float | None = None
+    """End of the quiet time, s (default: the first fault's start, or the whole run)."""
     level: float = metrics.DEFAULT_LEVEL
+    """Switching level of the alarm."""
 
 
 class NoAlarmOutsideFaults(_Base):
@@ -185,8 +199,11 @@ class NoAlarmOutsideFaults(_Base):
 
     kind: Literal["no_alarm_outside_faults"]
     signal: str
+    """Alarm signal (on where > ``level``)."""
     margin_s: float = Field(default=0.0, ge=0.0)
+    """Time after each fault's end still attributed to it, s."""
     level: float = metrics.DEFAULT_LEVEL
+    """Switching level of the alarm."""
 
 
 class NoAlarmDuringManoeuvres(_Base):
@@ -220,7 +237,9 @@ class WitnessesAgree(_Base):
 
 class _Bounds(_Base):
     min: float | None = None
+    """Lowest value that passes."""
     max: float | None = None
+    """Highest value that passes."""
 
     @model_validator(mode="after")
     def _ordered(self) -> Self:
@@ -247,7 +266,9 @@ class _Bounds(_Base):
 
 class _ValueCheck(_Bounds):
     equals: float | None = None
+    """Value that passes (± ``tol``); instead of ``min``/``max``."""
     tol: float = Field(default=1e-9, ge=0.0)
+    """Tolerance of ``equals``."""
 
     @model_validator(mode="after")
     def _one_check(self) -> Self:
@@ -275,6 +296,7 @@ class ValueAtEnd(_ValueCheck):
 
     kind: Literal["value_at_end"]
     signal: str
+    """Recorded signal."""
 
 
 class ValueAt(_ValueCheck):
@@ -282,7 +304,9 @@ class ValueAt(_ValueCheck):
 
     kind: Literal["value_at"]
     signal: str
+    """Recorded signal."""
     t_s: float
+    """Time, s: the last sample at or before it is checked."""
 
     def _default_label(self) -> str:
         return f"value_at({self.signal}, {self.t_s:g} s)"
@@ -293,8 +317,11 @@ class ValueInWindow(_Bounds):
 
     kind: Literal["value_in_window"]
     signal: str
+    """Recorded signal."""
     t0_s: float
+    """Window start, s."""
     t1_s: float
+    """Window end, s."""
 
     @model_validator(mode="after")
     def _window(self) -> Self:
@@ -312,8 +339,11 @@ class MetricExpectation(_Bounds):
 
     kind: Literal["metric"]
     metric: str
+    """Metric name (table below)."""
     args: dict[str, Any] = Field(default_factory=dict)
+    """The metric's arguments (signal names, fault names, numbers)."""
     field: str | None = None
+    """Which value of a metric that returns several (e.g. ``mean``)."""
 
     @model_validator(mode="after")
     def _metric_call(self) -> Self:
@@ -594,7 +624,8 @@ def evaluate(expectation: Expectation | Mapping[str, Any], result: RunResult) ->
     expectation : Expectation or mapping
         A model of this module or a raw ``[[expect]]`` table.
     result : RunResult
-        The run. If ``result.error`` is set, the expectation fails with that error.
+        The run. If ``result.error`` is set, the expectation is not evaluated (it fails,
+        ``evaluated`` False; the error itself belongs to the scenario's verdict).
 
     Returns
     -------
@@ -610,7 +641,9 @@ def evaluate(expectation: Expectation | Mapping[str, Any], result: RunResult) ->
                                  f"invalid expectation: {exc}", None, kind)
     name = exp.label()
     if result.error is not None:
-        return ExpectationResult(name, False, f"run failed: {result.error}", None, exp.kind)
+        what = "was interrupted" if getattr(result, "interrupted", False) else "did not complete"
+        return ExpectationResult(name, False, f"not evaluated: the run {what}", None, exp.kind,
+                                 evaluated=False)
     try:
         passed, message, value = _EVALUATORS[type(exp)](exp, result)
     except (KeyError, ValueError, TypeError) as exc:
@@ -666,7 +699,7 @@ def verify_results(
         expect = _scenario_expect(scenario)
         if result is None:
             error = f"no run result for scenario {name!r}"
-            outcomes = [_failed_without_run(e, error) for e in expect]
+            outcomes = [_failed_without_run(e, "not evaluated: no run result") for e in expect]
         else:
             error = result.error
             outcomes = [evaluate(e, result) for e in expect]
@@ -681,4 +714,4 @@ def _failed_without_run(raw: Any, error: str) -> ExpectationResult:
         exp = parse_expectation(raw)
     except ValidationError as exc:
         return ExpectationResult("invalid expectation", False, f"invalid expectation: {exc}")
-    return ExpectationResult(exp.label(), False, error, None, exp.kind)
+    return ExpectationResult(exp.label(), False, error, None, exp.kind, evaluated=False)

@@ -497,6 +497,7 @@ def prediction_errors_percent(
     predicted: ArrayLike,
     t0_s: float | None = None,
     t1_s: float | None = None,
+    valid: ArrayLike | None = None,
 ) -> PredictionErrors:
     """Mean and maximum of ``100·|y − ŷ|/|y|`` over a window (the grey paper's figure).
 
@@ -511,6 +512,10 @@ def prediction_errors_percent(
         no prediction was made (warm-up) is ignored.
     t0_s, t1_s : float, optional
         Window, s, inclusive; default: the whole record.
+    valid : array_like, shape (n,), optional
+        Where false, the row has no prediction and is ignored like NaN (an FMU's
+        validity output, e.g. ``grey.prediction_valid``, whose prediction output then
+        holds a sentinel).
 
     Returns
     -------
@@ -521,6 +526,8 @@ def prediction_errors_percent(
     y = _values("measured", measured, t)
     p = _values("predicted", predicted, t)
     candidates = _window_mask(t, t0_s, t1_s) & np.isfinite(p)
+    if valid is not None:
+        candidates &= _values("valid", valid, t) != 0.0
     used = candidates & np.isfinite(y) & (y != 0.0)
     n_excluded = int(np.count_nonzero(candidates & ~used))
     if not np.any(used):
@@ -715,10 +722,11 @@ def _m_statistics(
 
 def _m_prediction(
     result: RunResult, measured: str, predicted: str, t0_s: float | None = None,
-    t1_s: float | None = None,
+    t1_s: float | None = None, valid: str | None = None,
 ) -> dict[str, float]:
     e = prediction_errors_percent(result.time, result.signal(measured),
-                                  result.signal(predicted), t0_s, t1_s)
+                                  result.signal(predicted), t0_s, t1_s,
+                                  None if valid is None else result.signal(valid))
     return {"mean_percent": e.mean_percent, "max_percent": e.max_percent,
             "n_used": float(e.n_used)}
 
@@ -803,9 +811,12 @@ METRICS: dict[str, MetricSpec] = {
         MetricSpec("signal_statistics", _m_statistics, _STATISTICS.params, _STATISTICS.doc,
                    _STATISTICS.unit, _STATISTICS.fields),
         MetricSpec(
-            "prediction_errors_percent", _m_prediction, (_MEASURED, _PREDICTED, _T0, _T1),
-            "Mean and max of 100·|y − ŷ|/|y| over [t0_s, t1_s], NaN predictions and y = 0 "
-            "ignored.", "%", ("mean_percent", "max_percent", "n_used"),
+            "prediction_errors_percent", _m_prediction,
+            (_MEASURED, _PREDICTED, _T0, _T1,
+             MetricParam("valid", "signal", "recorded validity of the prediction (rows "
+                         "where it is false are ignored)")),
+            "Mean and max of 100·|y − ŷ|/|y| over [t0_s, t1_s], NaN or invalid predictions "
+            "and y = 0 ignored.", "%", ("mean_percent", "max_percent", "n_used"),
         ),
         MetricSpec(
             "absolute_errors", _m_absolute, (_MEASURED, _PREDICTED, _T0, _T1),

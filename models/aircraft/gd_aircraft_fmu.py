@@ -20,7 +20,8 @@ from typing import Any
 import numpy as np
 from gd_aircraft_core import INPUT_NAMES, OUTPUT_NAMES, STATE_NAMES, AircraftModel
 from gd_aircraft_turbulence import DEFAULT_SCALE_LENGTH, DEFAULT_WINGSPAN, DrydenGust
-from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real
+from gd_fmu_base import GuardedSlave
+from pythonfmu import Fmi2Causality, Fmi2Variability, Integer, Real
 from pythonfmu.default_experiment import DefaultExperiment
 from pythonfmu.enums import Fmi2Status
 
@@ -46,7 +47,7 @@ OUTPUT_DEPENDENCIES: dict[str, list[str]] = {}
 REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10"]
 
 
-class Aircraft(Fmi2Slave):
+class Aircraft(GuardedSlave):
     author = "gyrodiag"
     description = (
         "Seed-002 longitudinal aircraft (Ma 0.8, H 50 m): x=[v, alpha, q, theta, h], "
@@ -71,7 +72,7 @@ class Aircraft(Fmi2Slave):
                 setter=(lambda v, j=j: self._u.__setitem__(j, v))))
         for j, name in enumerate(OUTPUT_NAMES):
             self.register_variable(Real(
-                f"y_{name}", causality=P.output, variability=V.continuous,
+                f"y_{name}", causality=P.output, variability=V.discrete,
                 description=f"sensor: {_DOC[name]} (with noise)",
                 getter=(lambda j=j: float(self._y[j])),
                 setter=(lambda v, j=j: self._y.__setitem__(j, v))))
@@ -125,6 +126,8 @@ class Aircraft(Fmi2Slave):
                           wingspan=self.turbulence_wingspan)
 
     def exit_initialization_mode(self) -> None:
+        if not self.parameters_in_range(VARIABLE_META):
+            return
         try:
             self.model.gust = self._gust()
             self.model.check()
@@ -134,6 +137,8 @@ class Aircraft(Fmi2Slave):
             self._fail("exit_initialization_mode")
 
     def do_step(self, current_time: float, step_size: float) -> bool:
+        if not self.check_step(step_size):
+            return True
         try:
             if self.turbulence_sigma_w != self.model.gust.sigma_w:
                 self.model.set_gust(self._gust())
@@ -155,15 +160,15 @@ class Aircraft(Fmi2Slave):
         # (fmu_src/shim) turns the logged error into fmi2Error for this call.
         self.log(f"Aircraft.{where} failed:\n{traceback.format_exc()}", status=Fmi2Status.error)
 
-    def _get_fmu_state(self) -> dict[str, Any]:
-        state = super()._get_fmu_state()
+    def _state_payload(self) -> dict[str, Any]:
+        state = super()._state_payload()
         model_state = self.model.get_state()
         state["__model__"] = {**model_state, "x": model_state["x"].tolist(),
                               "g": model_state["g"].tolist()}
         return state
 
-    def _set_fmu_state(self, state: dict[str, Any]) -> None:
+    def _apply_state_payload(self, state: dict[str, Any]) -> None:
         state = dict(state)
         model_state = state.pop("__model__")
-        super()._set_fmu_state(state)
+        super()._apply_state_payload(state)
         self.model.set_state(model_state)

@@ -19,10 +19,13 @@ from typing import Any
 
 from gd_dtg_sets import PAPER, PARAMETER_SETS, parameter_set
 from gd_dtg_sim import NOMINAL_FAULTS, DTGSimulator
-from pythonfmu import Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real
+from gd_fmu_base import GuardedSlave
+from pythonfmu import Boolean, Fmi2Causality, Fmi2Variability, Integer, Real
 from pythonfmu.default_experiment import DefaultExperiment
 from pythonfmu.enums import Fmi2Status
 
+#: Lower bound declared for parameters that must be > 0 (FMI bounds are inclusive).
+POSITIVE = 1e-9
 VARIABLE_META: dict[str, dict] = {
     "omega_x": {"unit": "rad/s"},
     "omega_y": {"unit": "rad/s"},
@@ -38,11 +41,11 @@ VARIABLE_META: dict[str, dict] = {
     "seed": {"min": 0},
     "noise_std": {"unit": "V", "min": 0.0},
     "dither_std": {"unit": "V", "min": 0.0},
-    "spin_fraction": {"unit": "1", "min": 0.0},
+    "spin_fraction": {"unit": "1", "min": POSITIVE},
     "k_offset": {"unit": "N.m/rad"},
-    "damping_scale": {"unit": "1", "min": 0.0},
-    "torquer_scale": {"unit": "1", "min": 0.0},
-    "pickoff_scale": {"unit": "1", "min": 0.0},
+    "damping_scale": {"unit": "1", "min": POSITIVE},
+    "torquer_scale": {"unit": "1", "min": POSITIVE},
+    "pickoff_scale": {"unit": "1", "min": POSITIVE},
 }
 OUTPUT_DEPENDENCIES: dict[str, list[str]] = {}
 REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10"]
@@ -59,7 +62,7 @@ _FAULT_DOC = {
 }
 
 
-class DTG(Fmi2Slave):
+class DTG(GuardedSlave):
     author = "gyrodiag"
     description = (
         "Two-axis dynamically tuned gyro rotor (DESIGN §2) with case-rate inputs, seeded "
@@ -103,7 +106,7 @@ class DTG(Fmi2Slave):
             "omega_y_read": "rate read-out Ku·Ux/L (nominal Ku, L)",
         }
         for name in _OUTPUTS:
-            self.register_variable(Real(name, causality=P.output, variability=V.continuous,
+            self.register_variable(Real(name, causality=P.output, variability=V.discrete,
                                         description=docs_out[name]))
         self.register_variable(Integer(
             "parameter_set", causality=P.parameter, variability=V.fixed,
@@ -131,6 +134,9 @@ class DTG(Fmi2Slave):
         self._t0 = float(start_time)
 
     def exit_initialization_mode(self) -> None:
+        if not self.parameters_in_range(VARIABLE_META):
+            self.sim = None
+            return
         try:
             if not isinstance(self.seed, int) or isinstance(self.seed, bool) or self.seed < 0:
                 raise ValueError(f"seed must be an integer >= 0, got {self.seed!r}")
@@ -144,6 +150,8 @@ class DTG(Fmi2Slave):
             self._fail("exit_initialization_mode")
 
     def do_step(self, current_time: float, step_size: float) -> bool:
+        if not self.check_step(step_size):
+            return True
         try:
             if self.sim is None:
                 raise RuntimeError("not initialised (exit_initialization_mode failed)")
@@ -180,17 +188,17 @@ class DTG(Fmi2Slave):
         # (fmu_src/shim) turns the logged error into fmi2Error for this call.
         self.log(f"DTG.{where} failed:\n{traceback.format_exc()}", status=Fmi2Status.error)
 
-    def _get_fmu_state(self) -> dict[str, Any]:
-        state = super()._get_fmu_state()
+    def _state_payload(self) -> dict[str, Any]:
+        state = super()._state_payload()
         state["__t0__"] = self._t0
         state["__sim__"] = None if self.sim is None else self.sim.get_state()
         return state
 
-    def _set_fmu_state(self, state: dict[str, Any]) -> None:
+    def _apply_state_payload(self, state: dict[str, Any]) -> None:
         state = dict(state)
         sim_state = state.pop("__sim__")
         self._t0 = float(state.pop("__t0__"))
-        super()._set_fmu_state(state)
+        super()._apply_state_payload(state)
         if sim_state is None:
             self.sim = None
             return

@@ -17,7 +17,8 @@ import traceback
 from typing import Any
 
 from gd_fault_injector_core import REAL_PARAMETERS, FaultInjectorCore, FaultType
-from pythonfmu import Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real
+from gd_fmu_base import GuardedSlave
+from pythonfmu import Boolean, Fmi2Causality, Fmi2Variability, Integer, Real
 from pythonfmu.default_experiment import DefaultExperiment
 from pythonfmu.enums import Fmi2Status
 
@@ -27,18 +28,23 @@ _FAULT_TABLE = ", ".join(f"{int(f)}={f.name}" for f in FaultType)
 _PARAM_DOC = {
     "t_start": ("s", "fault window start (sample time t >= t_start)"),
     "t_end": ("s", "fault window end (t < t_end; STEP ignores it)"),
-    "magnitude": (None, "BIAS/STEP/INTERMITTENT offset, RAMP slope per second"),
+    "magnitude": ("1", "BIAS/STEP/INTERMITTENT offset, RAMP slope per second (signal unit)"),
     "gain": ("1", "GAIN factor"),
-    "stuck_value": (None, "STUCK_VALUE output"),
-    "noise_std": (None, "NOISE / SIGNAL_LOSS standard deviation"),
+    "stuck_value": ("1", "STUCK_VALUE output (signal unit)"),
+    "noise_std": ("1", "NOISE / SIGNAL_LOSS standard deviation (signal unit)"),
     "period": ("s", "INTERMITTENT period"),
     "duty": ("1", "INTERMITTENT on-fraction of the period"),
-    "sat_min": (None, "SATURATION lower limit"),
-    "sat_max": (None, "SATURATION upper limit"),
+    "sat_min": ("1", "SATURATION lower limit (signal unit)"),
+    "sat_max": ("1", "SATURATION upper limit (signal unit)"),
 }
+#: The injector does not know what it carries: signals and the values in their unit are
+#: declared dimensionless ("1"); the descriptions say "signal unit".
+SIGNAL_UNIT = "1"
 
 VARIABLE_META: dict[str, dict] = {"seed": {"min": 0}}
 for _i in range(1, N_CHANNELS + 1):
+    VARIABLE_META[f"in_{_i}"] = {"unit": SIGNAL_UNIT}
+    VARIABLE_META[f"out_{_i}"] = {"unit": SIGNAL_UNIT}
     VARIABLE_META[f"fault_type_{_i}"] = {"min": 0, "max": int(max(FaultType))}
     for _k, (_unit, _doc) in _PARAM_DOC.items():
         meta: dict[str, Any] = {}
@@ -66,7 +72,7 @@ def _jsonable(obj: Any) -> Any:
     return obj
 
 
-class FaultInjector(Fmi2Slave):
+class FaultInjector(GuardedSlave):
     author = "gyrodiag"
     description = (
         f"{N_CHANNELS}-channel sensor fault injector. out_i(t+h) = F_i(in_i(t), t): one "
@@ -105,11 +111,12 @@ class FaultInjector(Fmi2Slave):
 
         self.register_variable(Real(
             f"in_{n}", causality=Fmi2Causality.input, variability=Fmi2Variability.continuous,
-            start=0.0, description=f"channel {n} input signal",
+            start=0.0, description=f"channel {n} input signal (any unit)",
             getter=lambda: self._u[i], setter=set_u))
         self.register_variable(Real(
-            f"out_{n}", causality=Fmi2Causality.output, variability=Fmi2Variability.continuous,
-            description=f"channel {n} output: F(in_{n}(t), t) published at t + h",
+            f"out_{n}", causality=Fmi2Causality.output, variability=Fmi2Variability.discrete,
+            description=f"channel {n} output: F(in_{n}(t), t) published at t + h (unit of "
+                        f"in_{n})",
             getter=lambda: self._y[i], setter=set_y))
         self.register_variable(Boolean(
             f"fault_active_{n}", causality=Fmi2Causality.output,
@@ -140,6 +147,8 @@ class FaultInjector(Fmi2Slave):
     # -- FMI callbacks ------------------------------------------------------------------
 
     def exit_initialization_mode(self) -> None:
+        if not self.parameters_in_range(VARIABLE_META):
+            return
         try:
             self.core.reset(seed=int(self.seed))
             for i in range(N_CHANNELS):
@@ -150,6 +159,8 @@ class FaultInjector(Fmi2Slave):
             self._fail("exit_initialization_mode")
 
     def do_step(self, current_time: float, step_size: float) -> bool:
+        if not self.check_step(step_size):
+            return True
         try:
             self._y, self._active = self.core.update(current_time, self._u)
         except Exception:
@@ -165,13 +176,13 @@ class FaultInjector(Fmi2Slave):
 
     # -- FMU state: registered variables plus the core's latches and generators ---------
 
-    def _get_fmu_state(self) -> dict[str, Any]:
-        state = super()._get_fmu_state()
+    def _state_payload(self) -> dict[str, Any]:
+        state = super()._state_payload()
         state["__core__"] = _jsonable(self.core.get_state())
         return state
 
-    def _set_fmu_state(self, state: dict[str, Any]) -> None:
+    def _apply_state_payload(self, state: dict[str, Any]) -> None:
         state = dict(state)
         core_state = state.pop("__core__")
-        super()._set_fmu_state(state)
+        super()._apply_state_payload(state)
         self.core.set_state(core_state)

@@ -10,8 +10,9 @@ from __future__ import annotations
 import traceback
 from typing import Any
 
+from gd_fmu_base import GuardedSlave
 from gd_hrg_core import PROFILES, HRGModel
-from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real
+from pythonfmu import Fmi2Causality, Fmi2Variability, Integer, Real
 from pythonfmu.default_experiment import DefaultExperiment
 from pythonfmu.enums import Fmi2Status
 
@@ -31,7 +32,7 @@ OUTPUT_DEPENDENCIES: dict[str, list[str]] = {}
 REQUIREMENTS = ["numpy>=1.24"]
 
 
-class HRG(Fmi2Slave):
+class HRG(GuardedSlave):
     author = "gyrodiag"
     description = (
         "HRG output model: voltage = first-order filter (exact ZOH discretisation) of "
@@ -52,7 +53,7 @@ class HRG(Fmi2Slave):
         self.register_variable(Real("rate_in", causality=P.input, variability=C.continuous,
                                     start=0.0,
                                     description="external angular rate added to the profile"))
-        self.register_variable(Real("voltage", causality=P.output, variability=C.continuous,
+        self.register_variable(Real("voltage", causality=P.output, variability=C.discrete,
                                     description="gyro output voltage"))
         self.register_variable(Real("rate_true", causality=P.output, variability=C.continuous,
                                     description="true angular rate profile(t) + rate_in"))
@@ -71,6 +72,8 @@ class HRG(Fmi2Slave):
                 setter=(lambda v, n=name: setattr(m, n, v))))
 
     def exit_initialization_mode(self) -> None:
+        if not self.parameters_in_range(VARIABLE_META):
+            return
         try:
             self.model.check()
             self.model.reset(self._t0, self.rate_in)
@@ -84,6 +87,8 @@ class HRG(Fmi2Slave):
         self._t0 = float(start_time)
 
     def do_step(self, current_time: float, step_size: float) -> bool:
+        if not self.check_step(step_size):
+            return True
         try:
             self.model.step(current_time, step_size, self.rate_in)
             self.voltage = self.model.measure()
@@ -98,13 +103,13 @@ class HRG(Fmi2Slave):
         # (fmu_src/shim) turns the logged error into fmi2Error for this call.
         self.log(f"HRG.{where} failed:\n{traceback.format_exc()}", status=Fmi2Status.error)
 
-    def _get_fmu_state(self) -> dict[str, Any]:
-        state = super()._get_fmu_state()
+    def _state_payload(self) -> dict[str, Any]:
+        state = super()._state_payload()
         state["__model__"] = self.model.get_state()
         return state
 
-    def _set_fmu_state(self, state: dict[str, Any]) -> None:
+    def _apply_state_payload(self, state: dict[str, Any]) -> None:
         state = dict(state)
         model_state = state.pop("__model__")
-        super()._set_fmu_state(state)
+        super()._apply_state_payload(state)
         self.model.set_state(model_state)

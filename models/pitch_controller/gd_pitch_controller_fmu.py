@@ -18,6 +18,7 @@ from __future__ import annotations
 import traceback
 from typing import Any
 
+from gd_fmu_base import GuardedSlave
 from gd_pitch_commands import COMMAND_INPUT, COMMAND_SINE_SWEEP, KIND_NAMES, PitchCommand
 from gd_pitch_controller_design import (
     PitchController as PitchLaw,
@@ -25,10 +26,12 @@ from gd_pitch_controller_design import (
 from gd_pitch_controller_design import (
     design_pitch_controller,
 )
-from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real
+from pythonfmu import Fmi2Causality, Fmi2Variability, Integer, Real
 from pythonfmu.default_experiment import DefaultExperiment
 from pythonfmu.enums import Fmi2Status
 
+#: Lower bound declared for parameters that must be > 0 (FMI bounds are inclusive).
+POSITIVE = 1e-9
 VARIABLE_META: dict[str, dict] = {
     "alpha_meas": {"unit": "rad"},
     "q_meas": {"unit": "rad/s"},
@@ -39,18 +42,19 @@ VARIABLE_META: dict[str, dict] = {
     "theta_cmd": {"unit": "rad"},
     "command_source": {"min": COMMAND_INPUT, "max": COMMAND_SINE_SWEEP},
     "cmd_amplitude": {"unit": "rad"},
-    "cmd_period": {"unit": "s", "min": 0.0},
+    "cmd_period": {"unit": "s", "min": 0.0},  # 0: a doublet flown once
     "cmd_start_s": {"unit": "s"},
     "cmd_duration_s": {"unit": "s", "min": 0.0},
     "cmd_pulse_s": {"unit": "s", "min": 0.0},
     "cmd_f0_hz": {"unit": "Hz", "min": 0.0},
     "cmd_f1_hz": {"unit": "Hz", "min": 0.0},
     "throttle_trim": {"unit": "1"},
-    "q_alpha": {"min": 0.0},
-    "q_q": {"min": 0.0},
-    "q_theta": {"min": 0.0},
-    "q_int": {"min": 0.0},
-    "r": {"min": 0.0},
+    # LQR weights are relative: declared dimensionless
+    "q_alpha": {"unit": "1", "min": 0.0},
+    "q_q": {"unit": "1", "min": 0.0},
+    "q_theta": {"unit": "1", "min": POSITIVE},
+    "q_int": {"unit": "1", "min": POSITIVE},
+    "r": {"unit": "1", "min": POSITIVE},
     "k_alpha": {"unit": "1"},
     "k_q": {"unit": "s"},
     "k_theta": {"unit": "1"},
@@ -60,7 +64,7 @@ OUTPUT_DEPENDENCIES: dict[str, list[str]] = {}
 REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10"]
 
 
-class PitchController(Fmi2Slave):
+class PitchController(GuardedSlave):
     author = "gyrodiag"
     description = (
         "LQR pitch-attitude controller (integral action, exact trim feed-forward) for the "
@@ -103,7 +107,7 @@ class PitchController(Fmi2Slave):
         for name, doc in [("elevator", "elevator deflection command"),
                           ("throttle", "throttle command (= throttle_trim)"),
                           ("theta_cmd", "pitch command used for the published elevator")]:
-            self.register_variable(Real(name, causality=P.output, variability=V.continuous,
+            self.register_variable(Real(name, causality=P.output, variability=V.discrete,
                                         description=doc))
         self.register_variable(Integer(
             "command_source", causality=P.parameter, variability=V.tunable,
@@ -167,6 +171,8 @@ class PitchController(Fmi2Slave):
         self._t0 = float(start_time)
 
     def exit_initialization_mode(self) -> None:
+        if not self.parameters_in_range(VARIABLE_META):
+            return
         try:
             self.law = PitchLaw(design_pitch_controller(
                 self.q_alpha, self.q_q, self.q_theta, self.q_int, self.r))
@@ -179,6 +185,8 @@ class PitchController(Fmi2Slave):
             self._fail("exit_initialization_mode")
 
     def do_step(self, current_time: float, step_size: float) -> bool:
+        if not self.check_step(step_size):
+            return True
         try:
             cmd = self._command(current_time)
             self.elevator = self.law.update(step_size, self.alpha_meas, self.q_meas,
@@ -196,15 +204,15 @@ class PitchController(Fmi2Slave):
         self.log(f"PitchController.{where} failed:\n{traceback.format_exc()}",
                  status=Fmi2Status.error)
 
-    def _get_fmu_state(self) -> dict[str, Any]:
-        state = super()._get_fmu_state()
+    def _state_payload(self) -> dict[str, Any]:
+        state = super()._state_payload()
         state["__law__"] = self.law.get_state()
         return state
 
-    def _set_fmu_state(self, state: dict[str, Any]) -> None:
+    def _apply_state_payload(self, state: dict[str, Any]) -> None:
         state = dict(state)
         law_state = state.pop("__law__")
-        super()._set_fmu_state(state)
+        super()._apply_state_payload(state)
         # gains are calculated parameters of fixed weights: rebuild, then restore ξ
         self.law = PitchLaw(design_pitch_controller(
             self.q_alpha, self.q_q, self.q_theta, self.q_int, self.r))

@@ -1,0 +1,881 @@
+"""Frozen nominal reference of the DTG channel: guarded learning and residual tests.
+
+The paper's decision compares the estimates of a forgetting estimator with their nominal
+mean θ0. A forgetting estimator absorbs a persistent fault into θ, so that decision
+forgets a fault while it is still there. This module keeps the nominal model fixed
+instead and tests the *data* against it:
+
+* **Reference residuals.** With the reference θ0 the regression of DESIGN §2 gives, per
+  axis, e(k) = y(k) − φ(k)ᵀθ0 (V). On fault-free data e is the small unexplained part
+  (≈ 2e−5 V on the paper plant); a corrupted signal changes its level (steps, drifts),
+  its variance (noise, loss) or both, for as long as the fault lasts.
+* **Channels.** Six signals are summarised: the raw inputs Utx, Uty, Ux, Uy and the two
+  residuals ex, ey (:data:`CHANNELS`). They are summarised per *block* of samples
+  (``block_samples``, 25 ms at 1 kHz) as the block mean and the variance about the
+  block's own straight line, and per *window* of blocks as the window mean and the
+  variance about the window's straight line (:func:`window_moments`). Detrending keeps a
+  drift from looking like noise.
+* **Reference learning** (:class:`ReferenceLearner`): over the learning window θ0 is the
+  least-squares fit of both axes, the nominal channel statistics are measured from the
+  same data, and the window is checked segment by segment: each segment is tested
+  against the reference fitted on the segments before it (residual level, residual
+  variance, and the spread of the segment's own θ against what noise explains). A failed
+  segment ends the usable data: the reference is fitted on the segments before it and
+  its status says so. A nominal prior (θ0 and the channel statistics of fault-free
+  training runs, :class:`NominalPrior`) is checked last; a mismatch replaces the learned
+  reference by the prior.
+* **Residual tests** (:class:`ResidualMonitor`): per block, over the last
+  ``window_blocks``, the level z = |mean(e) − μ|/(σ_block/√K) and the variance ratio
+  var(e)/var₀ of both residuals, and the variance ratio over ``long_window_blocks``.
+  An alarm is raised when any exceeds its threshold, held while any exceeds its hold
+  threshold (level ×2/3, variance ratios ^(2/3)) and cleared ``clear_blocks`` after the
+  last block that did: an intermittent fault's alarm clears at most
+  ``long window + clear time`` after it goes away; a persistent fault keeps it.
+
+σ_block (the spread of block means) over-estimates the spread of a window mean of the
+residuals (their block means are negatively correlated), so the level test is
+conservative by a factor ~2.5 on the paper plant; faults in the residual level are
+large against it (a 0.1 V pick-off step ≈ 250 σ, a 0.1 V/s torquer drift ≈ 40 σ after
+1 s).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ._validation import check_finite_array, check_int, check_positive
+from .dtg import N_THETA
+
+__all__ = [
+    "CHANNELS",
+    "N_CHANNELS",
+    "REFERENCE_STATUS",
+    "ClassificationStatistics",
+    "NominalPrior",
+    "NominalReference",
+    "ReferenceLearner",
+    "ResidualMonitor",
+    "ResidualThresholds",
+    "block_moments",
+    "regression_residuals",
+    "window_moments",
+]
+
+#: Summarised channels: the four raw signals and the residuals of the x and y axis.
+CHANNELS = ("Utx", "Uty", "Ux", "Uy", "ex", "ey")
+N_CHANNELS = len(CHANNELS)
+#: Residual channels (indices into :data:`CHANNELS`).
+RESIDUALS = (4, 5)
+#: Reference status codes: learning, valid, change inside the learning window (reference
+#: from the segments before it), rejected against the prior (prior in use).
+REFERENCE_STATUS = {"learning": 0, "valid": 1, "change_in_window": 2, "prior_mismatch": 3}
+#: Segments of the learning window checked one after the other (at most), and their
+#: shortest length, s.
+N_SEGMENTS = 8
+MIN_SEGMENT_S = 0.25
+#: Variance floor relative to the channel's scale, so that a silent channel stays finite.
+_VAR_FLOOR = 1e-30
+
+
+# --------------------------------------------------------------------------- helpers
+def regression_residuals(filtered: NDArray[np.float64],
+                         theta: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Reference residuals of both axes for a run of filtered samples.
+
+    Parameters
+    ----------
+    filtered : ndarray, shape (n + 2, 4)
+        Filtered (Utx, Uty, Ux, Uy) in V; the first two rows are the samples before the
+        first one whose residual is wanted.
+    theta : ndarray, shape (5,)
+        Reference θ.
+
+    Returns
+    -------
+    ndarray, shape (n, 2)
+        e = y − φᵀθ of the x and y regressions of DESIGN §2 (V).
+    """
+    t1, t2, t3, t4, t5 = (float(v) for v in theta)
+    f = filtered
+    tx, ty = f[2:, 0], f[2:, 1]
+    tx1, ty1 = f[1:-1, 0], f[1:-1, 1]
+    tx2, ty2 = f[:-2, 0], f[:-2, 1]
+    ex = tx - (t1 * tx1 - t2 * tx2 - t3 * ty + t4 * ty1 + t5 * f[2:, 2])
+    ey = ty - (t1 * ty1 - t2 * ty2 + t3 * tx - t4 * tx1 + t5 * f[2:, 3])
+    return np.column_stack([ex, ey])
+
+
+def block_moments(x: NDArray[np.float64], valid: NDArray[np.bool_] | None = None
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Mean and variance about the straight-line fit of one block.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n, c)
+        n ≥ 1 samples of c channels.
+    valid : ndarray of bool, shape (n,), optional
+        Samples to use (at least one); default all.
+
+    Returns
+    -------
+    mean, var : ndarray, shape (c,)
+        Block mean and mean squared deviation from the block's least-squares line (the
+        plain variance when fewer than 3 samples are used).
+    """
+    k = np.arange(x.shape[0], dtype=float)
+    if valid is not None and not valid.all():
+        x, k = x[valid], k[valid]
+    n = x.shape[0]
+    mean = x.mean(axis=0)
+    dev = x - mean
+    var = np.mean(dev * dev, axis=0)
+    if n >= 3:
+        k = k - k.mean()
+        kk = float(k @ k)
+        slope = (k @ dev) / kk
+        var = var - slope * slope * kk / n
+    return mean, np.maximum(var, 0.0)
+
+
+def window_moments(means: NDArray[np.float64], variances: NDArray[np.float64]
+                   ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Window mean, detrended variance and slope from per-block moments.
+
+    Parameters
+    ----------
+    means, variances : ndarray, shape (K, c)
+        Block means and block (detrended) variances of K consecutive blocks.
+
+    Returns
+    -------
+    mean : ndarray, shape (c,)
+        Window mean.
+    var : ndarray, shape (c,)
+        Mean within-block variance plus the variance of the block means about their
+        least-squares line.
+    slope : ndarray, shape (c,)
+        Slope of that line, per block.
+    """
+    k = means.shape[0]
+    mean = means.mean(axis=0)
+    dev = means - mean
+    if k >= 3:
+        x = np.arange(k) - 0.5 * (k - 1)
+        xx = float(x @ x)
+        slope = (x @ dev) / xx
+        between = np.mean(dev * dev, axis=0) - slope * slope * xx / k
+    else:
+        slope = np.zeros(means.shape[1])
+        between = np.mean(dev * dev, axis=0)
+    return mean, variances.mean(axis=0) + np.maximum(between, 0.0), slope
+
+
+def _window_reference_variance(means: NDArray[np.float64], variances: NDArray[np.float64],
+                               k: int) -> NDArray[np.float64]:
+    """Mean of :func:`window_moments` variances over windows of k blocks (non-overlapping
+    when there are several; one window of all blocks when there are fewer than k)."""
+    n = means.shape[0]
+    if n <= k:
+        return window_moments(means, variances)[1]
+    starts = range(n - k, -1, -k)  # aligned with the end: the newest data count
+    return np.mean([window_moments(means[s:s + k], variances[s:s + k])[1] for s in starts],
+                   axis=0)
+
+
+def _usable(valid: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Copy of a block's usable-row mask."""
+    return np.asarray(valid, dtype=bool).copy()
+
+
+def _residual_moments(e: NDArray[np.float64], valid: NDArray[np.bool_]
+                      ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """Block moments of the usable residual rows; None when fewer than 3 are usable
+    (the caller repeats the previous block's)."""
+    if valid.all():
+        return block_moments(e)
+    if np.count_nonzero(valid) < min(3, valid.size):
+        return None
+    return block_moments(e, valid)
+
+
+def _fill_gaps(moments: list[tuple[NDArray[np.float64], NDArray[np.float64]] | None]
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Stack per-block moments, a missing block repeating its predecessor (the first
+    usable block for leading gaps)."""
+    usable = [m for m in moments if m is not None]
+    if not usable:
+        raise ValueError("no block of the learning window has usable regression rows "
+                         "(non-finite inputs throughout?)")
+    last = usable[0]
+    means, variances = [], []
+    for m in moments:
+        last = m if m is not None else last
+        means.append(last[0])
+        variances.append(last[1])
+    return np.array(means), np.array(variances)
+
+
+def _ls(A: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64] | None:
+    try:
+        sol = np.linalg.solve(A, b)
+    except np.linalg.LinAlgError:
+        return None
+    return sol if np.all(np.isfinite(sol)) else None
+
+
+# --------------------------------------------------------------------------- reference
+@dataclass(frozen=True)
+class NominalPrior:
+    """Nominal reference expected from fault-free training runs (signature file).
+
+    Attributes
+    ----------
+    theta0, theta0_std : ndarray, shape (5,)
+        Mean and spread of the learned reference θ over the training runs.
+    mean, block_std, var_short, var_long : ndarray, shape (6,)
+        Median channel statistics of those runs (V, V, V², V²; :class:`NominalReference`).
+    """
+
+    theta0: NDArray[np.float64]
+    theta0_std: NDArray[np.float64]
+    mean: NDArray[np.float64]
+    block_std: NDArray[np.float64]
+    var_short: NDArray[np.float64]
+    var_long: NDArray[np.float64]
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], where: str = "nominal") -> NominalPrior:
+        """Read and check ``{theta0, theta0_std, mean, block_std, var_short, var_long}``."""
+        if not isinstance(d, dict):
+            raise ValueError(f"{where} must be an object, got {type(d).__name__}")
+        shapes = {"theta0": N_THETA, "theta0_std": N_THETA, "mean": N_CHANNELS,
+                  "block_std": N_CHANNELS, "var_short": N_CHANNELS, "var_long": N_CHANNELS}
+        vals = {}
+        for key, n in shapes.items():
+            if key not in d:
+                raise ValueError(f"{where}.{key} is missing")
+            vals[key] = check_finite_array(f"{where}.{key}", d[key], shape=(n,))
+        if np.any(vals["theta0"] == 0.0):
+            raise ValueError(f"{where}.theta0 must have no zero entry")
+        for key in ("theta0_std", "block_std", "var_short", "var_long"):
+            if np.any(vals[key] < 0) or (key != "theta0_std" and np.any(vals[key] == 0)):
+                raise ValueError(f"{where}.{key} must be positive, got {list(vals[key])}")
+        return cls(**vals)
+
+    def to_dict(self) -> dict[str, list[float]]:
+        """JSON-ready content."""
+        return {k: [float(v) for v in getattr(self, k)] for k in
+                ("theta0", "theta0_std", "mean", "block_std", "var_short", "var_long")}
+
+
+@dataclass
+class NominalReference:
+    """The frozen nominal model and channel statistics the residual tests compare with.
+
+    Attributes
+    ----------
+    theta0 : ndarray, shape (5,)
+        Reference θ of the residuals (least squares over the accepted learning data, or
+        the given / prior θ0).
+    theta0_eta : ndarray, shape (5,)
+        Nominal θ of the ratio test η = |θ|/|θ0| (mean fast-estimator θ over the accepted
+        data, the paper's rule).
+    mean : ndarray, shape (6,)
+        Channel means, V.
+    block_std : ndarray, shape (6,)
+        Standard deviation of block means, V.
+    var_short, var_long : ndarray, shape (6,)
+        Mean detrended variance over a short / long window, V².
+    status : int
+        :data:`REFERENCE_STATUS` code.
+    segments_used : int
+        Learning segments the reference was fitted on.
+    change_segment : int
+        First rejected segment (0-based), −1 if none.
+    """
+
+    theta0: NDArray[np.float64]
+    theta0_eta: NDArray[np.float64]
+    mean: NDArray[np.float64]
+    block_std: NDArray[np.float64]
+    var_short: NDArray[np.float64]
+    var_long: NDArray[np.float64]
+    status: int = REFERENCE_STATUS["valid"]
+    segments_used: int = 0
+    change_segment: int = -1
+
+    @property
+    def valid(self) -> bool:
+        """The learned reference passed every check."""
+        return self.status == REFERENCE_STATUS["valid"]
+
+    def variance_at(self, blocks: int, short_blocks: int, long_blocks: int
+                    ) -> NDArray[np.float64]:
+        """Reference variance of a window of ``blocks`` blocks, interpolated in log
+        window length between the short and the long window."""
+        if blocks <= short_blocks or long_blocks <= short_blocks:
+            return self.var_short
+        if blocks >= long_blocks:
+            return self.var_long
+        f = math.log(blocks / short_blocks) / math.log(long_blocks / short_blocks)
+        return self.var_short * (self.var_long / self.var_short) ** f
+
+    def get_state(self) -> dict[str, Any]:
+        """Plain copy."""
+        return {"theta0": self.theta0.copy(), "theta0_eta": self.theta0_eta.copy(),
+                "mean": self.mean.copy(), "block_std": self.block_std.copy(),
+                "var_short": self.var_short.copy(), "var_long": self.var_long.copy(),
+                "status": self.status, "segments_used": self.segments_used,
+                "change_segment": self.change_segment}
+
+    @classmethod
+    def from_state(cls, s: dict[str, Any]) -> NominalReference:
+        """Inverse of :meth:`get_state`."""
+        arr = {k: check_finite_array(f"state[{k!r}]", s[k], shape=(n,)).copy()
+               for k, n in (("theta0", N_THETA), ("theta0_eta", N_THETA),
+                            ("mean", N_CHANNELS), ("block_std", N_CHANNELS),
+                            ("var_short", N_CHANNELS), ("var_long", N_CHANNELS))}
+        return cls(**arr, status=int(s["status"]), segments_used=int(s["segments_used"]),
+                   change_segment=int(s["change_segment"]))
+
+
+@dataclass(frozen=True)
+class ResidualThresholds:
+    """Raise thresholds of the residual tests (hold thresholds are derived).
+
+    Attributes
+    ----------
+    level : float
+        z of a residual window mean in units of σ_block/√K (hold: 2/3 of it).
+    variance : float
+        Short-window variance ratio of a residual (hold: ratio^(2/3)).
+    long_variance : float
+        Long-window variance ratio (hold: ratio^(2/3)).
+    theta_spread : float
+        Learning guard: a segment's θ against the reference of the segments before it,
+        (Δθᵀ·C⁻¹·Δθ)/5 with C the least-squares covariance from the residual variance.
+    """
+
+    level: float = 6.0
+    variance: float = 4.0
+    long_variance: float = 2.0
+    theta_spread: float = 30.0
+
+    def validate(self) -> None:
+        """Raise ValueError naming the first bad threshold."""
+        check_positive("level_threshold", self.level)
+        for name, v in (("var_threshold", self.variance),
+                        ("long_var_threshold", self.long_variance)):
+            if not (math.isfinite(v) and v > 1.0):
+                raise ValueError(f"{name} must be a finite ratio > 1, got {v!r}")
+        check_positive("theta_spread_threshold", self.theta_spread)
+
+    @property
+    def hold(self) -> tuple[float, float, float]:
+        """(level, variance, long variance) thresholds that keep a raised alarm."""
+        return (self.level * 2.0 / 3.0, self.variance ** (2.0 / 3.0),
+                self.long_variance ** (2.0 / 3.0))
+
+
+class ReferenceLearner:
+    """Collects the learning window and builds the checked :class:`NominalReference`.
+
+    Parameters
+    ----------
+    block_samples : int
+        Samples per block.
+    short_blocks, long_blocks : int
+        Window lengths of the residual tests, blocks.
+    thresholds : ResidualThresholds
+        Thresholds of the segment checks (the residual tests' own, plus θ spread).
+    block_s : float
+        Block duration, s.
+
+    Notes
+    -----
+    Between :meth:`start` and :meth:`finish` it keeps the filtered samples of the
+    learning window (4 floats per sample) and per block the raw-signal moments and the
+    mean fast-estimator θ: the reference θ0 is not known before the end, so the
+    residuals are computed then.
+    """
+
+    def __init__(self, block_samples: int, short_blocks: int, long_blocks: int,
+                 thresholds: ResidualThresholds, block_s: float) -> None:
+        self.block_samples = check_int("block_samples", block_samples, minimum=1)
+        self.block_s = check_positive("block_s", block_s)
+        self.short_blocks = check_int("short_blocks", short_blocks, minimum=1)
+        self.long_blocks = check_int("long_blocks", long_blocks, minimum=1)
+        self.thresholds = thresholds
+        self.reset()
+
+    def reset(self) -> None:
+        """Empty: nothing collected."""
+        self._filtered: list[NDArray[np.float64]] = []   # blocks (nb, 4), in order
+        self._history = np.zeros((2, 4))                  # the 2 samples before the window
+        self._raw_mean: list[NDArray[np.float64]] = []
+        self._raw_var: list[NDArray[np.float64]] = []
+        self._theta: list[NDArray[np.float64]] = []       # per block mean θ, (2, 5)
+        self._valid: list[NDArray[np.bool_]] = []         # regression rows to use, (nb,)
+
+    @property
+    def n_blocks(self) -> int:
+        """Blocks collected."""
+        return len(self._filtered)
+
+    def set_history(self, history: NDArray[np.float64]) -> None:
+        """The two filtered samples before the first block (rows k−2, k−1)."""
+        self._history = np.array(history, dtype=float).reshape(2, 4)
+
+    def push_block(self, raw: NDArray[np.float64], filtered: NDArray[np.float64],
+                   theta: NDArray[np.float64], valid: NDArray[np.bool_]) -> None:
+        """Add one block: raw and filtered samples (nb, 4), fast-estimator θ (nb, 10),
+        and which samples' regression rows are sound (False next to a skipped sample)."""
+        m, v = block_moments(raw)
+        self._raw_mean.append(m)
+        self._raw_var.append(v)
+        self._filtered.append(np.array(filtered, dtype=float))
+        self._theta.append(theta.mean(axis=0).reshape(2, N_THETA))
+        self._valid.append(_usable(valid))
+
+    # -- the end of learning ---------------------------------------------------------
+    def finish(self, theta0: NDArray[np.float64] | None = None,
+               prior: NominalPrior | None = None) -> NominalReference:
+        """Check the collected window and return the reference.
+
+        Parameters
+        ----------
+        theta0 : ndarray, shape (5,), optional
+            A given reference θ0 (used as is; the window still supplies the statistics
+            and is still checked).
+        prior : NominalPrior, optional
+            Expected nominal reference; a learned reference outside it is replaced by it.
+
+        Raises
+        ------
+        ValueError
+            If no block was collected or the regression is singular (no excitation).
+        """
+        nblk = self.n_blocks
+        if nblk == 0:
+            raise ValueError("the learning window holds no complete block of samples: make "
+                             "learn_end_s - learn_start_s longer than a block")
+        nb = self.block_samples
+        filt = np.vstack([self._history, *self._filtered])
+        # normal equations per block (both axes pooled): z = [phi, y]
+        f = filt
+        phx = np.column_stack([f[1:-1, 0], -f[:-2, 0], -f[2:, 1], f[1:-1, 1], f[2:, 2]])
+        phy = np.column_stack([f[1:-1, 1], -f[:-2, 1], f[2:, 0], -f[1:-1, 0], f[2:, 3]])
+        use = np.concatenate(self._valid).astype(float)[:, None]
+        zx = (np.column_stack([phx, f[2:, 0]]) * use).reshape(nblk, nb, N_THETA + 1)
+        zy = (np.column_stack([phy, f[2:, 1]]) * use).reshape(nblk, nb, N_THETA + 1)
+        valid_blocks = self._valid
+        M = np.einsum("bki,bkj->bij", zx, zx) + np.einsum("bki,bkj->bij", zy, zy)
+        raw_mean = np.array(self._raw_mean)
+        raw_var = np.array(self._raw_var)
+        theta_blk = np.array(self._theta)                      # (nblk, 2, 5)
+        segs = self._segments(nblk)
+
+        def fit(blocks: slice) -> tuple[NDArray[np.float64] | None, NDArray[np.float64]]:
+            Ms = M[blocks].sum(axis=0)
+            return _ls(Ms[:N_THETA, :N_THETA], Ms[:N_THETA, N_THETA]), Ms
+
+        def channel_blocks(theta: NDArray[np.float64], blocks: slice
+                           ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+            b0, b1, _ = blocks.indices(nblk)
+            e = regression_residuals(filt[b0 * nb:b1 * nb + 2], theta)
+            e = e.reshape(b1 - b0, nb, 2)
+            em, ev = _fill_gaps([_residual_moments(blk, ok) for blk, ok in
+                                 zip(e, valid_blocks[b0:b1], strict=True)])
+            return (np.column_stack([raw_mean[blocks], em]),
+                    np.column_stack([raw_var[blocks], ev]))
+
+        # sequential segment checks
+        change = -1
+        for j in range(1, len(segs)):
+            prev = slice(segs[0].start, segs[j - 1].stop)
+            th_prev, M_prev = fit(prev)
+            th_seg, M_seg = fit(segs[j])
+            if th_prev is None:
+                raise ValueError("the regression is singular over the first learning "
+                                 "segment(s): the signals do not excite all θ (no dither?)")
+            means, variances = channel_blocks(th_prev, slice(prev.start, segs[j].stop))
+            n_prev = prev.stop - prev.start
+            if self._segment_fails(means[:n_prev], variances[:n_prev], means[n_prev:],
+                                   variances[n_prev:], th_prev, M_prev, th_seg, M_seg):
+                change = j
+                break
+        used = slice(0, segs[change - 1].stop) if change > 0 else slice(0, nblk)
+        th_ls, _ = fit(used)
+        if th_ls is None:
+            raise ValueError("the regression over the learning window is singular: the "
+                             "signals do not excite all θ (no torquer dither?)")
+        ref_theta = th_ls if theta0 is None else np.asarray(theta0, dtype=float)
+        means, variances = channel_blocks(ref_theta, used)
+        theta_eta = (theta_blk[used].mean(axis=(0, 1)) if theta0 is None
+                     else np.asarray(theta0, dtype=float))
+        ref = NominalReference(
+            theta0=ref_theta.copy(), theta0_eta=theta_eta.copy(),
+            mean=means.mean(axis=0),
+            block_std=np.maximum(means.std(axis=0), np.sqrt(_VAR_FLOOR)),
+            var_short=np.maximum(
+                _window_reference_variance(means, variances, self.short_blocks), _VAR_FLOOR),
+            var_long=np.maximum(
+                _window_reference_variance(means, variances, self.long_blocks), _VAR_FLOOR),
+            status=REFERENCE_STATUS["valid" if change < 0 else "change_in_window"],
+            segments_used=len(segs) if change < 0 else change,
+            change_segment=change,
+        )
+        if np.any(ref.theta0_eta == 0.0):
+            raise ValueError("the learned nominal θ has a zero entry (no excitation in the "
+                             f"learning window?): {list(ref.theta0_eta)}")
+        if prior is not None and not self._matches_prior(ref, prior):
+            return NominalReference(
+                theta0=prior.theta0.copy(), theta0_eta=prior.theta0.copy(),
+                mean=prior.mean.copy(), block_std=prior.block_std.copy(),
+                var_short=prior.var_short.copy(), var_long=prior.var_long.copy(),
+                status=REFERENCE_STATUS["prior_mismatch"],
+                segments_used=ref.segments_used, change_segment=ref.change_segment)
+        return ref
+
+    def reference_blocks(self, reference: NominalReference, count: int
+                         ) -> tuple[NDArray[np.float64], NDArray[np.float64],
+                                    NDArray[np.float64]]:
+        """Channel moments (means, variances (k, 6)) and mean θ (k, 10) of the last
+        ``count`` learning blocks under ``reference``: they pre-fill the residual
+        monitor, so that its tests run from the first sample after learning."""
+        nblk = self.n_blocks
+        k = min(count, nblk)
+        nb = self.block_samples
+        filt = np.vstack([self._history, *self._filtered])
+        b0 = nblk - k
+        e = regression_residuals(filt[:nblk * nb + 2], reference.theta0)
+        em, ev = _fill_gaps([_residual_moments(blk, ok) for blk, ok in
+                             zip(e.reshape(nblk, nb, 2), self._valid, strict=True)])
+        means = np.column_stack([np.array(self._raw_mean[b0:]), em[b0:]])
+        variances = np.column_stack([np.array(self._raw_var[b0:]), ev[b0:]])
+        theta = np.array(self._theta[b0:]).reshape(k, 2 * N_THETA)
+        return means, variances, theta
+
+    def _segments(self, nblk: int) -> list[slice]:
+        per = max(1, round(MIN_SEGMENT_S / self.block_s))
+        n_seg = max(1, min(N_SEGMENTS, nblk // per))
+        edges = np.linspace(0, nblk, n_seg + 1).round().astype(int)
+        return [slice(int(a), int(b)) for a, b in itertools.pairwise(edges) if b > a]
+
+    def _segment_fails(self, ref_means: NDArray[np.float64], ref_vars: NDArray[np.float64],
+                       seg_means: NDArray[np.float64], seg_vars: NDArray[np.float64],
+                       th_prev: NDArray[np.float64], M_prev: NDArray[np.float64],
+                       th_seg: NDArray[np.float64] | None, M_seg: NDArray[np.float64]
+                       ) -> bool:
+        thr = self.thresholds
+        k = seg_means.shape[0]
+        res = list(RESIDUALS)
+        mu = ref_means[:, res].mean(axis=0)
+        sd = np.maximum(ref_means[:, res].std(axis=0), 1e-300)
+        m, v, _ = window_moments(seg_means[:, res], seg_vars[:, res])
+        v_ref = _window_reference_variance(ref_means[:, res], ref_vars[:, res], k)
+        z = np.abs(m - mu) / (sd / math.sqrt(k))
+        ratio = v / np.maximum(v_ref, _VAR_FLOOR)
+        if np.any(z > thr.level) or np.any(ratio > thr.variance):
+            return True
+        if th_seg is None:
+            return True  # the segment alone is singular: the signals changed character
+        # θ spread: LS covariance σ²·A⁻¹ of each estimate, σ² per sample from the
+        # reference fit (residual sum of squares / samples)
+        w = np.concatenate([-th_prev, [1.0]])
+        rss = float(w @ M_prev @ w)
+        samples = 2 * ref_means.shape[0] * self.block_samples  # both axes
+        sigma2 = rss / max(samples - N_THETA, 1)
+        A_prev, A_seg = M_prev[:N_THETA, :N_THETA], M_seg[:N_THETA, :N_THETA]
+        try:
+            C = sigma2 * (np.linalg.inv(A_prev) + np.linalg.inv(A_seg))
+            d = th_seg - th_prev
+            spread = float(d @ np.linalg.solve(C, d)) / N_THETA
+        except np.linalg.LinAlgError:
+            return True
+        self.last_spread = spread
+        return not spread <= thr.theta_spread
+
+    @staticmethod
+    def _matches_prior(ref: NominalReference, prior: NominalPrior) -> bool:
+        # θ: within 6 spreads of the training runs (floor 1e-3 relative: runs of one
+        # seed set can agree better than plants do)
+        tol = 6.0 * np.maximum(prior.theta0_std, 1e-3 * np.abs(prior.theta0))
+        if np.any(np.abs(ref.theta0 - prior.theta0) > tol):
+            return False
+        # channel levels within 6 block spreads (over the whole window: conservative),
+        # variances within a factor 3
+        if np.any(np.abs(ref.mean - prior.mean) > 6.0 * prior.block_std):
+            return False
+        ratio = ref.var_short / prior.var_short
+        return bool(np.all((ratio < 3.0) & (ratio > 1.0 / 3.0)))
+
+    # -- state -----------------------------------------------------------------------
+    def get_state(self) -> dict[str, Any]:
+        """Collected data (copies)."""
+        return {"filtered": np.array(self._filtered).reshape(-1, 4),
+                "history": self._history.copy(),
+                "raw_mean": np.array(self._raw_mean).reshape(-1, 4),
+                "raw_var": np.array(self._raw_var).reshape(-1, 4),
+                "theta": np.array(self._theta).reshape(-1, 2 * N_THETA),
+                "valid": np.array(self._valid, dtype=bool).reshape(-1)}
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        """Restore :meth:`get_state` output."""
+        nb = self.block_samples
+        filt = np.asarray(state["filtered"], dtype=float).reshape(-1, 4)
+        raw_mean = np.asarray(state["raw_mean"], dtype=float).reshape(-1, 4)
+        nblk = raw_mean.shape[0]
+        if filt.shape[0] != nblk * nb:
+            raise ValueError(f"state['filtered'] has {filt.shape[0]} samples, expected "
+                             f"{nblk} blocks of {nb}")
+        self._filtered = [filt[i * nb:(i + 1) * nb].copy() for i in range(nblk)]
+        self._history = np.asarray(state["history"], dtype=float).reshape(2, 4).copy()
+        self._raw_mean = list(raw_mean.copy())
+        self._raw_var = list(np.asarray(state["raw_var"], dtype=float).reshape(-1, 4).copy())
+        self._theta = [t.reshape(2, N_THETA) for t in
+                       np.asarray(state["theta"], dtype=float).reshape(-1, 2 * N_THETA).copy()]
+        valid = np.asarray(state["valid"], dtype=bool).reshape(-1)
+        self._valid = [valid[i * nb:(i + 1) * nb].copy() for i in range(nblk)]
+
+
+# --------------------------------------------------------------------------- runtime
+@dataclass(frozen=True)
+class ClassificationStatistics:
+    """What the pattern classifier sees (:class:`ResidualMonitor.classification_statistics`).
+
+    Attributes
+    ----------
+    level : ndarray, shape (6,)
+        (window mean − reference mean)/σ_block per channel (block-mean units).
+    log_variance : ndarray, shape (6,)
+        log10(window variance / reference variance) per channel.
+    slope : ndarray, shape (6,)
+        Slope of the block means in the window, block-mean units per second.
+    growth : float
+        log10((|L_end| + 1)/(|L_start| + 1)) of the residual level along its mean
+        direction, from the straight-line fit over the window: ≈ 0 for a step, > 0 for
+        a level that grows (drift).
+    log_eta : ndarray, shape (10,)
+        log10(|mean θ|/|θ0_eta|) over the window, x then y axis.
+    window_blocks : int
+        Blocks in the window.
+    window_s : float
+        Window length, s.
+    """
+
+    level: NDArray[np.float64]
+    log_variance: NDArray[np.float64]
+    slope: NDArray[np.float64]
+    growth: float
+    log_eta: NDArray[np.float64]
+    window_blocks: int
+    window_s: float
+
+
+class ResidualMonitor:
+    """Runtime residual tests with alarm memory (module docstring).
+
+    Parameters
+    ----------
+    reference : NominalReference
+        The frozen reference.
+    block_samples : int
+        Samples per block.
+    block_s : float
+        Block duration, s.
+    short_blocks, long_blocks : int
+        Test windows, blocks (long ≥ short).
+    thresholds : ResidualThresholds
+        Raise thresholds.
+    clear_blocks : int
+        Blocks without any test above its hold threshold after which an alarm clears.
+    """
+
+    #: Blocks after the alarm's first block that classification leaves out (the
+    #: prefilter's transient of an abrupt fault).
+    SKIP_BLOCKS = 2
+
+    def __init__(self, reference: NominalReference, block_samples: int, block_s: float,
+                 short_blocks: int, long_blocks: int, thresholds: ResidualThresholds,
+                 clear_blocks: int) -> None:
+        self.reference = reference
+        self.block_samples = check_int("block_samples", block_samples, minimum=1)
+        self.block_s = check_positive("block_s", block_s)
+        self.short_blocks = check_int("short_blocks", short_blocks, minimum=1)
+        self.long_blocks = max(check_int("long_blocks", long_blocks, minimum=1),
+                               self.short_blocks)
+        self.thresholds = thresholds
+        self.clear_blocks = check_int("clear_blocks", clear_blocks, minimum=1)
+        self._theta0 = reference.theta0.copy()
+        self._log_theta0_eta = np.log10(np.abs(np.tile(reference.theta0_eta, 2)))
+        self.reset()
+
+    def reset(self) -> None:
+        """Empty ring, no alarm."""
+        L = self.long_blocks
+        self._means = np.zeros((L, N_CHANNELS))
+        self._vars = np.zeros((L, N_CHANNELS))
+        self._theta = np.zeros((L, 2 * N_THETA))
+        self._pos = 0          # next slot
+        self._count = 0        # blocks pushed (saturates at L for the ring)
+        self._block_index = 0  # blocks pushed since construction
+        self.alarm = False
+        self._alarm_block = -1
+        self._last_hold_block = -1
+        self.statistics = np.zeros(6)  # z_x, z_y, v_x, v_y, vL_x, vL_y
+
+    def prefill(self, means: NDArray[np.float64], variances: NDArray[np.float64],
+                theta: NDArray[np.float64]) -> None:
+        """Load learning blocks (oldest first) without testing them."""
+        for m, v, t in zip(means, variances, theta, strict=True):
+            self._store(m, v, t)
+
+    def _store(self, m: NDArray[np.float64], v: NDArray[np.float64],
+               t: NDArray[np.float64]) -> None:
+        p = self._pos
+        self._means[p] = m
+        self._vars[p] = v
+        self._theta[p] = t
+        self._pos = (p + 1) % self.long_blocks
+        self._count = min(self._count + 1, self.long_blocks)
+
+    def _last(self, k: int) -> tuple[NDArray[np.float64], NDArray[np.float64],
+                                     NDArray[np.float64]]:
+        """The newest k blocks, oldest first."""
+        k = min(k, self._count)
+        idx = (self._pos - k + np.arange(k)) % self.long_blocks
+        return self._means[idx], self._vars[idx], self._theta[idx]
+
+    def push_block(self, raw: NDArray[np.float64], filtered: NDArray[np.float64],
+                   theta: NDArray[np.float64], valid: NDArray[np.bool_]) -> bool:
+        """Add one block and run the tests; returns the alarm.
+
+        Parameters
+        ----------
+        raw : ndarray, shape (nb, 4)
+            Raw samples.
+        filtered : ndarray, shape (nb + 2, 4)
+            Filtered samples with the two before the block first.
+        theta : ndarray, shape (nb, 10)
+            Fast-estimator θ of both axes per sample.
+        valid : ndarray of bool, shape (nb,)
+            Samples whose regression rows are sound (False next to a skipped sample).
+        """
+        e = regression_residuals(filtered, self._theta0)
+        m, v = block_moments(raw)
+        res = _residual_moments(e, valid)
+        if res is None:  # no usable row (a skipped sample): repeat the last block's
+            prev = (self._pos - 1) % self.long_blocks
+            res = (self._means[prev, 4:].copy(), self._vars[prev, 4:].copy())
+        m = np.concatenate([m, res[0]])
+        v = np.concatenate([v, res[1]])
+        self._store(m, v, theta.mean(axis=0))
+        self._block_index += 1
+        return self._test()
+
+    def _test(self) -> bool:
+        ref = self.reference
+        thr = self.thresholds
+        res = list(RESIDUALS)
+        means, variances, _ = self._last(self.short_blocks)
+        k = means.shape[0]
+        m, v, _ = window_moments(means[:, res], variances[:, res])
+        z = np.abs(m - ref.mean[res]) / (ref.block_std[res] / math.sqrt(k))
+        vs = v / ref.variance_at(k, self.short_blocks, self.long_blocks)[res]
+        lm, lv = self._last(self.long_blocks)[:2]
+        kl = lm.shape[0]
+        _, vl, _ = window_moments(lm[:, res], lv[:, res])
+        vL = vl / ref.variance_at(kl, self.short_blocks, self.long_blocks)[res]
+        self.statistics = np.concatenate([z, vs, vL])
+        hz, hv, hl = thr.hold
+        raise_now = bool(np.any(z > thr.level) or np.any(vs > thr.variance)
+                         or np.any(vL > thr.long_variance))
+        hold_now = bool(np.any(z > hz) or np.any(vs > hv) or np.any(vL > hl))
+        b = self._block_index
+        if hold_now:
+            self._last_hold_block = b
+        if not self.alarm:
+            if raise_now:
+                self.alarm = True
+                self._alarm_block = b
+        elif not hold_now and b - self._last_hold_block >= self.clear_blocks:
+            self.alarm = False
+            self._alarm_block = -1
+        return self.alarm
+
+    @property
+    def blocks_in_alarm(self) -> int:
+        """Blocks since the alarm was raised (0 without alarm)."""
+        return 0 if not self.alarm else self._block_index - self._alarm_block + 1
+
+    def classification_statistics(self) -> ClassificationStatistics | None:
+        """Statistics of the alarm window: the blocks since the alarm was raised (less
+        :data:`SKIP_BLOCKS`), at most the long window; None before a short window of them
+        is available or without alarm."""
+        if not self.alarm:
+            return None
+        k = min(self.blocks_in_alarm - self.SKIP_BLOCKS, self.long_blocks)
+        if k < self.short_blocks:
+            return None
+        return self.window_statistics(k)
+
+    def window_statistics(self, k: int) -> ClassificationStatistics:
+        """:class:`ClassificationStatistics` of the newest k blocks (k ≥ 1)."""
+        ref = self.reference
+        means, variances, theta = self._last(k)
+        k = means.shape[0]
+        m, v, slope = window_moments(means, variances)
+        level = (m - ref.mean) / ref.block_std
+        log_var = np.log10(np.maximum(v, _VAR_FLOOR)
+                           / ref.variance_at(k, self.short_blocks, self.long_blocks))
+        res = list(RESIDUALS)
+        blk = (means[:, res] - ref.mean[res]) / ref.block_std[res]
+        mean_dir = blk.mean(axis=0)
+        norm = float(np.hypot(*mean_dir))
+        growth = 0.0
+        if norm > 0.0 and k >= 3:
+            proj = blk @ (mean_dir / norm)
+            x = np.arange(k) - 0.5 * (k - 1)
+            b = float(x @ (proj - proj.mean())) / float(x @ x)
+            half = b * 0.5 * (k - 1)
+            growth = math.log10((abs(proj.mean() + half) + 1.0)
+                                / (abs(proj.mean() - half) + 1.0))
+        th = np.abs(theta.mean(axis=0))
+        log_eta = np.log10(np.maximum(th, 1e-300)) - self._log_theta0_eta
+        return ClassificationStatistics(
+            level=level, log_variance=log_var, slope=slope / ref.block_std / self.block_s,
+            growth=growth, log_eta=log_eta, window_blocks=k, window_s=k * self.block_s)
+
+    # -- state -----------------------------------------------------------------------
+    def get_state(self) -> dict[str, Any]:
+        """Ring and alarm state (copies)."""
+        return {"means": self._means.copy(), "vars": self._vars.copy(),
+                "theta": self._theta.copy(), "pos": self._pos, "count": self._count,
+                "block_index": self._block_index, "alarm": self.alarm,
+                "alarm_block": self._alarm_block, "last_hold_block": self._last_hold_block,
+                "statistics": self.statistics.copy()}
+
+    def set_state(self, s: dict[str, Any]) -> None:
+        """Restore :meth:`get_state` output of an identically configured monitor."""
+        L = self.long_blocks
+        means = np.asarray(s["means"], dtype=float)
+        if means.shape != (L, N_CHANNELS):
+            raise ValueError(f"state['means'] has shape {means.shape}, expected "
+                             f"{(L, N_CHANNELS)}")
+        self._means = means.copy()
+        self._vars = np.asarray(s["vars"], dtype=float).reshape(L, N_CHANNELS).copy()
+        self._theta = np.asarray(s["theta"], dtype=float).reshape(L, 2 * N_THETA).copy()
+        self._pos, self._count = int(s["pos"]), int(s["count"])
+        self._block_index = int(s["block_index"])
+        self.alarm = bool(s["alarm"])
+        self._alarm_block = int(s["alarm_block"])
+        self._last_hold_block = int(s["last_hold_block"])
+        self.statistics = np.asarray(s["statistics"], dtype=float).reshape(6).copy()
+

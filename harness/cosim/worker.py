@@ -1,0 +1,108 @@
+"""One scenario run in a process of its own: ``python -m harness.cosim.worker JOB``.
+
+:mod:`harness.cosim.batch` starts one such process per scenario: pythonfmu FMUs must
+not be loaded again into a process that ran them (DESIGN §6.11), a crash or abort of
+an FMU only ends its own run, and runs can go in parallel.  ``JOB`` is a pickle written
+by the batch (:class:`Job`); the run's files are saved into ``Job.out_dir`` as by
+:func:`harness.cosim.master.run_scenario`, and a small status file (JSON) says how the
+run ended::
+
+    {"status": "ok" | "failed" | "interrupted" | "crashed", "message": "..."}
+
+``failed`` is a run that stopped on an FMU error (its files are saved); ``crashed`` an
+exception of the harness itself (the message holds the traceback).
+
+The process runs in a session of its own (the batch forwards Ctrl-C and SIGTERM to it
+exactly once) and stops its run, keeping what it recorded, when its parent goes away.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import pickle
+import sys
+import threading
+import time
+import traceback
+from dataclasses import dataclass
+from typing import Any
+
+from harness.cosim.interrupt import RunInterrupted, request_stop, stop_on_signals
+
+log = logging.getLogger(__name__)
+
+#: How often the worker checks that the batch that started it is still there, s.
+ORPHAN_POLL_S = 0.5
+
+
+@dataclass
+class Job:
+    """What one worker process runs (pickled by the batch)."""
+
+    scenario: Any           # harness.cosim.scenario.Scenario
+    out_dir: str
+    fmu_dir: str | None
+    results_dir: str | None
+    status_file: str
+    progress: bool
+    log_level: int
+    parent_pid: int
+
+
+def _watch_parent(parent_pid: int) -> None:
+    # a batch killed with SIGKILL cannot forward anything: stop like on SIGTERM
+    while True:
+        time.sleep(ORPHAN_POLL_S)
+        if os.getppid() != parent_pid:
+            request_stop("the batch that started this run exited")
+            return
+
+
+def _write_status(path: str, status: str, message: str = "") -> None:
+    tmp = f"{path}.part"
+    with open(tmp, "w", encoding="utf-8") as fh:
+        json.dump({"status": status, "message": message}, fh)
+    os.replace(tmp, path)
+
+
+def run_job(job: Job) -> str:
+    """Run one job; returns the status written."""
+    from harness.cosim.master import run_scenario
+
+    try:
+        result = run_scenario(job.scenario, fmu_dir=job.fmu_dir, progress=job.progress,
+                              out_dir=job.out_dir, results_dir=job.results_dir)
+    except RunInterrupted as exc:
+        status, message = "interrupted", exc.reason
+    except Exception:
+        status, message = "crashed", traceback.format_exc()
+    else:
+        status, message = ("ok", "") if result.error is None else ("failed", result.error)
+    _write_status(job.status_file, status, message)
+    return status
+
+
+def main(argv: list[str]) -> int:
+    if len(argv) != 1:
+        print("usage: python -m harness.cosim.worker JOB (started by harness.cosim.batch)",
+              file=sys.stderr)
+        return 2
+    with open(argv[0], "rb") as fh:
+        job: Job = pickle.load(fh)  # written by this package's batch, never by a user
+    logging.basicConfig(level=job.log_level, format="%(message)s", stream=sys.stderr)
+    threading.Thread(target=_watch_parent, args=(job.parent_pid,), daemon=True).start()
+    with stop_on_signals():  # from here on a signal never interrupts mid-call
+        run_job(job)
+    return 0
+
+
+if __name__ == "__main__":
+    try:
+        code = main(sys.argv[1:])
+    except KeyboardInterrupt:  # a signal before the run started: nothing to keep
+        code = 130
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)  # see harness/__main__.py: pythonfmu's exit-time destructors

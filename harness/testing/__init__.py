@@ -1,0 +1,2 @@
+"""Testing: scenario files as pytest tests (the ``gyrodiag`` pytest plugin) and fixtures
+for users' own tests; see :mod:`harness.testing.plugin`."""
