@@ -83,7 +83,7 @@ PHYSICAL_UNITS = ("1/s", "1/s2", "rad/s", "1/s2", "1/s2")
 GREY_UNIT = "V"
 
 #: Packages the host's Python needs (written to resources/requirements.txt).
-REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10", "control>=0.10"]
+REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10"]
 
 VARIABLE_META: dict[str, dict[str, Any]] = {}
 #: Lower bound declared for parameters that must be > 0 (FMI bounds are inclusive).

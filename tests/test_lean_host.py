@@ -94,3 +94,50 @@ def test_missing_package_is_fmi2error_saying_how_to_install(run_fmu_script, tmp_
     assert "pip install 'scipy>=1.10'" in log and "requirements.txt" in log, log
     assert "Traceback" not in log
     assert int(res["step_status"]) == 3  # not initialised: steps refused, host alive
+
+
+_NO_CONTROL = r"""
+import sys, zipfile
+sys.modules["control"] = None  # python-control absent from the host
+import numpy as np
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave
+
+fmu = sys.argv[1]
+print(zipfile.ZipFile(fmu).read("resources/requirements.txt").decode().split())
+unzipdir = extract(fmu)
+md = read_model_description(unzipdir)
+refs = {v.name: v.valueReference for v in md.modelVariables}
+s = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir,
+              modelIdentifier=md.coSimulation.modelIdentifier, instanceName="no_control")
+s.instantiate()
+s.setReal([refs["sample_period_s"]], [0.01])
+s.setBoolean([refs["dtg.enabled"]], [False])  # its 50 Hz prefilter needs 1 kHz
+s.setupExperiment(startTime=0.0)
+s.enterInitializationMode()
+s.exitInitializationMode()
+rng = np.random.default_rng(1)
+for k in range(1200):  # past the calibration window (10 s): observers designed
+    s.setReal([refs[f"df.y[{i}]"] for i in range(1, 7)], list(1e-3 * rng.standard_normal(6)))
+    s.doStep(k * 0.01, 0.01)
+print(s.getBoolean([refs["df.calibrating"]])[0], s.getReal([refs["df.noise_std_in_use[3]"]])[0])
+s.terminate()
+s.freeInstance()
+print(sorted(m for m in sys.modules if m.split(".")[0] == "control" and sys.modules[m]))
+"""
+
+
+def test_requirements_list_only_what_the_fmu_imports_and_no_control_is_needed(fmu_dir):
+    """resources/requirements.txt says numpy and scipy; a host without python-control
+    designs the detection filter's observers (pole placement by scipy.signal) and runs."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-c", _NO_CONTROL, str(fmu_dir / "Diagnoser.fmu")],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    req, status, loaded = proc.stdout.strip().splitlines()[-3:]
+    assert req == "['numpy>=1.24', 'scipy>=1.10']"
+    calibrating, noise = status.split()
+    assert calibrating in ("0", "False") and 5e-4 < float(noise) < 2e-3, status
+    assert loaded == "[]"

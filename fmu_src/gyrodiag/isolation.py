@@ -27,7 +27,6 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import Any
 
-import control
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -86,12 +85,16 @@ class FaultType(IntEnum):
 def place_observer_gain(A: ArrayLike, C: ArrayLike, poles: ArrayLike) -> _FloatArray:
     """Observer gain ``L`` with eig(A − L C) = ``poles`` (continuous or discrete).
 
-    ``control.place`` needs the "input" matrix Cᵀ to have full column rank; with
+    Pole placement is ``scipy.signal.place_poles`` (Tits–Yang, what ``control.place``
+    wraps, so the FMU's host needs no python-control). It needs the "input" matrix Cᵀ
+    to have full column rank; with
     redundant sensors it has not, so the design is done on an orthonormal basis ``P``
     of the output space reached by ``C`` and mapped back, ``L = L_r P``. Output
     combinations in the left null space of ``C`` (parity relations) get no gain and
     stay visible in the residual.
     """
+    from scipy.signal import place_poles  # only the design needs it (host start-up time)
+
     a = check_finite_array("A", A, ndim=2)
     c = check_finite_array("C", C, shape=(None, a.shape[0]))
     p = np.asarray(poles)
@@ -103,7 +106,7 @@ def place_observer_gain(A: ArrayLike, C: ArrayLike, poles: ArrayLike) -> _FloatA
     with warnings.catch_warnings():
         # YT iterations that stop early still place the poles; checked below.
         warnings.simplefilter("ignore", UserWarning)
-        gain_r = np.asarray(control.place(a.T, (proj @ c).T, p)).T
+        gain_r = np.asarray(place_poles(a.T, (proj @ c).T, p, method="YT").gain_matrix).T
     gain = gain_r @ proj
     got = np.sort_complex(np.linalg.eigvals(a - gain @ c))
     want = np.sort_complex(p.astype(complex))

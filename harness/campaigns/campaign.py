@@ -59,6 +59,18 @@ alarm ``diag.df.alarm[i]``, k-of-n, unlatched; with the sequential rule (the def
 Approximated in the sweep: the detection filter's isolation bank can also raise
 ``df.detected``; only the main residual alarms are swept.  Isolation and DTG
 classification are not re-evaluated at other thresholds.
+
+System runs (``channel = "system"``, the DTG as the aircraft's pitch gyro): one
+Diagnoser runs both channels, and each is a witness of its own: the DTG channel's
+``dtg.alarm`` (judged from the end of learning) and the detection filter's
+``df.detected`` (from the end of calibration).  The record keeps both under
+``witnesses`` (detected, delay, false alarms, fault-free time, the DTG class and the
+isolated sensor, type and size of the detection filter); the top-level fields judge
+"either witness" so the usual tables still apply; ``diagnosed`` is the detection
+filter's isolated sensor.  No threshold sweep.  *Conditions* (``[conditions.NAME]``)
+vary the flight of any class: manoeuvres (the scenario's ``[[manoeuvres]]`` entries)
+and parameter overrides (e.g. turbulence), each with a ``group`` ("level",
+"manoeuvre") that the summary compares.
 """
 
 from __future__ import annotations
@@ -98,7 +110,12 @@ AIRCRAFT_SENSORS = ("v", "alpha", "q", "theta", "gamma", "h")
 DEFAULT_THRESHOLDS = {
     "df": [3.0, 4.0, 4.5, 5.0, 5.5, 6.0, 6.5, 7.0, 8.0, 10.0, 12.0, 15.0],
     "dtg": [0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.8],
+    "system": [],
 }
+Channel = Literal["df", "dtg", "system"]
+#: Witnesses of a system run: name -> (alarm output, "not judged yet" output).
+SYSTEM_WITNESSES = {"dtg": ("dtg.alarm", "dtg.learning"),
+                    "df": ("df.detected", "df.calibrating")}
 #: The fault parameter that ``magnitudes`` sets, per fault type (gain: the factor).
 MAGNITUDE_PARAMETER = {
     "bias": "magnitude", "gain": "gain", "stuck_value": "stuck_value", "step": "magnitude",
@@ -115,13 +132,14 @@ class _Strict(BaseModel):
 class FaultClass(_Strict):
     """A base scenario and how to read its diagnosis.
 
-    ``channel`` is the Diagnoser channel judged: ``"df"`` (aircraft detection filter) or
-    ``"dtg"``.  ``seed_parameters`` are ``instance.parameter`` names set to each run's
-    seed (offset by their position, so two generators never share a seed).
+    ``channel`` is the Diagnoser channel judged: ``"df"`` (aircraft detection filter),
+    ``"dtg"``, or ``"system"`` (both, as independent witnesses; module docstring).
+    ``seed_parameters`` are ``instance.parameter`` names set to each run's seed (offset
+    by their position, so two generators never share a seed).
     """
 
     scenario: str
-    channel: Literal["df", "dtg"]
+    channel: Channel
     diagnoser: str = "diag"
     injector: str = "injector"
     seed_parameters: list[str] = Field(default_factory=list)
@@ -130,20 +148,41 @@ class FaultClass(_Strict):
     thresholds: list[float] | None = None
 
 
-class Sweep(_Strict):
-    """Fault runs: the product of magnitudes × onsets × channels × seeds.
+class Condition(_Strict):
+    """A flight condition: manoeuvres and parameter overrides applied to a run.
 
+    ``manoeuvres`` are ``[[manoeuvres]]`` entries of the scenario format (they replace
+    the base scenario's); ``parameters`` override instance parameters, e.g.
+    ``{ aircraft = { turbulence_sigma_w = 1.5 } }``; ``group`` is what the summary
+    compares (e.g. "level" against "manoeuvre").
+    """
+
+    group: str = Field(min_length=1)
+    description: str = ""
+    manoeuvres: list[dict[str, Any]] = Field(default_factory=list)
+    parameters: dict[str, dict[str, bool | int | float | str]] = Field(default_factory=dict)
+
+
+class Sweep(_Strict):
+    """Fault runs: the product of magnitudes × onsets × channels × conditions × seeds.
+
+    A fault is an injector fault (``type``, on the injector ``channels``) or a physical
+    one (``set`` = ``instance.parameter``, tunable, set to each magnitude at the onset).
     ``post_onset_s`` sets each run's duration to onset + this; else ``duration_s``, else
-    the base scenario's.  ``expected`` is the diagnosis that counts as right: default the
-    injected channel (``df``); for ``dtg`` the fault's signature name (``label``).
+    the base scenario's.  The diagnosis that counts as right: default the injected
+    channel (``df``); for ``dtg`` the fault's signature name (``label``); for ``system``
+    ``expected`` (the sensor the detection filter must isolate, default "q").
     """
 
     cls: str = Field(alias="class")
-    type: str
+    type: str | None = None
+    set: str | None = None
     label: str | None = None
+    expected: str | None = None
+    conditions: list[str] = Field(default_factory=list)
     magnitudes: list[float] = Field(default_factory=lambda: [math.nan])
     onsets_s: list[float] = Field(min_length=1)
-    channels: list[int] = Field(min_length=1)
+    channels: list[int] = Field(default_factory=lambda: [0])
     seeds: int = Field(default=1, ge=1)
     duration_s: float | None = Field(default=None, gt=0)
     post_onset_s: float | None = Field(default=None, gt=0)
@@ -161,8 +200,19 @@ class Sweep(_Strict):
 
     @model_validator(mode="after")
     def _known_type(self) -> Sweep:
+        if (self.type is None) == (self.set is None):
+            raise ValueError("give either type (an injector fault) or set (a physical "
+                             "fault: instance.parameter)")
+        if self.set is not None:
+            if "." not in self.set:
+                raise ValueError(f"set: {self.set!r} must be 'instance.parameter'")
+            if all(math.isnan(m) for m in self.magnitudes):
+                raise ValueError("magnitudes: a physical fault needs the values to set")
+            return self
         if self.type not in FAULT_TYPE_PARAMETERS or self.type == "none":
             raise ValueError(f"type: unknown fault type {self.type!r}")
+        if self.channels == [0]:
+            raise ValueError("channels: an injector fault needs the injector channels")
         needs = MAGNITUDE_PARAMETER.get(self.type)
         has_mag = not all(math.isnan(m) for m in self.magnitudes)
         if needs is None and has_mag:
@@ -177,11 +227,12 @@ class Sweep(_Strict):
 
 
 class Nominal(_Strict):
-    """Fault-free runs of a class: ``runs`` seeds of ``duration_s`` each."""
+    """Fault-free runs of a class: ``runs`` seeds of ``duration_s`` each, per condition."""
 
     cls: str = Field(alias="class")
     duration_s: float = Field(gt=0)
     runs: int = Field(ge=1)
+    conditions: list[str] = Field(default_factory=list)
 
     model_config = ConfigDict(extra="forbid", populate_by_name=True)
 
@@ -203,6 +254,7 @@ class CampaignSpec(_Strict):
     signatures_training: str | None = None
     signatures_file: str = Field(default="dtg_signatures.json", pattern=r"^[\w.-]+\.json$")
     classes: dict[str, FaultClass] = Field(min_length=1)
+    conditions: dict[str, Condition] = Field(default_factory=dict)
     sweeps: list[Sweep] = Field(default_factory=list)
     nominal: list[Nominal] = Field(default_factory=list)
 
@@ -212,6 +264,10 @@ class CampaignSpec(_Strict):
             if s.cls not in self.classes:
                 raise ValueError(f"entry {i}: unknown class {s.cls!r} "
                                  f"(classes: {', '.join(self.classes)})")
+            unknown = [c for c in s.conditions if c not in self.conditions]
+            if unknown:
+                raise ValueError(f"entry {i}: unknown condition {unknown[0]!r} (conditions: "
+                                 f"{', '.join(self.conditions) or 'none'})")
         return self
 
 
@@ -246,7 +302,7 @@ class RunSpec(_Strict):
     run_id: str
     campaign: str
     cls: str
-    channel: Literal["df", "dtg"]
+    channel: Channel
     kind: Literal["fault", "nominal"]
     scenario: str                      # absolute path of the base scenario
     duration_s: float
@@ -260,6 +316,9 @@ class RunSpec(_Strict):
     onset_s: float | None = None
     target: int | None = None          # injector channel
     injected: str | None = None        # diagnosis that counts as right
+    condition: str | None = None       # flight condition name (None: the base scenario's)
+    group: str | None = None           # its group ("level", "manoeuvre", ...)
+    manoeuvres: list[dict[str, Any]] | None = None  # replace the base's when not None
     accepted: list[str] = Field(default_factory=list)  # also right (merged classes)
     also: list[dict[str, Any]] = Field(default_factory=list)  # further simultaneous faults
     thresholds: list[float]
@@ -292,7 +351,7 @@ def expand_runs(spec: CampaignSpec, base_dir: Path, out_dir: Path | None = None)
         results_dir = str(out_dir.resolve()) if out_dir is not None else None
 
     def make(cls_name: str, kind: str, duration: float, replicate: str, fault: dict | None,
-             **meta: Any) -> RunSpec:
+             condition: str | None = None, **meta: Any) -> RunSpec:
         c = spec.classes[cls_name]
         scenario = (base_dir / c.scenario).resolve()
         ident = {"class": cls_name, "scenario": os.path.relpath(scenario, base_dir),
@@ -300,49 +359,73 @@ def expand_runs(spec: CampaignSpec, base_dir: Path, out_dir: Path | None = None)
                  "replicate": replicate, "base_seed": spec.base_seed}
         if meta.get("also"):
             ident["also"] = meta["also"]
+        # the seed does not depend on the condition: a fault under every condition is
+        # flown with the same noise (a paired comparison of the conditions)
         seed = _seed(spec.base_seed, json.dumps(ident, sort_keys=True))
+        parameters = {inst: dict(v) for inst, v in c.parameters.items()}
+        manoeuvres = None
+        group = None
+        if condition is not None:  # only then: runs without conditions keep their ids
+            cond = spec.conditions[condition]
+            ident["condition"] = {"name": condition, **cond.model_dump()}
+            for inst, values in cond.parameters.items():
+                parameters.setdefault(inst, {}).update(values)
+            manoeuvres = [dict(m) for m in cond.manoeuvres]
+            group = cond.group
         thresholds = list(c.thresholds or DEFAULT_THRESHOLDS[c.channel])
         ident.update(seed_parameters=c.seed_parameters, thresholds=thresholds,
                      diagnoser=c.diagnoser, parameters=c.parameters)
-        return RunSpec(run_id=f"{cls_name}-{meta.get('fault_type') or 'nominal'}-"
-                              f"{_run_id(ident)}",
+        tag = f"{meta.get('fault_type') or 'nominal'}" + (f"-{condition}" if condition else "")
+        return RunSpec(run_id=f"{cls_name}-{tag}-{_run_id(ident)}",
                        campaign=spec.name, cls=cls_name, channel=c.channel, kind=kind,
                        scenario=str(scenario), duration_s=duration, seed=seed,
-                       seed_parameters=c.seed_parameters, parameters=c.parameters,
+                       seed_parameters=c.seed_parameters, parameters=parameters,
                        diagnoser=c.diagnoser,
                        fault=fault, thresholds=thresholds, fmu_dir=fmu_dir,
-                       results_dir=results_dir, **meta)
+                       results_dir=results_dir, condition=condition, group=group,
+                       manoeuvres=manoeuvres, **meta)
 
     for sw in spec.sweeps:
         c = spec.classes[sw.cls]
         for mag in sw.magnitudes:
             for onset in sw.onsets_s:
                 for ch in sw.channels:
-                    fault: dict[str, Any] = {"name": "campaign_fault", "injector": c.injector,
-                                             "channel": ch, "type": sw.type,
-                                             "start_s": onset, **sw.extra}
-                    if not math.isnan(mag):
-                        fault[MAGNITUDE_PARAMETER[sw.type]] = mag
+                    fault: dict[str, Any]
+                    if sw.set is not None:
+                        fault = {"name": "campaign_fault", "set": sw.set, "value": mag,
+                                 "start_s": onset, **sw.extra}
+                    else:
+                        fault = {"name": "campaign_fault", "injector": c.injector,
+                                 "channel": ch, "type": sw.type, "start_s": onset, **sw.extra}
+                        if not math.isnan(mag):
+                            fault[MAGNITUDE_PARAMETER[sw.type]] = mag
                     duration = (onset + sw.post_onset_s if sw.post_onset_s is not None
                                 else sw.duration_s or _base_duration(base_dir / c.scenario))
+                    label = sw.label or sw.type or sw.set.partition(".")[2]
                     also = [{"name": f"campaign_fault_{j + 2}", "injector": c.injector,
                              "start_s": onset, **other} for j, other in enumerate(sw.also)]
-                    if c.channel == "df":
+                    if c.channel == "system":
+                        injected = sw.expected or "q"
+                    elif c.channel == "df":
                         chans = sorted({ch, *(int(o["channel"]) for o in sw.also)})
                         injected = "+".join(AIRCRAFT_SENSORS[k - 1]
                                             if k <= len(AIRCRAFT_SENSORS) else str(k)
                                             for k in chans)
                     else:
-                        injected = sw.label or sw.type
-                    for r in range(sw.seeds):
-                        runs.append(make(sw.cls, "fault", duration, str(r), fault,
-                                         fault_type=sw.label or sw.type,
-                                         magnitude=None if math.isnan(mag) else mag,
-                                         onset_s=onset, target=ch, injected=injected,
-                                         accepted=list(sw.accept), also=also))
+                        injected = label
+                    for cond in sw.conditions or [None]:
+                        for r in range(sw.seeds):
+                            runs.append(make(sw.cls, "fault", duration, str(r), fault, cond,
+                                             fault_type=label,
+                                             magnitude=None if math.isnan(mag) else mag,
+                                             onset_s=onset,
+                                             target=None if sw.set is not None else ch,
+                                             injected=injected, accepted=list(sw.accept),
+                                             also=also))
     for nom in spec.nominal:
-        for r in range(nom.runs):
-            runs.append(make(nom.cls, "nominal", nom.duration_s, str(r), None))
+        for cond in nom.conditions or [None]:
+            for r in range(nom.runs):
+                runs.append(make(nom.cls, "nominal", nom.duration_s, str(r), None, cond))
     ids = [r.run_id for r in runs]
     if len(set(ids)) != len(ids):
         dup = next(i for i in ids if ids.count(i) > 1)
@@ -358,6 +441,11 @@ def _base_duration(path: Path) -> float:
 # --------------------------------------------------------------------------- one run
 def _signals(run: RunSpec) -> list[str]:
     d = run.diagnoser
+    if run.channel == "system":
+        return [f"{d}.{alarm}" for alarm, _ in SYSTEM_WITNESSES.values()] + [
+            f"{d}.{ready}" for _, ready in SYSTEM_WITNESSES.values()] + [
+            f"{d}.dtg.fault_code", f"{d}.df.isolated_sensor", f"{d}.df.fault_type",
+            f"{d}.df.fault_magnitude"]
     if run.channel == "df":
         return ([f"{d}.df.residual[{i}]" for i in range(1, 7)]
                 + [f"{d}.df.alarm[{i}]" for i in range(1, 7)]
@@ -382,6 +470,8 @@ def build_scenario(run: RunSpec) -> Any:
     data["name"] = run.run_id
     data["duration_s"] = run.duration_s
     data["faults"] = ([run.fault, *run.also] if run.fault is not None else [])
+    if run.manoeuvres is not None:
+        data["manoeuvres"] = run.manoeuvres
     data["expect"] = []
     data["record"] = {"variables": _signals(run)}
     data.pop("training", None)
@@ -563,7 +653,8 @@ def simulate_run(run_dict: dict[str, Any]) -> dict[str, Any]:
     if result.error is not None:
         raise RuntimeError(f"co-simulation failed: {result.error}")
     t, sig, d = result.time, result.signals, run.diagnoser
-    extra: dict[str, Any] = {}
+    if run.channel == "system":
+        return _judge_system(run, t, sig, result.wall_time_s)
     if run.channel == "df":
         sequential = _df_sequential(scenario, d)
         if sequential:
@@ -618,6 +709,44 @@ def simulate_run(run_dict: dict[str, Any]) -> dict[str, Any]:
         "peak_after": float(after.max()) if after.size else None,
         "sim_wall_s": result.wall_time_s, **extra,
     }
+
+
+def _ready_time(t: np.ndarray, not_ready: np.ndarray) -> float:
+    ready = np.flatnonzero((not_ready < 0.5) & (t > 0))
+    return float(t[ready[0]]) if ready.size else float(t[-1])
+
+
+def _judge_system(run: RunSpec, t: np.ndarray, sig: dict[str, np.ndarray],
+                  wall_s: float) -> dict[str, Any]:
+    """Both witnesses of a system run and "either" at the top level (module docstring)."""
+    d = run.diagnoser
+    witnesses: dict[str, dict[str, Any]] = {}
+    alarms = []
+    readies = []
+    for name, (alarm_name, ready_name) in SYSTEM_WITNESSES.items():
+        alarm = sig[f"{d}.{alarm_name}"] > 0.5
+        t_ready = _ready_time(t, sig[f"{d}.{ready_name}"])
+        detected, delay, n_false, free = judge(t, alarm, t_ready, run.onset_s)
+        witnesses[name] = {"detected": detected, "delay_s": delay, "false_alarms": n_false,
+                           "fault_free_s": free, "t_ready_s": t_ready}
+        alarms.append(alarm)
+        readies.append(t_ready)
+    witnesses["dtg"]["diagnosed"] = int(np.rint(sig[f"{d}.dtg.fault_code"][-1]))
+    sensor = int(np.rint(sig[f"{d}.df.isolated_sensor"][-1]))
+    witnesses["df"].update(
+        diagnosed=sensor, fault_type_code=int(np.rint(sig[f"{d}.df.fault_type"][-1])),
+        magnitude=float(sig[f"{d}.df.fault_magnitude"][-1]))
+    t_ready = max(readies)
+    either = np.logical_or.reduce(alarms)
+    detected, delay, n_false, free = judge(t, either, t_ready, run.onset_s)
+    diagnosed = (AIRCRAFT_SENSORS[sensor - 1] if 1 <= sensor <= len(AIRCRAFT_SENSORS)
+                 else {0: "none", -1: "not isolated"}.get(sensor, str(sensor)))
+    return {"detected": detected, "delay_s": delay, "false_alarms": n_false,
+            "fault_free_s": free, "t_ready_s": t_ready, "diagnosed": diagnosed,
+            "threshold_config": math.nan, "sweep": {"detected": [], "delay_s": [],
+                                                   "false_alarms": []},
+            "sweep_mismatch": 0.0, "peak_before": None, "peak_after": None,
+            "sim_wall_s": wall_s, "witnesses": witnesses}
 
 
 def _signature_names(scenario: Any, run: RunSpec) -> list[str]:

@@ -13,7 +13,11 @@
 * isolation confusion matrix per channel (injected vs diagnosed at the end of the run);
 * threshold sweep per channel: detection rate vs false alarms per hour at every
   threshold of the grid (recomputed offline from the alarm statistic, see
-  :mod:`harness.campaigns.campaign`).
+  :mod:`harness.campaigns.campaign`);
+* system runs (two witnesses, flight conditions): per fault, magnitude and condition
+  group the detection rate of each witness and how often both saw it; each group's
+  rate against the "level" group's (difference in percentage points); false alarms per
+  hour per witness and group.
 
 Only runs with status ``ok`` count; the others are listed with their error.  Nothing in
 the summary depends on wall times or on the order in which runs finished, so the same
@@ -168,7 +172,7 @@ def summarize(records: list[dict[str, Any]], n_planned: int | None = None) -> di
                          "correct": int(right), "n": len(rs)}
 
     sweep: dict[str, dict[str, Any]] = {}
-    for ch in sorted({r["run"]["channel"] for r in ok}):
+    for ch in sorted({r["run"]["channel"] for r in ok if r["run"]["thresholds"]}):
         rs = [r for r in ok if r["run"]["channel"] == ch]
         grids = {tuple(r["run"]["thresholds"]) for r in rs}
         keyed = [(ch, rs)] if len(grids) == 1 else [
@@ -201,7 +205,70 @@ def summarize(records: list[dict[str, Any]], n_planned: int | None = None) -> di
         "class_channels": {r["run"]["cls"]: r["run"]["channel"] for r in ok},
         "detection": detection, "false_alarms": false_alarms, "delay": delay,
         "confusion": confusion, "threshold_sweep": sweep,
+        "witnesses": _witness_summary(ok),
     }
+
+
+def _witness_summary(ok: list[dict[str, Any]]) -> dict[str, Any]:
+    """The system section of :func:`summarize` (empty without system runs)."""
+    system = [r for r in ok if "witnesses" in r]
+    if not system:
+        return {}
+    names = sorted(system[0]["witnesses"])
+    groups: dict[tuple, list[dict]] = defaultdict(list)
+    for r in system:
+        run = r["run"]
+        if run["kind"] == "fault":
+            groups[(run["cls"], run["fault_type"], run["magnitude"],
+                    run.get("group") or "base")].append(r)
+    detection = []
+    for (cls, ftype, mag, group), rs in sorted(
+            groups.items(), key=lambda kv: (kv[0][0], kv[0][1], kv[0][2] or 0.0, kv[0][3])):
+        row: dict[str, Any] = {"class": cls, "fault_type": ftype, "magnitude": mag,
+                               "group": group, "n": len(rs),
+                               "conditions": sorted({r["run"].get("condition") or "base"
+                                                     for r in rs})}
+        for w in names:
+            k = sum(bool(r["witnesses"][w]["detected"]) for r in rs)
+            lo, hi = clopper_pearson(k, len(rs))
+            delays = [r["witnesses"][w]["delay_s"] for r in rs
+                      if r["witnesses"][w]["detected"]]
+            row[w] = {"detected": k, "rate": k / len(rs), "ci_low": lo, "ci_high": hi,
+                      "delay": _delay_stats(delays)}
+        both = sum(all(r["witnesses"][w]["detected"] for w in names) for r in rs)
+        row["both"] = {"detected": both, "rate": both / len(rs)}
+        detection.append(row)
+    comparison = []
+    for row in detection:
+        if row["group"] == "level":
+            continue
+        ref = next((x for x in detection if x["group"] == "level"
+                    and (x["class"], x["fault_type"], x["magnitude"])
+                    == (row["class"], row["fault_type"], row["magnitude"])), None)
+        if ref is None:
+            continue
+        comparison.append({"class": row["class"], "fault_type": row["fault_type"],
+                           "magnitude": row["magnitude"], "group": row["group"],
+                           **{w: {"level": ref[w]["rate"], "group": row[w]["rate"],
+                                  "points": 100.0 * (row[w]["rate"] - ref[w]["rate"])}
+                              for w in [*names, "both"]}})
+    false_alarms: dict[str, dict[str, Any]] = {}
+    for w in names:
+        for group in sorted({r["run"].get("group") or "base" for r in system}):
+            rs = [r for r in system if (r["run"].get("group") or "base") == group]
+            count = sum(int(r["witnesses"][w]["false_alarms"]) for r in rs)
+            hours = sum(float(r["witnesses"][w]["fault_free_s"]) for r in rs) / SECONDS_PER_HOUR
+            nominal_h = sum(float(r["witnesses"][w]["fault_free_s"]) for r in rs
+                            if r["run"]["kind"] == "nominal") / SECONDS_PER_HOUR
+            lo, hi = garwood_interval(count, hours) if hours > 0 else (math.nan, math.nan)
+            false_alarms[f"{w}/{group}"] = {
+                "witness": w, "group": group, "count": count, "hours": hours,
+                "nominal_hours": nominal_h, "rate_per_h": count / hours if hours else math.nan,
+                "lower_95": lo, "upper_95": hi,
+                "runs_with_false_alarm": sum(int(r["witnesses"][w]["false_alarms"]) > 0
+                                             for r in rs)}
+    return {"names": names, "detection": detection, "comparison": comparison,
+            "false_alarms": false_alarms}
 
 
 # --------------------------------------------------------------------------- plots
@@ -350,6 +417,7 @@ def markdown_summary(summary: dict[str, Any], title: str = "campaign") -> str:
                          f"{r['axis_right']} of {r['n']}" if "axis_right" in r else "–",
                          f"{r['typed']} of {r['n_typed']}" if "typed" in r else "–"]
                         for r in summary["detection"]])
+    lines += _witness_markdown(summary.get("witnesses") or {})
     for key, sw in summary["threshold_sweep"].items():
         lines.append(f"Threshold sweep, {key} (configured {sw['configured_threshold']}):")
         lines.append("")
@@ -358,6 +426,34 @@ def markdown_summary(summary: dict[str, Any], title: str = "campaign") -> str:
                                                  sw["false_alarms_per_h"], sw["upper_95_per_h"],
                                                  strict=True)])
     return "\n".join(lines)
+
+
+def _witness_markdown(w: dict[str, Any]) -> list[str]:
+    if not w:
+        return []
+    names = w["names"]
+    lines = ["System runs: false alarms per witness and flight-condition group:", ""]
+    lines += _md_table(["witness", "group", "false alarms (95 % upper / h)",
+                        "fault-free h (nominal runs)", "runs with a false alarm"],
+                       [[fa["witness"], fa["group"],
+                         f"{fa['count']} (≤ {html.unescape(_fmt(fa['upper_95']))})",
+                         f"{fa['hours']:.2f} ({fa['nominal_hours']:.2f})",
+                         fa["runs_with_false_alarm"]] for fa in w["false_alarms"].values()])
+    lines += ["System runs: detection per witness (delay median, s):", ""]
+    lines += _md_table(["fault", "magnitude", "group", "n", *names, "both"],
+                       [[r["fault_type"], r["magnitude"], r["group"], r["n"],
+                         *(f"{r[n]['detected']} ({html.unescape(_fmt(r[n]['delay']['median_s']))})"
+                           for n in names), r["both"]["detected"]]
+                        for r in w["detection"]])
+    if w["comparison"]:
+        lines += ["Detection rate in each group against level flight (points):", ""]
+        lines += _md_table(["fault", "magnitude", "group",
+                            *(f"{n}: level → group (points)" for n in [*names, "both"])],
+                           [[c["fault_type"], c["magnitude"], c["group"],
+                             *(f"{c[n]['level']:.2f} → {c[n]['group']:.2f} "
+                               f"({c[n]['points']:+.1f})" for n in [*names, "both"])]
+                            for c in w["comparison"]])
+    return lines
 
 
 def _channel_of(summary: dict[str, Any], row: dict[str, Any]) -> str:

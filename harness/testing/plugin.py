@@ -17,9 +17,10 @@ file (``[tool.pytest.ini_options]`` of pyproject.toml).  Then every ``.toml`` fi
   by kind ``fault`` (it schedules faults) or ``nominal``.  ``-m "dtg and fault"``,
   ``-k aircraft_q`` select as usual.
 * scenarios with a ``[training]`` table are not items: they are the inputs of the DTG
-  signature library, which is learned once per session (from the ``training/`` folder
-  beside the scenarios, or ``--gyrodiag-training``) when a scenario reads
-  ``${out}/dtg_signatures.json``.
+  libraries, learned once per session when a scenario reads them: the signature library
+  ``${out}/dtg_signatures.json`` from the ``training/`` folder beside the scenarios (or
+  ``--gyrodiag-training``), the pattern library ``${out}/dtg_patterns.json`` from its
+  ``patterns/`` subfolder.
 
 Options (``pytest --help``, group "gyrodiag"): ``--gyrodiag``, ``--gyrodiag-fmu-dir DIR``
 (default: ``$GYRODIAG_FMU_DIR``, else ``build/fmus`` of the source checkout, built once
