@@ -38,6 +38,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import operator
 import re
 from collections.abc import Iterator
 from pathlib import Path
@@ -106,6 +107,8 @@ _DTG_THETA_KEYS = tuple(tuple(f"dtg.theta_{axis}[{i + 1}]" for i in range(N_THET
                         for axis in ("x", "y"))
 _DTG_ETA_KEYS = tuple(tuple(f"dtg.eta_{axis}[{i + 1}]" for i in range(N_THETA))
                       for axis in ("x", "y"))
+_DTG_THETA_FLAT_KEYS = tuple(k for row in _DTG_THETA_KEYS for k in row)
+_DTG_ETA_FLAT_KEYS = tuple(k for row in _DTG_ETA_KEYS for k in row)
 _DTG_THETA0_KEYS = tuple(f"dtg.theta0_used[{i + 1}]" for i in range(N_THETA))
 _DTG_PHYSICAL_KEYS = tuple(f"dtg.{name}" for name in PHYSICAL_NAMES)
 _DF_U_KEYS = tuple(f"df.u[{j + 1}]" for j in range(DF_P))
@@ -193,6 +196,9 @@ class Diagnoser(FacadeBase):
         self._applied: dict[str, Any] = {}
         self._real_outputs = [n for n, kind in self.kinds.items()
                               if kind == "Real" and self.causalities[n] == "output"]
+        gather = operator.itemgetter(*self._real_outputs)
+        self._real_output_values = (gather if len(self._real_outputs) > 1
+                                    else lambda v: (gather(v),))
         self._nonfinite_reported: set[str] = set()
 
     # ------------------------------------------------------------------ variables
@@ -811,6 +817,11 @@ class Diagnoser(FacadeBase):
         """Publish 0 for any non-finite Real output (outputs are always finite; the known
         cases have validity outputs), with a warning once per variable."""
         v = self.values
+        # one C-level gather and sum; inf/NaN anywhere makes total - total NaN (an
+        # overflowing sum of finite values only sends us down the exact loop)
+        total = sum(self._real_output_values(v))
+        if total - total == 0.0:
+            return
         for name in self._real_outputs:
             x = v[name]
             if not math.isfinite(x):
@@ -1058,17 +1069,12 @@ class Diagnoser(FacadeBase):
 
     def _copy_dtg(self, out: Any) -> None:
         v = self.values
-        for keys, row in zip(_DTG_THETA_KEYS, _as_list(out.theta), strict=True):
-            for key, value in zip(keys, row, strict=True):
-                v[key] = float(value)
-        for keys, row in zip(_DTG_ETA_KEYS, _as_list(out.eta), strict=True):
-            for key, value in zip(keys, row, strict=True):
-                v[key] = float(value)
+        v.update(zip(_DTG_THETA_FLAT_KEYS, _flat_floats(out.theta), strict=True))
+        v.update(zip(_DTG_ETA_FLAT_KEYS, _flat_floats(out.eta), strict=True))
         assert self._dtg is not None
         theta0 = self._dtg.theta0
-        theta0_values = [0.0] * N_THETA if theta0 is None else _as_list(theta0)
-        for key, value in zip(_DTG_THETA0_KEYS, theta0_values, strict=True):
-            v[key] = float(value)
+        theta0_values = [0.0] * N_THETA if theta0 is None else _flat_floats(theta0)
+        v.update(zip(_DTG_THETA0_KEYS, theta0_values, strict=True))
         physical = _as_list(out.physical)
         physical_valid = all(math.isfinite(x) for x in physical)
         for key, value in zip(_DTG_PHYSICAL_KEYS, physical, strict=True):
@@ -1229,6 +1235,11 @@ def _channel_context(prefix: str) -> Iterator[None]:
 def _finite_or(value: float, fallback: float) -> float:
     """``value`` if finite, else the documented sentinel (outputs never carry NaN)."""
     return float(value) if math.isfinite(value) else fallback
+
+
+def _flat_floats(values: Any) -> list[float]:
+    """Row-major Python floats of an array or a (nested) sequence of numbers."""
+    return np.asarray(values, dtype=float).ravel().tolist()
 
 
 def _as_list(values: Any) -> list:

@@ -168,28 +168,57 @@ class GuardedSlave(Fmi2Slave):
         if getattr(self, "_in_initialisation", False):
             self._outputs_stale = True
 
+    # Fast paths for variables registered by add_variable (value in self.values): one
+    # dict lookup per value instead of pythonfmu's getter call and type check. A
+    # reference not in the map (another kind, or registered otherwise) takes
+    # pythonfmu's path for the whole call, which keeps its errors.
+    def _fast_get(self, kind: str, vrs: list[int], convert: Callable[[Any], Any]) -> Any:
+        try:
+            names = self._vr_names[kind]
+            v = self.values
+            return [convert(v[names[vr]]) for vr in vrs]
+        except (KeyError, AttributeError):
+            return None
+
+    def _fast_set(self, kind: str, vrs: list[int], values: list[Any]) -> bool:
+        try:
+            names = self._vr_names[kind]
+            targets = [names[vr] for vr in vrs]
+        except (KeyError, AttributeError):
+            return False
+        v = self.values
+        for name, value in zip(targets, values, strict=False):
+            v[name] = value
+        return True
+
     def get_real(self, vrs: list[int]) -> list[float]:
         self._refresh_initial_outputs(vrs)
-        return super().get_real(vrs)
+        fast = self._fast_get("Real", vrs, float)
+        return super().get_real(vrs) if fast is None else fast
 
     def get_integer(self, vrs: list[int]) -> list[int]:
         self._refresh_initial_outputs(vrs)
-        return super().get_integer(vrs)
+        fast = self._fast_get("Integer", vrs, int)
+        return super().get_integer(vrs) if fast is None else fast
 
     def get_boolean(self, vrs: list[int]) -> list[bool]:
         self._refresh_initial_outputs(vrs)
-        return super().get_boolean(vrs)
+        fast = self._fast_get("Boolean", vrs, bool)
+        return super().get_boolean(vrs) if fast is None else fast
 
     def set_real(self, vrs: list[int], values: list[float]) -> None:
-        super().set_real(vrs, values)
+        if not self._fast_set("Real", vrs, values):
+            super().set_real(vrs, values)
         self._mark_inputs_changed()
 
     def set_integer(self, vrs: list[int], values: list[int]) -> None:
-        super().set_integer(vrs, values)
+        if not self._fast_set("Integer", vrs, values):
+            super().set_integer(vrs, values)
         self._mark_inputs_changed()
 
     def set_boolean(self, vrs: list[int], values: list[bool]) -> None:
-        super().set_boolean(vrs, values)
+        if not self._fast_set("Boolean", vrs, values):
+            super().set_boolean(vrs, values)
         self._mark_inputs_changed()
 
     def set_string(self, vrs: list[int], values: list[str]) -> None:
@@ -378,6 +407,9 @@ class FacadeBase(GuardedSlave):
             description=description, getter=getter, setter=setter,
         )
         self.register_variable(var, nested=False)
+        if not hasattr(self, "_vr_names"):
+            self._vr_names: dict[str, dict[int, str]] = {}
+        self._vr_names.setdefault(kind, {})[var.value_reference] = name
 
     # -- FMU state (DESIGN §6.8: save everything, not only registered variables) -
     def _capture_state(self) -> dict[str, Any]:

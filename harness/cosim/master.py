@@ -86,6 +86,7 @@ from harness.cosim.scenario import (
 
 log = logging.getLogger(__name__)
 _STATUS = ["OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING"]
+_FMI_WARNING = 1
 _FMI_ERROR = 3
 _FMI_FATAL = 4
 #: Log lines quoted in an error message (the last ones of the failing call).
@@ -296,7 +297,12 @@ class FmuCallError(RuntimeError):
 
 
 class _VarGroup:
-    """Variables read or written together, batched by FMI type."""
+    """Variables read or written together, batched by FMI type.
+
+    Each batch keeps its value references and a value buffer as ctypes arrays made once,
+    so a step's reads and writes are one foreign call per batch without per-call
+    allocation (fmpy's wrappers build both arrays and a list on every call).
+    """
 
     def __init__(self, variables: Sequence[VariableInfo]) -> None:
         self.size = len(variables)
@@ -306,6 +312,53 @@ class _VarGroup:
             positions, vrs = self.by_type.setdefault(kind, ([], []))
             positions.append(pos)
             vrs.append(v.value_reference)
+        self.batches = [_Batch(kind, positions, vrs)
+                        for kind, (positions, vrs) in self.by_type.items()
+                        if kind in _C_VALUE]
+
+
+#: ctypes value type and numpy view type of the batched FMI types
+_C_VALUE = {"Real": (ctypes.c_double, np.float64), "Integer": (ctypes.c_int, np.intc),
+            "Boolean": (ctypes.c_int, np.intc)}
+
+
+class _Batch:
+    """One FMI type's share of a :class:`_VarGroup`: positions, references, buffer."""
+
+    def __init__(self, kind: str, positions: list[int], vrs: list[int]) -> None:
+        c_type, np_type = _C_VALUE[kind]
+        self.kind = kind
+        self.n = len(vrs)
+        self.positions = np.asarray(positions, dtype=np.intp)
+        self.vr_array = (ctypes.c_uint * self.n)(*vrs)
+        self.buffer = (c_type * self.n)()
+        self.view = np.frombuffer(self.buffer, dtype=np_type)
+
+
+class _RawFmi2:
+    """The FMI 2.0 get/set/doStep entry points of one loaded FMU, called directly.
+
+    Own function objects (``dll[name]`` makes a new one each time), so fmpy's wrappers
+    keep theirs; statuses are checked by the caller.
+    """
+
+    def __init__(self, dll: Any) -> None:
+        vp, vr_p, size = ctypes.c_void_p, ctypes.POINTER(ctypes.c_uint), ctypes.c_size_t
+
+        def fn(name: str, *argtypes: Any) -> Any:
+            f = dll[name]
+            f.argtypes = argtypes
+            f.restype = ctypes.c_int
+            return f
+
+        real_p, int_p = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_int)
+        self.get = {"Real": fn("fmi2GetReal", vp, vr_p, size, real_p),
+                    "Integer": fn("fmi2GetInteger", vp, vr_p, size, int_p),
+                    "Boolean": fn("fmi2GetBoolean", vp, vr_p, size, int_p)}
+        self.set = {"Real": fn("fmi2SetReal", vp, vr_p, size, real_p),
+                    "Integer": fn("fmi2SetInteger", vp, vr_p, size, int_p),
+                    "Boolean": fn("fmi2SetBoolean", vp, vr_p, size, int_p)}
+        self.do_step = fn("fmi2DoStep", vp, ctypes.c_double, ctypes.c_double, ctypes.c_int)
 
 
 class _Instance:
@@ -336,17 +389,25 @@ class _Instance:
         try:
             return fn(*args)
         except Exception as exc:
-            status = getattr(exc, "status", None)
-            self.failed = True
-            self.fatal = status == _FMI_FATAL or not self.instantiated
-            lines = [text.rstrip() for _, text in self.log[mark:]] or [
-                text.rstrip() for st, text in self.log if st >= _FMI_ERROR][-3:]
-            lines = lines[-MAX_LOG_LINES:]
-            label = _STATUS[status] if isinstance(status, int) and 0 <= status < 6 else None
-            head = f"instance {self.name}: {what} at t={t:.9g}"
-            head += f" returned {label}" if label else f" failed: {exc}"
-            body = "\n".join(lines) if lines else "(the FMU logged nothing)"
-            raise FmuCallError(f"{head}: {body}", self.fatal) from None
+            raise self._failure(what, t, getattr(exc, "status", None), exc, mark) from None
+
+    def _checked(self, what: str, t: float, status: int, mark: int) -> None:
+        """Raise as :meth:`call` would for a status from a direct call (> fmi2Warning)."""
+        if status > _FMI_WARNING:
+            raise self._failure(what, t, status, None, mark)
+
+    def _failure(self, what: str, t: float, status: Any, exc: BaseException | None,
+                 mark: int) -> FmuCallError:
+        self.failed = True
+        self.fatal = status == _FMI_FATAL or not self.instantiated
+        lines = [text.rstrip() for _, text in self.log[mark:]] or [
+            text.rstrip() for st, text in self.log if st >= _FMI_ERROR][-3:]
+        lines = lines[-MAX_LOG_LINES:]
+        label = _STATUS[status] if isinstance(status, int) and 0 <= status < 6 else None
+        head = f"instance {self.name}: {what} at t={t:.9g}"
+        head += f" returned {label}" if label else f" failed: {exc}"
+        body = "\n".join(lines) if lines else "(the FMU logged nothing)"
+        return FmuCallError(f"{head}: {body}", self.fatal)
 
     def instantiate(self, start_time: float) -> None:
         self.callbacks = _make_callbacks(self.env_id)
@@ -356,6 +417,8 @@ class _Instance:
                   False)
         self.instantiated = True
         self.call("setupExperiment", start_time, self.slave.setupExperiment, None, start_time)
+        self.component = self.slave.component
+        self.raw = _RawFmi2(self.slave.dll)
 
     def set_values(self, what: str, t: float, variables: Sequence[VariableInfo],
                    values: Sequence[Any]) -> None:
@@ -372,25 +435,29 @@ class _Instance:
 
     def read(self, group: _VarGroup, t: float) -> np.ndarray:
         out = np.empty(group.size)
-        s = self.slave
-        for kind, (positions, vrs) in group.by_type.items():
-            getter = {"Real": s.getReal, "Integer": s.getInteger, "Boolean": s.getBoolean}[kind]
-            out[positions] = np.asarray(self.call(f"get{kind}", t, getter, vrs), dtype=float)
+        get, c = self.raw.get, self.component
+        for b in group.batches:
+            mark = len(self.log)
+            self._checked(f"get{b.kind}", t, get[b.kind](c, b.vr_array, b.n, b.buffer), mark)
+            out[b.positions] = b.view
         return out
 
     def write(self, group: _VarGroup, values: np.ndarray, t: float) -> None:
-        s = self.slave
-        for kind, (positions, vrs) in group.by_type.items():
-            vals = values[positions]
-            if kind == "Real":
-                self.call("setReal", t, s.setReal, vrs, vals.tolist())
-            elif kind == "Integer":
-                self.call("setInteger", t, s.setInteger, vrs, [round(v) for v in vals.tolist()])
+        set_, c = self.raw.set, self.component
+        for b in group.batches:
+            vals = values[b.positions]
+            if b.kind == "Real":
+                b.view[:] = vals
+            elif b.kind == "Integer":
+                b.view[:] = np.rint(vals)
             else:
-                self.call("setBoolean", t, s.setBoolean, vrs, [bool(v > 0.5) for v in vals])
+                b.view[:] = vals > 0.5
+            mark = len(self.log)
+            self._checked(f"set{b.kind}", t, set_[b.kind](c, b.vr_array, b.n, b.buffer), mark)
 
     def do_step(self, t: float, h: float) -> None:
-        self.call("doStep", t, self.slave.doStep, t, h)
+        mark = len(self.log)
+        self._checked("doStep", t, self.raw.do_step(self.component, t, h, 1), mark)
 
     def free(self) -> None:
         """Terminate (if healthy) and free the instance; never unload the library."""
@@ -545,6 +612,9 @@ class _Run:
                      for n in self.plan.order}
         check_against_models(scenario, {n: i.info for n, i in self.inst.items()})
         self._prepare_io()
+        # every instance steps every step (the common case): no per-step due list
+        self._all_due = (list(self.plan.order)
+                         if all(i.step_ratio == 1 for i in self.inst.values()) else [])
 
     def _var(self, qualified: str) -> tuple[str, VariableInfo]:
         inst, var = split_name(qualified)
@@ -571,6 +641,16 @@ class _Run:
             dst[inst].append((v, src_inst, src_pos[c.from_]))
         for n, entries in dst.items():
             self.inputs[n] = (_VarGroup([e[0] for e in entries]), [(e[1], e[2]) for e in entries])
+        # the same, as one fancy-index gather per source instance
+        self.gathers: dict[str, list[tuple[str, np.ndarray, np.ndarray]]] = {}
+        for n, (_, sources) in self.inputs.items():
+            by_src: dict[str, tuple[list[int], list[int]]] = {}
+            for dst_pos, (src, src_pos) in enumerate(sources):
+                d, p = by_src.setdefault(src, ([], []))
+                d.append(dst_pos)
+                p.append(src_pos)
+            self.gathers[n] = [(src, np.asarray(d, dtype=np.intp), np.asarray(p, dtype=np.intp))
+                               for src, (d, p) in by_src.items()]
         # recorded variables
         if s.record.variables is None:
             names = [f"{n}.{v.name}" for n in s.fmus for v in self.inst[n].info.variables.values()
@@ -594,8 +674,11 @@ class _Run:
             self.cache[name] = self.inst[name].read(self.src_group[name], t)
 
     def _input_values(self, name: str) -> np.ndarray:
-        _, sources = self.inputs[name]
-        return np.array([self.cache[src][pos] for src, pos in sources])
+        values = np.empty(self.inputs[name][0].size)
+        cache = self.cache
+        for src, dst_pos, src_pos in self.gathers[name]:
+            values[dst_pos] = cache[src][src_pos]
+        return values
 
     def _set_inputs(self, name: str, t: float, values: np.ndarray | None = None) -> None:
         group, _ = self.inputs[name]
@@ -647,7 +730,8 @@ class _Run:
 
     def _step(self, k: int, t: float) -> None:
         h = self.s.step_s
-        due = [n for n in self.plan.order if k % self.inst[n].step_ratio == 0]
+        due = self._all_due if self._all_due else [
+            n for n in self.plan.order if k % self.inst[n].step_ratio == 0]
         if self.s.coupling == "jacobi":
             values = {n: self._input_values(n) for n in due}
             for n in due:
