@@ -181,6 +181,9 @@ class Diagnoser(FacadeBase):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self._declare()
+        # only a set of a tunable (or a state restore) can change one: no per-step scan
+        vr_of = {name: vr for names in self._vr_names.values() for vr, name in names.items()}
+        self.watched_vrs = frozenset(vr_of[n] for n in _TUNABLE_NAMES)
         self._dtg: DTGChannel | None = None
         self._grey: GreyFaultDetector | None = None
         self._df: DFChannel | None = None
@@ -782,6 +785,9 @@ class Diagnoser(FacadeBase):
         Returns False (with an error logged, the previous values restored) if a new
         value is refused.
         """
+        if not self.watched_changed:
+            return True
+        self.watched_changed = False
         v = self.values
         changed = [n for n in _TUNABLE_NAMES if v[n] != self._applied[n]]
         if not changed:

@@ -164,7 +164,14 @@ class GuardedSlave(Fmi2Slave):
             del self.log
             self._initialisation_refused = refused
 
-    def _mark_inputs_changed(self) -> None:
+    #: value references whose setting raises :attr:`watched_changed` (e.g. tunables)
+    watched_vrs: frozenset[int] = frozenset()
+    #: a watched variable may have changed since the subclass last cleared this
+    watched_changed: bool = True
+
+    def _mark_inputs_changed(self, vrs: list[int] | None = None) -> None:
+        if vrs is not None and not self.watched_vrs.isdisjoint(vrs):
+            self.watched_changed = True
         if getattr(self, "_in_initialisation", False):
             self._outputs_stale = True
 
@@ -209,21 +216,21 @@ class GuardedSlave(Fmi2Slave):
     def set_real(self, vrs: list[int], values: list[float]) -> None:
         if not self._fast_set("Real", vrs, values):
             super().set_real(vrs, values)
-        self._mark_inputs_changed()
+        self._mark_inputs_changed(vrs)
 
     def set_integer(self, vrs: list[int], values: list[int]) -> None:
         if not self._fast_set("Integer", vrs, values):
             super().set_integer(vrs, values)
-        self._mark_inputs_changed()
+        self._mark_inputs_changed(vrs)
 
     def set_boolean(self, vrs: list[int], values: list[bool]) -> None:
         if not self._fast_set("Boolean", vrs, values):
             super().set_boolean(vrs, values)
-        self._mark_inputs_changed()
+        self._mark_inputs_changed(vrs)
 
     def set_string(self, vrs: list[int], values: list[str]) -> None:
         super().set_string(vrs, values)
-        self._mark_inputs_changed()
+        self._mark_inputs_changed(vrs)
 
     # -- error reporting ------------------------------------------------------
     def report_error(self, message: str) -> None:
@@ -304,6 +311,7 @@ class GuardedSlave(Fmi2Slave):
         for name, value in payload.items():
             if by_name[name].setter is not None:
                 by_name[name].setter(value)
+        self.watched_changed = True
 
     def _get_fmu_state(self) -> dict[str, Any]:
         try:
