@@ -675,7 +675,9 @@ def simulate_run(run_dict: dict[str, Any]) -> dict[str, Any]:
         if sequential:
             code = int(np.rint(sig[f"{d}.df.fault_type"][-1]))
             extra = {"typed": DF_TYPE_NAMES.get(code, str(code)),
+                     # a sweep's label names the row; the injected type says what to expect
                      "expected_type": (EXPECTED_DF_TYPE.get(run.fault_type or "")
+                                       or EXPECTED_DF_TYPE.get((run.fault or {}).get("type", ""))
                                        if not run.also else None),
                      "size": float(sig[f"{d}.df.fault_magnitude"][-1]),
                      "episodes": int(np.rint(sig[f"{d}.df.episodes"][-1])),
