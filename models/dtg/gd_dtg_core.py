@@ -25,6 +25,13 @@ and ``Ku·Ux = L·ωy``, ``Ku·Uy = −L·ωx``: the torquer voltages are the ra
 
 Between ticks the plant is integrated exactly with the matrix exponential; matrices are
 cached per interval length and dropped whenever a fault parameter changes.
+
+No scipy here: the matrix exponential (scaling and squaring with Padé approximants,
+Higham 2005) and the Tustin discretisation of the controller (controllable canonical
+form, the formulas of ``scipy.signal.tf2ss`` and ``cont2discrete(method="bilinear")``)
+are a few lines of numpy, and importing scipy.signal and scipy.linalg would cost about
+2 s of every DTG.fmu instantiation (tests/test_dtg_fast_path.py checks both against
+scipy).
 """
 
 from __future__ import annotations
@@ -34,8 +41,6 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg import expm
-from scipy.signal import cont2discrete, tf2ss
 
 FloatArray = NDArray[np.float64]
 
@@ -205,6 +210,68 @@ def rotor_state_space(r: RotorCoefficients) -> tuple[FloatArray, FloatArray]:
     return A, B
 
 
+#: Padé coefficients b_0..b_m of exp and the 1-norm bounds θ_m up to which the degree-m
+#: approximant is accurate to double precision (Higham 2005, Table 2.3 and eq. 2.1).
+_PADE_COEFFICIENTS: dict[int, tuple[float, ...]] = {
+    3: (120.0, 60.0, 12.0, 1.0),
+    5: (30240.0, 15120.0, 3360.0, 420.0, 30.0, 1.0),
+    7: (17297280.0, 8648640.0, 1995840.0, 277200.0, 25200.0, 1512.0, 56.0, 1.0),
+    9: (17643225600.0, 8821612800.0, 2075673600.0, 302702400.0, 30270240.0, 2162160.0,
+        110880.0, 3960.0, 90.0, 1.0),
+    13: (64764752532480000.0, 32382376266240000.0, 7771770303897600.0,
+         1187353796428800.0, 129060195264000.0, 10559470521600.0, 670442572800.0,
+         33522128640.0, 1323241920.0, 40840800.0, 960960.0, 16380.0, 182.0, 1.0),
+}
+_PADE_THETA = {3: 1.495585217958292e-2, 5: 2.539398330063230e-1, 7: 9.504178996162932e-1,
+               9: 2.097847961257068e0, 13: 5.371920351148152e0}
+
+
+def expm(a: NDArray) -> NDArray:
+    """Matrix exponential of a square real or complex matrix.
+
+    Scaling and squaring with the [m/m] Padé approximant of the lowest degree m in
+    {3, 5, 7, 9, 13} that is accurate for the 1-norm of ``a`` (N. J. Higham, "The scaling
+    and squaring method for the matrix exponential revisited", SIAM J. Matrix Anal. Appl.
+    26(4), 2005, Algorithm 2.3). Agrees with ``scipy.linalg.expm`` to rounding.
+    """
+    a = np.asarray(a)
+    if a.ndim != 2 or a.shape[0] != a.shape[1]:
+        raise ValueError(f"a must be a square matrix, got shape {a.shape}")
+    if not np.issubdtype(a.dtype, np.inexact):
+        a = a.astype(float)
+    n = a.shape[0]
+    ident = np.eye(n, dtype=a.dtype)
+    norm = float(np.max(np.sum(np.abs(a), axis=0))) if n else 0.0
+    if not math.isfinite(norm):
+        raise ValueError("a must be finite")
+    squarings = 0
+    for m in (3, 5, 7, 9):
+        if norm <= _PADE_THETA[m]:
+            b = _PADE_COEFFICIENTS[m]
+            powers = [ident, a @ a]
+            while len(powers) <= m // 2:
+                powers.append(powers[-1] @ powers[1])
+            u = a @ sum(b[2 * j + 1] * powers[j] for j in range(m // 2 + 1))
+            v = sum(b[2 * j] * powers[j] for j in range(m // 2 + 1))
+            break
+    else:
+        if norm > _PADE_THETA[13]:
+            squarings = max(0, math.ceil(math.log2(norm / _PADE_THETA[13])))
+            a = a / 2.0**squarings
+        b = _PADE_COEFFICIENTS[13]
+        a2 = a @ a
+        a4 = a2 @ a2
+        a6 = a4 @ a2
+        u = a @ (a6 @ (b[13] * a6 + b[11] * a4 + b[9] * a2)
+                 + b[7] * a6 + b[5] * a4 + b[3] * a2 + b[1] * ident)
+        v = (a6 @ (b[12] * a6 + b[10] * a4 + b[8] * a2)
+             + b[6] * a6 + b[4] * a4 + b[2] * a2 + b[0] * ident)
+    result = np.linalg.solve(v - u, v + u)
+    for _ in range(squarings):
+        result = result @ result
+    return result
+
+
 def zoh_discretize(A: FloatArray, B: FloatArray, dt: float) -> tuple[FloatArray, FloatArray]:
     """Exact discretisation with inputs held over ``dt`` (s): x⁺ = Ad·x + Bd·u."""
     n, m = B.shape
@@ -234,7 +301,22 @@ def controller_matrices(
         den = np.polymul(den, [1.0 / p.lead_pole, 1.0])
     wf = p.filter_corner
     den = np.polymul(den, [1.0 / wf**2, 2.0 * p.filter_damping / wf, 1.0])
-    Ac, Bc, Cc, Dc, _ = cont2discrete(tf2ss(num, den), p.controller_sample_time, method="bilinear")
+    # controllable canonical form of num/den (what scipy.signal.tf2ss returns)
+    num, den = num / den[0], den / den[0]
+    order = len(den) - 1
+    num = np.concatenate([np.zeros(order + 1 - len(num)), num])
+    A = np.vstack([-den[1:], np.eye(order - 1, order)])
+    B = np.eye(order, 1)
+    C = (num[1:] - num[0] * den[1:]).reshape(1, -1)
+    D = num[0]
+    # Tustin (scipy.signal.cont2discrete, method="bilinear": gbt with alpha = 1/2)
+    Tc = p.controller_sample_time
+    ident = np.eye(order)
+    ima = ident - 0.5 * Tc * A
+    Ac = np.linalg.solve(ima, ident + 0.5 * Tc * A)
+    Bc = np.linalg.solve(ima, Tc * B)
+    Cc = np.linalg.solve(ima.T, C.T).T
+    Dc = D + 0.5 * (C @ Bc)
     return (
         np.asarray(Ac, dtype=float),
         np.asarray(Bc, dtype=float).reshape(-1),

@@ -48,9 +48,10 @@ VARIABLE_META: dict[str, dict] = {
     "pickoff_scale": {"unit": "1", "min": POSITIVE},
 }
 OUTPUT_DEPENDENCIES: dict[str, list[str]] = {}
-REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10"]
+REQUIREMENTS = ["numpy>=1.24"]
 
 _INPUTS = ("omega_x", "omega_y", "Ux_in", "Uy_in")
+_TUNABLES = ("noise_std", "dither_std", *NOMINAL_FAULTS)
 _OUTPUTS = ("Utx", "Uty", "Ux", "Uy", "omega_x_read", "omega_y_read")
 _FAULT_DOC = {
     "spin_fraction": "spin rate / nominal (scales L and λ, changes k through the dynamic "
@@ -127,6 +128,14 @@ class DTG(GuardedSlave):
         for name, doc in _FAULT_DOC.items():
             self.register_variable(Real(name, causality=P.parameter, variability=V.tunable,
                                         description=doc))
+        # every variable is a plain attribute: get/set read and write them by name
+        self._names_by_kind: dict[str, dict[int, str]] = {}
+        for vr, var in self.vars.items():
+            kind = type(var).__name__
+            self._names_by_kind.setdefault(kind, {})[vr] = var.local_name
+        # the tunables reach the simulator only after one of them was set
+        self.watched_vrs = frozenset(
+            vr for vr, var in self.vars.items() if var.name in _TUNABLES)
 
     # ------------------------------------------------------------------ FMI calls
     def setup_experiment(self, start_time: float, stop_time: float | None = None,
@@ -143,6 +152,7 @@ class DTG(GuardedSlave):
             self.sim = DTGSimulator(parameter_set(self.parameter_set),
                                     rebalance=bool(self.rebalance_on), seed=self.seed)
             self._apply_tunables()
+            self.watched_changed = False
             self.sim.reset(self._t0, self.omega_x, self.omega_y, self.Ux_in, self.Uy_in)
             self._publish()
         except Exception:
@@ -161,7 +171,9 @@ class DTG(GuardedSlave):
                                  f"time {t_sim!r}")
             if not (step_size > 0.0 and math.isfinite(step_size)):
                 raise ValueError(f"step_size must be > 0, got {step_size!r}")
-            self._apply_tunables()
+            if self.watched_changed:
+                self._apply_tunables()
+                self.watched_changed = False
             self.sim.advance(t_sim + step_size, self.omega_x, self.omega_y,
                              self.Ux_in, self.Uy_in)
             self._publish()
@@ -170,6 +182,27 @@ class DTG(GuardedSlave):
         return True
 
     # ------------------------------------------------------------------- helpers
+    def _fast_get(self, kind: str, vrs: list[int], convert: Any) -> Any:
+        # GuardedSlave's get_* call this first; a reference of another kind (KeyError)
+        # takes pythonfmu's path, which reports it
+        try:
+            names = self._names_by_kind[kind]
+            attrs = self.__dict__
+            return [convert(attrs[names[vr]]) for vr in vrs]
+        except KeyError:
+            return None
+
+    def _fast_set(self, kind: str, vrs: list[int], values: list[Any]) -> bool:
+        try:
+            names = self._names_by_kind[kind]
+            targets = [names[vr] for vr in vrs]
+        except KeyError:
+            return False
+        attrs = self.__dict__
+        for name, value in zip(targets, values, strict=False):
+            attrs[name] = value
+        return True
+
     def _apply_tunables(self) -> None:
         assert self.sim is not None
         self.sim.noise_std = self.noise_std

@@ -14,6 +14,14 @@ exponential, inputs held). The reported torquer voltages Ux, Uy are their mean o
 the last communication step (what an integrating read-out of the torquer current
 measures), so the value at t_k is the voltage that acted on [t_{k−1}, t_k], as the
 regression of DESIGN §2 wants.
+
+The stepping runs at every controller tick (10 kHz for the production set), so it works
+on plain Python floats: the rotor state, the per-axis controller states and the 2-vectors
+are floats, and the discretised matrices are tuples of float rows made once per interval
+length. numpy calls on 2- to 4-element arrays cost a microsecond each, which made the
+DTG.fmu step several times the cost of its maths. The maths and the random draws (the
+same Generator calls in the same order) are those of the numpy formulation
+(tests/test_dtg_fast_path.py keeps it as the reference, equal to 1e-12).
 """
 
 from __future__ import annotations
@@ -86,16 +94,30 @@ class DTGSimulator:
         self._faults = dict(NOMINAL_FAULTS)
         self._Tc = params.controller_sample_time
         self._eps = 1e-9 * self._Tc
-        self._Ac, self._Bc, self._Cc, self._Dc = controller_matrices(params)
+        Ac, Bc, Cc, Dc = controller_matrices(params)
+        self._nc = Ac.shape[0]
+        # controller as float rows: xc⁺ = Ac·xc + Bc·e, u = Cc·xc + Dc·e (per axis)
+        self._ctrl_rows = tuple(zip(map(tuple, Ac.tolist()), Bc.tolist(), strict=True))
+        self._Cc = tuple(Cc.tolist())
+        self._Dc = float(Dc)
         c, s = math.cos(params.loop_rotation), math.sin(params.loop_rotation)
-        self._R = np.array([[c, -s], [s, c]])
+        # e = −R(ψ)·[Utx, Uty]: the entries of −R
+        self._neg_R = (-c, s, -s, -c)
         nominal = rotor_coefficients(params)
         # read-out scale: the electronics know only the nominal Ku and L
         self._readout_gain = params.Ku / nominal.L
-        self._cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        self._coeffs: RotorCoefficients = nominal
-        self._A, self._B = rotor_state_space(nominal)
+        # interval length key → the 4 rows of [Ad | Bd] as float tuples
+        self._cache: dict[int, tuple[tuple[float, ...], ...]] = {}
+        self._tick_rows: tuple[tuple[float, ...], ...] | None = None
+        self._set_coefficients(nominal)
         self.reset()
+
+    def _set_coefficients(self, coeffs: RotorCoefficients) -> None:
+        self._coeffs = coeffs
+        self._KT = coeffs.KT
+        self._A, self._B = rotor_state_space(coeffs)
+        self._cache.clear()
+        self._tick_rows = None
 
     # ---------------------------------------------------------------- parameters
     @property
@@ -152,9 +174,7 @@ class DTGSimulator:
             new[name] = v
         if new != self._faults:
             self._faults = new
-            self._coeffs = rotor_coefficients(self.params, **new)
-            self._A, self._B = rotor_state_space(self._coeffs)
-            self._cache.clear()
+            self._set_coefficients(rotor_coefficients(self.params, **new))
 
     # --------------------------------------------------------------------- state
     def reset(self, start_time: float = 0.0, omega_x: float = 0.0, omega_y: float = 0.0,
@@ -177,14 +197,15 @@ class DTGSimulator:
         self._t0 = float(start_time)
         self._t = float(start_time)
         self._m = 0
-        self._x = np.array([0.0, 0.0, float(omega_x), float(omega_y)])
-        self._xc = np.zeros((self._Ac.shape[0], 2))
-        self._noise = np.zeros(2)
-        self._dither = np.zeros(2)
-        self._u_ctrl = np.zeros(2)
-        self._u_in = np.array([float(ux_in), float(uy_in)])
+        self._x = [0.0, 0.0, float(omega_x), float(omega_y)]
+        self._xc_x = [0.0] * self._nc  # controller state of the x axis
+        self._xc_y = [0.0] * self._nc
+        self._noise = (0.0, 0.0)
+        self._dither = (0.0, 0.0)
+        self._u_ctrl = (0.0, 0.0)
+        self._u_in = (float(ux_in), float(uy_in))
         self._tick()
-        self._u_mean = self._u.copy()
+        self._u_mean = self._u()
 
     def get_state(self) -> dict[str, Any]:
         """Full internal state as plain, JSON-serialisable Python values (deep copy)."""
@@ -192,13 +213,13 @@ class DTGSimulator:
             "t0": self._t0,
             "t": self._t,
             "m": self._m,
-            "x": self._x.tolist(),
-            "xc": self._xc.tolist(),
-            "noise": self._noise.tolist(),
-            "dither": self._dither.tolist(),
-            "u_ctrl": self._u_ctrl.tolist(),
-            "u_in": self._u_in.tolist(),
-            "u_mean": self._u_mean.tolist(),
+            "x": list(self._x),
+            "xc": [[a, b] for a, b in zip(self._xc_x, self._xc_y, strict=True)],
+            "noise": list(self._noise),
+            "dither": list(self._dither),
+            "u_ctrl": list(self._u_ctrl),
+            "u_in": list(self._u_in),
+            "u_mean": list(self._u_mean),
             "rng": copy.deepcopy(self._rng.bit_generator.state),
             "rng_dither": copy.deepcopy(self._rng_dither.bit_generator.state),
             "faults": dict(self._faults),
@@ -208,19 +229,25 @@ class DTGSimulator:
 
     def set_state(self, state: dict[str, Any]) -> None:
         """Restore a state produced by ``get_state`` (matrices are recomputed)."""
+        def pair(name: str) -> tuple[float, float]:
+            a, b = np.asarray(state[name], dtype=float).reshape(2).tolist()
+            return a, b
+
         self.set_faults(**state["faults"])
         self.noise_std = state["noise_std"]
         self.dither_std = state["dither_std"]
         self._t0 = float(state["t0"])
         self._t = float(state["t"])
         self._m = int(state["m"])
-        self._x = np.array(state["x"], dtype=float)
-        self._xc = np.array(state["xc"], dtype=float).reshape(self._Ac.shape[0], 2)
-        self._noise = np.array(state["noise"], dtype=float)
-        self._dither = np.array(state["dither"], dtype=float)
-        self._u_ctrl = np.array(state["u_ctrl"], dtype=float)
-        self._u_in = np.array(state["u_in"], dtype=float)
-        self._u_mean = np.array(state["u_mean"], dtype=float)
+        self._x = np.asarray(state["x"], dtype=float).reshape(4).tolist()
+        xc = np.asarray(state["xc"], dtype=float).reshape(self._nc, 2)
+        self._xc_x = xc[:, 0].tolist()
+        self._xc_y = xc[:, 1].tolist()
+        self._noise = pair("noise")
+        self._dither = pair("dither")
+        self._u_ctrl = pair("u_ctrl")
+        self._u_in = pair("u_in")
+        self._u_mean = pair("u_mean")
         self._rng = np.random.default_rng()
         self._rng.bit_generator.state = copy.deepcopy(state["rng"])
         self._rng_dither = np.random.default_rng()
@@ -235,18 +262,18 @@ class DTGSimulator:
     @property
     def rotor_state(self) -> np.ndarray:
         """[α, β, p, q] (rad, rad, rad/s, rad/s), p, q the rotor's inertial rates (copy)."""
-        return self._x.copy()
+        return np.array(self._x)
 
     @property
     def pickoff(self) -> tuple[float, float]:
         """(Utx, Uty) now (V): α/KT, β/KT plus the noise of the last tick."""
-        kt = self._coeffs.KT
+        kt = self._KT
         return (self._x[0] / kt + self._noise[0], self._x[1] / kt + self._noise[1])
 
     @property
     def torquer_mean(self) -> tuple[float, float]:
         """(Ux, Uy) averaged over the last communication step (V)."""
-        return float(self._u_mean[0]), float(self._u_mean[1])
+        return self._u_mean
 
     @property
     def rate_readout(self) -> tuple[float, float]:
@@ -275,58 +302,91 @@ class DTGSimulator:
         h = t_end - self._t
         if not h > 0.0:
             raise ValueError(f"step must end after the current time {self._t}, got {t_end}")
-        self._u_in = np.array([float(ux_in), float(uy_in)])
-        w = np.array([float(omega_x), float(omega_y)])
-        u_integral = np.zeros(2)
-        covered = 0.0
+        self._u_in = (float(ux_in), float(uy_in))
+        wx, wy = float(omega_x), float(omega_y)
+        eps, Tc, t0 = self._eps, self._Tc, self._t0
+        ix = iy = covered = 0.0  # ∫U dt over the step (V·s) and the time it covers (s)
         while True:
-            next_tick = self._t0 + (self._m + 1) * self._Tc
-            at_tick = next_tick <= t_end + self._eps
+            next_tick = t0 + (self._m + 1) * Tc
+            at_tick = next_tick <= t_end + eps
             target = next_tick if at_tick else t_end
             dt = target - self._t
-            if dt > self._eps:
-                u = self._u
-                Ad, Bd = self._matrices(dt)
-                self._x = Ad @ self._x + Bd @ np.concatenate((w, u))
-                u_integral += u * dt
+            if dt > eps:
+                ux, uy = self._u()
+                a, b, p, q = self._x
+                self._x = [
+                    (r0 * a + r1 * b + r2 * p + r3 * q)
+                    + (r4 * wx + r5 * wy + r6 * ux + r7 * uy)
+                    for r0, r1, r2, r3, r4, r5, r6, r7 in self._matrices(dt)
+                ]
+                ix += ux * dt
+                iy += uy * dt
                 covered += dt
             self._t = target
             if at_tick:
                 self._m += 1
                 self._tick()
-            if self._t >= t_end - self._eps:
+            if self._t >= t_end - eps:
                 break
         self._t = t_end
         # divide by the covered time, not h, so a constant voltage is reproduced exactly
-        self._u_mean = u_integral / covered if covered > 0.0 else self._u
+        self._u_mean = (ix / covered, iy / covered) if covered > 0.0 else self._u()
 
-    @property
-    def _u(self) -> np.ndarray:
-        return self._u_ctrl + self._u_in + self._dither
+    def _u(self) -> tuple[float, float]:
+        """Torquer voltages now (V): controller + external + dither."""
+        (cx, cy), (ix, iy), (dx, dy) = self._u_ctrl, self._u_in, self._dither
+        return (cx + ix + dx, cy + iy + dy)
 
     def _tick(self) -> None:
         if self._noise_std > 0.0:
-            self._noise = self._noise_std * self._rng.standard_normal(2)
+            nx, ny = self._rng.standard_normal(2).tolist()
+            self._noise = (self._noise_std * nx, self._noise_std * ny)
         else:
-            self._noise = np.zeros(2)
+            self._noise = (0.0, 0.0)
         if self._dither_std > 0.0:
-            self._dither = self._dither_std * self._rng_dither.standard_normal(2)
+            dx, dy = self._rng_dither.standard_normal(2).tolist()
+            self._dither = (self._dither_std * dx, self._dither_std * dy)
         else:
-            self._dither = np.zeros(2)
+            self._dither = (0.0, 0.0)
         if self.rebalance:
-            e = -self._R @ np.array(self.pickoff)
-            self._u_ctrl = self._Cc @ self._xc + self._Dc * e
-            self._xc = self._Ac @ self._xc + np.outer(self._Bc, e)
+            utx, uty = self.pickoff
+            r00, r01, r10, r11 = self._neg_R
+            ex = r00 * utx + r01 * uty
+            ey = r10 * utx + r11 * uty
+            xc_x, xc_y = self._xc_x, self._xc_y
+            cx = cy = 0.0
+            for c, vx, vy in zip(self._Cc, xc_x, xc_y, strict=True):
+                cx += c * vx
+                cy += c * vy
+            dc = self._Dc
+            self._u_ctrl = (cx + dc * ex, cy + dc * ey)
+            new_x = []
+            new_y = []
+            for row, bc in self._ctrl_rows:
+                sx = sy = 0.0
+                for a, vx, vy in zip(row, xc_x, xc_y, strict=True):
+                    sx += a * vx
+                    sy += a * vy
+                new_x.append(sx + bc * ex)
+                new_y.append(sy + bc * ey)
+            self._xc_x, self._xc_y = new_x, new_y
 
-    def _matrices(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    def _matrices(self, dt: float) -> tuple[tuple[float, ...], ...]:
+        """Rows of [Ad | Bd] for an interval of ``dt`` (s), inputs [ωx, ωy, Ux, Uy]."""
         if abs(dt - self._Tc) <= self._eps:
-            dt = self._Tc
+            if self._tick_rows is None:
+                self._tick_rows = self._discretise(self._Tc)
+            return self._tick_rows
+        return self._discretise(dt)
+
+    def _discretise(self, dt: float) -> tuple[tuple[float, ...], ...]:
         key = round(dt / self._eps)
         hit = self._cache.get(key)
         if hit is None:
             if len(self._cache) >= _MAX_CACHE:
                 self._cache.clear()
-            hit = zoh_discretize(self._A, self._B, dt)
+            Ad, Bd = zoh_discretize(self._A, self._B, dt)
+            hit = tuple(map(tuple, np.hstack([Ad, Bd]).tolist()))
             self._cache[key] = hit
         return hit
 
