@@ -103,6 +103,7 @@ _TUNABLE_NAMES = frozenset(n for names in TUNABLE.values() for n in names)
 # Variable names used at every step, formatted once (an f-string per variable per step
 # cost ~10 % of a step).
 _DTG_INPUT_KEYS = ("dtg.Utx", "dtg.Uty", "dtg.Ux", "dtg.Uy")
+_dtg_inputs = operator.itemgetter(*_DTG_INPUT_KEYS)
 _DTG_THETA_KEYS = tuple(tuple(f"dtg.theta_{axis}[{i + 1}]" for i in range(N_THETA))
                         for axis in ("x", "y"))
 _DTG_ETA_KEYS = tuple(tuple(f"dtg.eta_{axis}[{i + 1}]" for i in range(N_THETA))
@@ -111,6 +112,7 @@ _DTG_THETA_FLAT_KEYS = tuple(k for row in _DTG_THETA_KEYS for k in row)
 _DTG_ETA_FLAT_KEYS = tuple(k for row in _DTG_ETA_KEYS for k in row)
 _DTG_THETA0_KEYS = tuple(f"dtg.theta0_used[{i + 1}]" for i in range(N_THETA))
 _DTG_PHYSICAL_KEYS = tuple(f"dtg.{name}" for name in PHYSICAL_NAMES)
+_ZEROS_5 = (0.0,) * N_THETA
 _DF_U_KEYS = tuple(f"df.u[{j + 1}]" for j in range(DF_P))
 _DF_Y_KEYS = tuple(f"df.y[{i + 1}]" for i in range(DF_M))
 _DF_RESIDUAL_KEYS = tuple(f"df.residual[{i + 1}]" for i in range(DF_M))
@@ -188,20 +190,26 @@ class Diagnoser(FacadeBase):
         self._grey: GreyFaultDetector | None = None
         self._df: DFChannel | None = None
         self._df_copied: tuple[bool, Any, Any] | None = None
+        self._period = math.nan
+        self._last_step, self._last_samples = math.nan, 0
+        # last outputs of each channel not yet copied into the variables (_sync_outputs)
+        self._pending_dtg: Any = None
+        self._pending_grey: Any = None
+        self._pending_df: Any = None
+        self._outputs_pending = False
         self._ready = False
         self._start_time = 0.0
         # Host time of the first DTG alarm: the channel's own clock counts valid samples
         # only, so after a skipped NaN sample it would lag the simulation time.
         self._dtg_first_alarm_time = math.nan
         self._dtg_block_copied = -1
+        self._theta0_copied: Any = False  # never a channel's theta0: copy at first
         self._dtg_reference_warned = False
         # tunable values the running channels were built with
         self._applied: dict[str, Any] = {}
         self._real_outputs = [n for n, kind in self.kinds.items()
                               if kind == "Real" and self.causalities[n] == "output"]
-        gather = operator.itemgetter(*self._real_outputs)
-        self._real_output_values = (gather if len(self._real_outputs) > 1
-                                    else lambda v: (gather(v),))
+        self._guard_outputs_of(("dtg", "grey", "df"))
         self._nonfinite_reported: set[str] = set()
 
     # ------------------------------------------------------------------ variables
@@ -767,12 +775,19 @@ class Diagnoser(FacadeBase):
         if errors:
             raise ValueError("; ".join(errors))
         period = float(v["sample_period_s"])
+        # sample_period_s is fixed after initialisation (not tunable)
+        self._period = period
+        self._last_step, self._last_samples = math.nan, 0
         self._dtg = self._grey = self._df = None
         self._df_copied = None
+        self._theta0_copied = False
+        self._pending_dtg = self._pending_grey = self._pending_df = None
+        self._outputs_pending = False
         with _channel_context("dtg"):
             self._dtg = DTGChannel(self._dtg_config(period)) if v["dtg.enabled"] else None
         with _channel_context("grey"):
             self._grey = self._grey_detector(period) if v["grey.enabled"] else None
+        self._guard_outputs_of(tuple(c for c in ("dtg", "grey", "df") if v[f"{c}.enabled"]))
         if v["df.enabled"]:
             df_channel = _import_or_explain("gyrodiag.df_channel", "df.enabled")
             with _channel_context("df"):
@@ -819,16 +834,26 @@ class Diagnoser(FacadeBase):
         self._applied.update({n: v[n] for n in changed})
         return True
 
+    def _guard_outputs_of(self, channels: tuple[str, ...]) -> None:
+        """Guard the Real outputs of these channels and those of no channel (the
+        outputs of a disabled channel keep their finite start values)."""
+        self._guarded = [n for n in self._real_outputs
+                         if n.split(".", 1)[0] in channels or "." not in n]
+        gather = operator.itemgetter(*self._guarded) if self._guarded else None
+        self._guarded_values = (
+            (lambda v: ()) if gather is None
+            else gather if len(self._guarded) > 1 else (lambda v: (gather(v),)))
+
     def _guard_finite_outputs(self) -> None:
         """Publish 0 for any non-finite Real output (outputs are always finite; the known
         cases have validity outputs), with a warning once per variable."""
         v = self.values
         # one C-level gather and sum; inf/NaN anywhere makes total - total NaN (an
         # overflowing sum of finite values only sends us down the exact loop)
-        total = sum(self._real_output_values(v))
+        total = sum(self._guarded_values(v))
         if total - total == 0.0:
             return
-        for name in self._real_outputs:
+        for name in self._guarded:
             x = v[name]
             if not math.isfinite(x):
                 v[name] = 0.0
@@ -1003,10 +1028,15 @@ class Diagnoser(FacadeBase):
                 "(see the earlier error); fix the parameters and re-instantiate or reset"
             )
             return
-        if not self.check_step(h):
-            return
-        period = float(self.values["sample_period_s"])
-        n = samples_in_step(h, period)
+        period = self._period
+        if h == self._last_step:  # the usual case: the same step as before
+            n = self._last_samples
+        else:
+            if not self.check_step(h):
+                return
+            n = samples_in_step(h, period)
+            if n is not None:
+                self._last_step, self._last_samples = h, n
         if n is None:
             self.report_error(
                 f"{self.instance_name}: communication step {h!r} s is not a whole multiple "
@@ -1015,11 +1045,13 @@ class Diagnoser(FacadeBase):
                 "with the inputs held. The step was not taken"
             )
             return
-        if not self._apply_tunables():
+        if self.watched_changed and not self._apply_tunables():
             return
-        for i in range(n):
-            self._sample(t + i * period)
-        self._guard_finite_outputs()
+        if n == 1:
+            self._sample(t)
+        else:
+            for i in range(n):
+                self._sample(t + i * period)
 
     def _sample(self, t: float) -> None:
         """Process one sample of every enabled channel, taken at time ``t``."""
@@ -1027,8 +1059,8 @@ class Diagnoser(FacadeBase):
         valid = True
         codes: list[int] = []
         if self._dtg is not None:
-            out = self._dtg.update(*[v[key] for key in _DTG_INPUT_KEYS])
-            if self._dtg.reference_failed and not self._dtg_reference_warned:
+            out = self._dtg.update(*_dtg_inputs(v))
+            if not self._dtg_reference_warned and self._dtg.reference_failed:
                 self._dtg_reference_warned = True
                 self.report_warning(
                     f"{self.instance_name}: dtg: no reference theta0 was learned between "
@@ -1038,23 +1070,14 @@ class Diagnoser(FacadeBase):
                 out.first_alarm_time_s
             ):
                 self._dtg_first_alarm_time = t
-            self._copy_dtg(out)
+            self._pending_dtg = out
             valid &= out.valid
             if out.alarm:
                 code = out.fault_code
                 codes.append(SUMMARY_CODE_BASE["dtg"] + (code if code > 0 else -1))
         if self._grey is not None:
             g = self._grey.update(float(v["grey.y"]), time_s=t)
-            prediction_valid = math.isfinite(g.prediction)
-            v["grey.prediction"] = g.prediction if prediction_valid else 0.0
-            v["grey.error"] = g.error if math.isfinite(g.error) else 0.0
-            v["grey.prediction_valid"] = prediction_valid
-            v["grey.alarm"] = g.alarm
-            v["grey.valid"] = g.valid
-            v["grey.calibrating"] = g.calibrating
-            v["grey.statistic"] = g.statistic
-            sigma = self._grey.sigma
-            v["grey.sigma"] = sigma if sigma == sigma else 0.0
+            self._pending_grey = g
             valid &= g.valid
             if g.alarm:
                 codes.append(SUMMARY_CODE_BASE["grey"])
@@ -1063,7 +1086,7 @@ class Diagnoser(FacadeBase):
                 [v[key] for key in _DF_U_KEYS],
                 [v[key] for key in _DF_Y_KEYS],
             )
-            self._copy_df(df_out)
+            self._pending_df = df_out
             valid &= df_out.valid
             if df_out.alarm:
                 iso = df_out.isolated_sensor
@@ -1072,19 +1095,57 @@ class Diagnoser(FacadeBase):
         v["any_alarm"] = bool(codes)
         v["fault_code"] = codes[0] if codes else 0
         v["inputs_valid"] = bool(valid)
+        self._outputs_pending = True
+
+    def _sync_outputs(self) -> None:
+        """Copy the channels' last outputs into the output variables.
+
+        Deferred from the samples to the first read or state save after them: a step of
+        n samples copies once, and a host that reads a few outputs does not pay for the
+        ~150 it does not read. The published values are the last sample's either way
+        (block-rate and on-change copies compare with what was copied last).
+        """
+        if not self._outputs_pending:
+            return
+        self._outputs_pending = False
+        if self._pending_dtg is not None:
+            self._copy_dtg(self._pending_dtg)
+        if self._pending_grey is not None:
+            self._copy_grey(self._pending_grey)
+        if self._pending_df is not None:
+            self._copy_df(self._pending_df)
+        self._guard_finite_outputs()
+
+    def _copy_grey(self, g: Any) -> None:
+        v = self.values
+        prediction_valid = math.isfinite(g.prediction)
+        v["grey.prediction"] = g.prediction if prediction_valid else 0.0
+        v["grey.error"] = g.error if math.isfinite(g.error) else 0.0
+        v["grey.prediction_valid"] = prediction_valid
+        v["grey.alarm"] = g.alarm
+        v["grey.valid"] = g.valid
+        v["grey.calibrating"] = g.calibrating
+        v["grey.statistic"] = g.statistic
+        assert self._grey is not None
+        sigma = self._grey.sigma
+        v["grey.sigma"] = sigma if sigma == sigma else 0.0
 
     def _copy_dtg(self, out: Any) -> None:
         v = self.values
-        v.update(zip(_DTG_THETA_FLAT_KEYS, _flat_floats(out.theta), strict=True))
-        v.update(zip(_DTG_ETA_FLAT_KEYS, _flat_floats(out.eta), strict=True))
+        # the channel's arrays have fixed shapes (2×5, 2×5, 5): plain zips
+        v.update(zip(_DTG_THETA_FLAT_KEYS, out.theta.ravel().tolist(), strict=True))
+        v.update(zip(_DTG_ETA_FLAT_KEYS, out.eta.ravel().tolist(), strict=True))
         assert self._dtg is not None
         theta0 = self._dtg.theta0
-        theta0_values = [0.0] * N_THETA if theta0 is None else _flat_floats(theta0)
-        v.update(zip(_DTG_THETA0_KEYS, theta0_values, strict=True))
-        physical = _as_list(out.physical)
-        physical_valid = all(math.isfinite(x) for x in physical)
-        for key, value in zip(_DTG_PHYSICAL_KEYS, physical, strict=True):
-            v[key] = float(value) if physical_valid else 0.0
+        if theta0 is not self._theta0_copied:  # set once, when learning ends
+            self._theta0_copied = theta0
+            v.update(zip(_DTG_THETA0_KEYS, [0.0] * N_THETA if theta0 is None
+                         else _flat_floats(theta0), strict=True))
+        physical = out.physical.tolist()
+        # the sum of finite values is finite unless it overflows (then: the exact test)
+        total = sum(physical)
+        physical_valid = total - total == 0.0 or all(math.isfinite(x) for x in physical)
+        v.update(zip(_DTG_PHYSICAL_KEYS, physical if physical_valid else _ZEROS_5, strict=True))
         v["dtg.physical_valid"] = physical_valid
         v["dtg.learning"] = bool(out.learning)
         v["dtg.alarm"] = bool(out.alarm)
@@ -1150,6 +1211,10 @@ class Diagnoser(FacadeBase):
 
     def _restore_state(self, state: dict[str, Any]) -> None:
         # Channels are rebuilt from the (restored) parameters, then their state is set.
+        # the restored variables hold the outputs (saved after _sync_outputs)
+        self._pending_dtg = self._pending_grey = self._pending_df = None
+        self._outputs_pending = False
+        self._theta0_copied = False
         if state["ready"]:
             self._build_channels()
         self._ready = bool(state["ready"])

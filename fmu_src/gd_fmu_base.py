@@ -198,18 +198,25 @@ class GuardedSlave(Fmi2Slave):
             v[name] = value
         return True
 
+    def _sync_outputs(self) -> None:
+        """Bring outputs computed lazily up to date before they are read or saved
+        (facades that defer their output copying override this)."""
+
     def get_real(self, vrs: list[int]) -> list[float]:
         self._refresh_initial_outputs(vrs)
+        self._sync_outputs()
         fast = self._fast_get("Real", vrs, float)
         return super().get_real(vrs) if fast is None else fast
 
     def get_integer(self, vrs: list[int]) -> list[int]:
         self._refresh_initial_outputs(vrs)
+        self._sync_outputs()
         fast = self._fast_get("Integer", vrs, int)
         return super().get_integer(vrs) if fast is None else fast
 
     def get_boolean(self, vrs: list[int]) -> list[bool]:
         self._refresh_initial_outputs(vrs)
+        self._sync_outputs()
         fast = self._fast_get("Boolean", vrs, bool)
         return super().get_boolean(vrs) if fast is None else fast
 
@@ -227,6 +234,10 @@ class GuardedSlave(Fmi2Slave):
         if not self._fast_set("Boolean", vrs, values):
             super().set_boolean(vrs, values)
         self._mark_inputs_changed(vrs)
+
+    def get_string(self, vrs: list[int]) -> list[str]:
+        self._sync_outputs()
+        return super().get_string(vrs)
 
     def set_string(self, vrs: list[int], values: list[str]) -> None:
         super().set_string(vrs, values)
@@ -427,6 +438,7 @@ class FacadeBase(GuardedSlave):
         del state
 
     def _state_payload(self) -> dict[str, Any]:
+        self._sync_outputs()
         return {"values": encode(dict(self.values)), "internal": encode(self._capture_state())}
 
     def _apply_state_payload(self, payload: dict[str, Any]) -> None:

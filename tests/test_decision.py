@@ -7,7 +7,9 @@ from gyrodiag.decision import (
     UNKNOWN_CODE,
     SignatureClassifier,
     ThresholdDecision,
+    WindowedMedianFeature,
     feature_vector,
+    median_feature,
     parameter_ratios,
     signature_distance,
 )
@@ -190,3 +192,62 @@ def test_windowed_median_feature_equals_the_batch_median_at_every_sample():
         WindowedMedianFeature(5, 0)
     with pytest.raises(ValueError, match="features"):
         median_feature([])
+
+
+def test_feature_floats_equals_feature_vector_on_every_decade_and_edge():
+    """The channel's plain-float features are the checked function's, including η = 0
+    (the floor), exact decades and half decades (rounding half away from zero)."""
+    from gyrodiag.decision import feature_floats
+
+    rng = np.random.default_rng(3)
+    cases = [10.0 ** rng.uniform(-14, 14, 5) for _ in range(2000)]
+    cases += [np.array([0.0, 1.0, 10.0, 1e-3, 10 ** 2.5]),
+              np.array([10 ** -2.5, 10 ** 0.5, 10 ** -0.5, 1e-12, 1e-13])]
+    for eta in cases:
+        assert feature_floats(eta.tolist()) == tuple(feature_vector(eta).tolist()), eta
+    assert feature_floats([0.0, 1e3, 10 ** -0.6, 10 ** 0.6, 1.0]) == (-12, 3, -1, 1, 0)
+
+
+def test_windowed_median_feature_matches_median_of_flagged_window():
+    """Streaming median over a sliding window = median_feature of the flagged rows of
+    the same window, through wrap-around and a state round trip."""
+    rng = np.random.default_rng(5)
+    w = WindowedMedianFeature(5, 7)
+    rows, flags = [], []
+    for k in range(200):
+        f = rng.integers(-3, 4, 5)
+        flag = bool(rng.random() < 0.6)
+        w.update(f, flag)
+        rows.append(f)
+        flags.append(flag)
+        window = [r for r, g in zip(rows[-7:], flags[-7:], strict=True) if g]
+        got = w.median()
+        if not window:
+            assert got is None
+        else:
+            np.testing.assert_array_equal(got, median_feature(window), err_msg=f"k={k}")
+        if k == 100:
+            twin = WindowedMedianFeature(5, 7)
+            twin.set_state(w.get_state())
+            w = twin
+
+
+@pytest.mark.parametrize("monitored", [None, [True, True, True, True, False],
+                                       [False, False, True, False, False]])
+@pytest.mark.parametrize(("k", "n", "latch"), [(1, 1, False), (3, 5, False), (2, 4, True)])
+def test_unchecked_step_equals_checked_update(monitored, k, n, latch):
+    """The channel's hot path (plain floats) gives the η, alarms and state of the checked
+    update on ratios inside, outside and at the band's edges."""
+    rng = np.random.default_rng(11)
+    a = ThresholdDecision(THETA_NOM, 0.5, 1.5, k, n, latch, monitored)
+    b = ThresholdDecision(THETA_NOM, 0.5, 1.5, k, n, latch, monitored)
+    nominal = np.array(THETA_NOM)
+    for j in range(400):
+        ratio = rng.choice([0.5, 1.5, 1.0, 0.2, 3.0, 0.9]) if j % 7 == 0 else \
+            rng.uniform(0.3, 1.8, 5)
+        theta = nominal * ratio * rng.choice([-1.0, 1.0], 5)
+        checked = a.update(theta)
+        eta, alarm = b.step(theta.tolist())
+        np.testing.assert_array_equal(eta, checked.eta)
+        assert alarm == checked.alarm, j
+    assert a.get_state()["first_alarm"] == b.get_state()["first_alarm"]

@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -26,6 +27,7 @@ __all__ = [
     "SignatureClassifier",
     "ThresholdDecision",
     "WindowedMedianFeature",
+    "feature_floats",
     "feature_vector",
     "median_feature",
     "parameter_ratios",
@@ -69,6 +71,15 @@ def feature_vector(eta: ArrayLike) -> NDArray[np.int64]:
         raise ValueError("eta must be non-negative (it is a ratio of magnitudes)")
     lg = np.log10(np.maximum(e, ETA_FLOOR))
     return _round_half_away(lg)
+
+
+def feature_floats(eta: Sequence[float], _log10: Any = math.log10,
+                   _floor: Any = math.floor) -> tuple[int, ...]:
+    """:func:`feature_vector` on plain floats, unchecked (the per-sample hot path of a
+    channel whose η are finite and non-negative by construction): same values."""
+    lgs = [_log10(e if e > ETA_FLOOR else ETA_FLOOR) for e in eta]
+    return tuple([int(_floor(lg + 0.5)) if lg >= 0.0 else -int(_floor(0.5 - lg))
+                  for lg in lgs])
 
 
 def median_feature(features: ArrayLike) -> NDArray[np.int64]:
@@ -119,31 +130,43 @@ class WindowedMedianFeature:
     def __init__(self, n_features: int, window: int) -> None:
         self.n_features = check_int("n_features", n_features, minimum=1)
         self.window = check_int("window", window, minimum=1)
-        self._cols = np.arange(self.n_features)
         self.reset()
 
     def reset(self) -> None:
         """Empty window."""
-        self._ring = np.zeros((self.window, self.n_features), dtype=np.int64)
-        self._flags = np.zeros(self.window, dtype=bool)
+        # plain lists: one push is a handful of integer operations (numpy indexing cost
+        # more than the channel's arithmetic at 1 kHz); arrays only in get_state
+        zero = (0,) * self.n_features
+        self._ring: list[tuple[int, ...]] = [zero] * self.window
+        self._flags: list[bool] = [False] * self.window
         self._pos = 0
-        self._counts = np.zeros((self.n_features, 2 * self.LIMIT + 1), dtype=np.int64)
+        # per component {value: count of flagged samples} (a few distinct decades)
+        self._counts: list[dict[int, int]] = [{} for _ in range(self.n_features)]
         self._n_flagged = 0
 
-    def update(self, feature: NDArray[np.int64], flagged: bool) -> None:
-        """Push one feature vector (ints, shape (k,)); ``flagged`` ones count in the
+    def update(self, feature: Sequence[int], flagged: bool) -> None:
+        """Push one feature vector (ints, length k); ``flagged`` ones count in the
         median. Not validated: the caller passes :func:`feature_vector` output."""
-        cols = self._cols
-        if self._flags[self._pos]:
-            self._counts[cols, self._ring[self._pos] + self.LIMIT] -= 1
+        pos, lim, counts = self._pos, self.LIMIT, self._counts
+        if self._flags[pos]:
+            for row, c in zip(counts, self._ring[pos], strict=True):
+                left = row[c] - 1
+                if left:
+                    row[c] = left
+                else:
+                    del row[c]
             self._n_flagged -= 1
-        f = np.clip(feature, -self.LIMIT, self.LIMIT)
-        self._ring[self._pos] = f
-        self._flags[self._pos] = flagged
+        self._flags[pos] = flagged
         if flagged:
-            self._counts[cols, f + self.LIMIT] += 1
+            f = tuple(min(max(int(c), -lim), lim) for c in feature)
+            self._ring[pos] = f
+            for row, c in zip(counts, f, strict=True):
+                row[c] = row.get(c, 0) + 1
             self._n_flagged += 1
-        self._pos = (self._pos + 1) % self.window
+        else:  # an unflagged entry never counts: its values are not kept
+            self._ring[pos] = (0,) * self.n_features
+        pos += 1
+        self._pos = 0 if pos == self.window else pos
 
     @property
     def n_flagged(self) -> int:
@@ -155,15 +178,26 @@ class WindowedMedianFeature:
         n = self._n_flagged
         if n == 0:
             return None
-        cum = np.cumsum(self._counts, axis=1)
-        lo = np.argmax(cum > (n - 1) // 2, axis=1)
-        hi = np.argmax(cum > n // 2, axis=1)
-        med = (lo + hi) / 2.0 - self.LIMIT
-        return _round_half_away(med)
+        lo_rank, hi_rank = (n - 1) // 2, n // 2
+        med = []
+        for row in self._counts:
+            cum, lo, hi = 0, None, 0
+            for value in sorted(row):
+                cum += row[value]
+                if lo is None and cum > lo_rank:
+                    lo = value
+                if cum > hi_rank:
+                    hi = value
+                    break
+            assert lo is not None
+            med.append((lo + hi) / 2.0)
+        return _round_half_away(np.array(med))
 
     def get_state(self) -> dict[str, Any]:
         """Window contents (the counts are derived from them)."""
-        return {"ring": self._ring.copy(), "flags": self._flags.copy(), "pos": self._pos}
+        return {"ring": np.array(self._ring, dtype=np.int64).reshape(self.window,
+                                                                    self.n_features),
+                "flags": np.array(self._flags, dtype=bool), "pos": self._pos}
 
     def set_state(self, state: dict[str, Any]) -> None:
         """Restore :meth:`get_state` output of a window of the same size; checked first,
@@ -171,20 +205,24 @@ class WindowedMedianFeature:
         ring = np.asarray(state["ring"], dtype=np.int64)
         flags = np.asarray(state["flags"], dtype=bool)
         pos = int(state["pos"])
-        if ring.shape != self._ring.shape or flags.shape != self._flags.shape:
+        shape = (self.window, self.n_features)
+        if ring.shape != shape or flags.shape != (self.window,):
             raise ValueError(
                 f"state['ring'] / state['flags'] have shapes {ring.shape} / {flags.shape}, "
-                f"this window needs {self._ring.shape} / {self._flags.shape}"
+                f"this window needs {shape} / {(self.window,)}"
             )
         if not 0 <= pos < self.window:
             raise ValueError(f"state['pos'] must be in [0, {self.window}), got {pos}")
         if np.any(np.abs(ring) > self.LIMIT):
             raise ValueError(f"state['ring'] has features beyond ±{self.LIMIT}")
-        self._ring, self._flags, self._pos = ring.copy(), flags.copy(), pos
-        self._counts[:] = 0
-        for k in range(self.n_features):
-            self._counts[k] = np.bincount(ring[flags, k] + self.LIMIT,
-                                          minlength=2 * self.LIMIT + 1)
+        ring = np.where(flags[:, None], ring, 0)
+        self._ring = [tuple(int(c) for c in r) for r in ring]
+        self._flags = [bool(f) for f in flags]
+        self._pos = pos
+        self._counts = [{} for _ in range(self.n_features)]
+        for r in ring[flags]:
+            for row, c in zip(self._counts, r.tolist(), strict=True):
+                row[c] = row.get(c, 0) + 1
         self._n_flagged = int(flags.sum())
 
 
@@ -271,6 +309,10 @@ class ThresholdDecision:
             self.monitored = m
         self._abs_theta0 = np.abs(self.theta0).tolist()
         self._monitored_list = self.monitored.tolist()
+        # step(): the monitored ratios (None: all of them)
+        idx = [i for i, m in enumerate(self._monitored_list) if m]
+        self._watched: Any = (None if len(idx) == n else
+                              (lambda eta, _i=tuple(idx): [eta[i] for i in _i]))
         self.reset()
 
     def reset(self) -> None:
@@ -311,14 +353,10 @@ class ThresholdDecision:
         theta : sequence of float
             n finite estimates.
         """
-        abs0 = self._abs_theta0
-        low, high = self.low, self.high
-        eta = [abs(t) / a for t, a in zip(theta, abs0, strict=True)]
-        violation = False
-        for e, m in zip(eta, self._monitored_list, strict=True):
-            if m and (e < low or e > high):
-                violation = True
-                break
+        eta = [abs(t) / a for t, a in zip(theta, self._abs_theta0, strict=True)]
+        watched = self._watched(eta) if self._watched is not None else eta
+        # min/max of the monitored ratios: two builtin calls instead of a loop
+        violation = bool(watched) and (min(watched) < self.low or max(watched) > self.high)
         hist = self._history
         hist.append(violation)
         alarm = sum(hist) >= self.persistence_k

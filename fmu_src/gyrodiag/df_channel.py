@@ -454,6 +454,12 @@ class DFChannel:
         m = self.m
         if isinstance(engine, SequentialDiagnoser):
             out = engine.update(np.concatenate((u, y)))
+            if out.status == "none":  # the per-sample case, without the lookups below
+                return DFChannelOutput(
+                    True, False, out.residual, out.alarms, out.statistic, out.detected,
+                    out.episodes, NONE_DETECTED, 0, 0, 0.0, False, out.fault_type,
+                    out.magnitude, self._delay,
+                )
             if out.status == "single":
                 iso = out.isolated[0] + 1
             else:

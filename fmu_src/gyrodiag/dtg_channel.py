@@ -41,7 +41,7 @@ from .decision import (
     SignatureClassifier,
     ThresholdDecision,
     WindowedMedianFeature,
-    feature_vector,
+    feature_floats,
 )
 from .dtg import N_THETA, DTGRegressor
 from .dtg_patterns import PatternClassifier, PatternLibrary, PatternResult
@@ -391,6 +391,7 @@ class DTGChannel:
     def __init__(self, config: DTGChannelConfig) -> None:
         config.validate()
         self.config = config
+        self._pattern_mode = config.classifier == "pattern"
         self.T = float(config.sample_period_s)
         self._nb = config.block_samples
         self._short_blocks = config.blocks(config.window_s)
@@ -490,7 +491,7 @@ class DTGChannel:
     @property
     def pattern_mode(self) -> bool:
         """The pattern classifier is configured."""
-        return self.config.classifier == "pattern"
+        return self._pattern_mode
 
     # -- streaming ------------------------------------------------------------
     def update(self, Utx: float, Uty: float, Ux: float, Uy: float) -> DTGChannelOutput:
@@ -522,7 +523,7 @@ class DTGChannel:
         th_x, th_y = self._theta_now  # rolled back if the residual alarm just cleared
         theta = np.array((th_x, th_y))
 
-        if self.theta0 is None and not self.pattern_mode:
+        if self.theta0 is None and not self._pattern_mode:
             self._learn(t, theta)
         if self.theta0 is None or self._decisions is None:
             self._last = DTGChannelOutput(
@@ -537,18 +538,18 @@ class DTGChannel:
         eta = np.array((eta_x, eta_y))
         band_alarm = alarm_x or alarm_y
         physical = _physical(th_x, th_y, self.T)
-        if self.pattern_mode:
+        if self._pattern_mode:
             return self._pattern_output(t, theta, eta, physical, band_alarm, block_done)
         alarm = band_alarm
-        feats = [feature_vector(e) for e in eta]
-        worst = int(np.argmax([np.abs(f).sum() for f in feats]))
-        feature = feats[worst]
+        fx, fy = feature_floats(eta_x), feature_floats(eta_y)
+        # the axis with the larger Σ|C_i| (x on a tie)
+        feature = fy if sum(map(abs, fy)) > sum(map(abs, fx)) else fx
         windowed = self._features.window > 1
         if windowed:  # window 1 (the paper's rule) needs no history
             self._features.update(feature, alarm)
         code = 0
         if alarm:
-            if np.isnan(self._first_alarm_time):
+            if math.isnan(self._first_alarm_time):
                 self._first_alarm_time = t
             if windowed:
                 feature = self._features.median()
@@ -558,7 +559,8 @@ class DTGChannel:
                 else UNKNOWN_CODE
             )
         self._last = DTGChannelOutput(
-            True, False, theta, eta, physical, alarm, code, feature,
+            True, False, theta, eta, physical, alarm, code,
+            np.array(feature, dtype=np.int64),
             self._first_alarm_time, self._diagnosis,
         )
         return self._last

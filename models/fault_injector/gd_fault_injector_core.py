@@ -114,6 +114,7 @@ class FaultInjectorCore:
         self._held = np.zeros(self.n_channels)
         self._holding = np.zeros(self.n_channels, dtype=bool)
         self._step_latched = np.zeros(self.n_channels, dtype=bool)
+        self._flags_clear = True  # _holding and _step_latched are all False
 
     def check_channel(self, i: int) -> None:
         """Validate the parameters that the channel's current fault type uses."""
@@ -155,6 +156,13 @@ class FaultInjectorCore:
         """
         if len(u) != self.n_channels:
             raise ValueError(f"u must have {self.n_channels} entries, got {len(u)}")
+        if not self.fault_type.any():  # every channel idle: the same as _apply's NONE case
+            if not self._flags_clear:
+                self._holding[:] = False
+                self._step_latched[:] = False
+                self._flags_clear = True
+            return list(u), [False] * self.n_channels
+        self._flags_clear = False
         y: list[float] = []
         active: list[bool] = []
         for i in range(self.n_channels):
@@ -232,6 +240,7 @@ class FaultInjectorCore:
         self._held = np.array(state["held"], dtype=float)
         self._holding = np.array(state["holding"], dtype=bool)
         self._step_latched = np.array(state["step_latched"], dtype=bool)
+        self._flags_clear = not (self._holding.any() or self._step_latched.any())
         rngs = []
         for s in state["rng"]:
             rng = np.random.default_rng()
