@@ -115,6 +115,8 @@ _DTG_PHYSICAL_KEYS = tuple(f"dtg.{name}" for name in PHYSICAL_NAMES)
 _ZEROS_5 = (0.0,) * N_THETA
 _DF_U_KEYS = tuple(f"df.u[{j + 1}]" for j in range(DF_P))
 _DF_Y_KEYS = tuple(f"df.y[{i + 1}]" for i in range(DF_M))
+_df_u = operator.itemgetter(*_DF_U_KEYS)
+_df_y = operator.itemgetter(*_DF_Y_KEYS)
 _DF_RESIDUAL_KEYS = tuple(f"df.residual[{i + 1}]" for i in range(DF_M))
 _DF_ALARM_KEYS = tuple(f"df.alarm[{i + 1}]" for i in range(DF_M))
 _DF_THRESHOLD_KEYS = tuple(f"df.threshold_in_use[{i + 1}]" for i in range(DF_M))
@@ -1082,10 +1084,7 @@ class Diagnoser(FacadeBase):
             if g.alarm:
                 codes.append(SUMMARY_CODE_BASE["grey"])
         if self._df is not None:
-            df_out = self._df.update(
-                [v[key] for key in _DF_U_KEYS],
-                [v[key] for key in _DF_Y_KEYS],
-            )
+            df_out = self._df.update_floats(_df_u(v), _df_y(v))
             self._pending_df = df_out
             valid &= df_out.valid
             if df_out.alarm:

@@ -185,3 +185,33 @@ def test_given_noise_replaces_the_window():
 def test_invalid_settings_name_the_problem(changes, name):
     with pytest.raises((ValueError, TypeError), match=name):
         DFChannel(DFChannelConfig(**changes))
+
+
+def test_update_floats_equals_update_through_calibration_faults_and_nan():
+    """The host's plain-float entry gives the outputs and the state of the checked
+    update: calibrating, nominal, a 5 σ q bias (episode, isolation), a NaN sample."""
+    import dataclasses
+
+    from gyrodiag.aircraft import seed_aircraft
+
+    rng = np.random.default_rng(4)
+    model = seed_aircraft()
+    cfg = DFChannelConfig(sample_period_s=0.01, calibrate_s=2.0, burn_in_s=0.2)
+    a, b = DFChannel(cfg), DFChannel(cfg)
+    noise = np.array([0.05, 1e-3, 1e-3, 1e-3, 1e-3, 0.2])
+    x = np.zeros(5)
+    phi = np.eye(5) + 0.01 * model.A
+    for k in range(900):
+        u = np.array([0.0, 0.002 * rng.standard_normal()])
+        y = model.C @ x + noise * rng.standard_normal(6)
+        if k >= 500:
+            y[2] += 5e-3
+        if k == 700:
+            y[1] = np.nan
+        x = phi @ x + 0.01 * (model.B @ u) - 0.02 * x
+        out_a = a.update(u, y)
+        out_b = b.update_floats(u.tolist(), y.tolist())
+        for f in dataclasses.fields(out_a):
+            va, vb = getattr(out_a, f.name), getattr(out_b, f.name)
+            np.testing.assert_array_equal(va, vb, err_msg=f"sample {k}: {f.name}")
+    assert out_a.detected or out_a.episodes > 0

@@ -41,6 +41,7 @@ variances of the window (:func:`~gyrodiag.residual_model.estimate_sensor_varianc
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -425,6 +426,19 @@ class DFChannel:
         self._last = self._decide(*pair)
         return self._last
 
+    def update_floats(self, u: Sequence[float], y: Sequence[float]) -> DFChannelOutput:
+        """:meth:`update` for a host that holds the sample as plain floats (``p`` and
+        ``m`` of them; the lengths are the caller's to get right): the same outputs and
+        state change, without the array conversions on the per-sample path of the
+        calibrated sequential decision."""
+        total = sum(u) + sum(y)
+        if not (total - total == 0.0 and self._calibrated and self._delay == 0
+                and isinstance(self._engine, SequentialDiagnoser)):
+            return self.update(u, y)  # NaN/inf, calibration, a delay line, the paper rule
+        self._n_samples += 1
+        self._last = self._decide_sequential(self._engine, np.array((*u, *y)))
+        return self._last
+
     def _monitor_step(self, u: NDArray[np.float64], y: NDArray[np.float64]
                       ) -> NDArray[np.float64]:
         """Residual shown while the window is recorded (configured alignment)."""
@@ -449,36 +463,40 @@ class DFChannel:
             return None
         return u, self._y_line.pop(0)
 
+    def _decide_sequential(self, engine: SequentialDiagnoser,
+                           w: NDArray[np.float64]) -> DFChannelOutput:
+        out = engine.update(w)
+        if out.status == "none":  # the per-sample case, without the lookups below
+            return DFChannelOutput(
+                True, False, out.residual, out.alarms, out.statistic, out.detected,
+                out.episodes, NONE_DETECTED, 0, 0, 0.0, False, out.fault_type,
+                out.magnitude, self._delay,
+            )
+        if out.status == "single":
+            iso = out.isolated[0] + 1
+        else:
+            iso = {"none": NONE_DETECTED, "not isolated": NOT_ISOLATED,
+                   "pair": MULTIPLE, "multiple": MULTIPLE}[out.status]
+        mask = sum(1 << i for i in out.isolated)
+        types = out.fault_type
+        if out.isolated:
+            kinds = {int(types[i]) for i in out.isolated}
+            ftype = kinds.pop() if len(kinds) == 1 else int(FaultKind.UNKNOWN)
+        else:
+            ftype = int(FaultKind.UNKNOWN) if out.status != "none" else 0
+        valid = len(out.isolated) == 1 and bool(out.magnitude_valid[out.isolated[0]])
+        mag = float(out.magnitude[out.isolated[0]]) if valid else 0.0
+        return DFChannelOutput(
+            True, False, out.residual, out.alarms, out.statistic, out.detected,
+            out.episodes, iso, mask, ftype, mag, valid, types, out.magnitude,
+            self._delay,
+        )
+
     def _decide(self, u: NDArray[np.float64], y: NDArray[np.float64]) -> DFChannelOutput:
         engine = self._engine
         m = self.m
         if isinstance(engine, SequentialDiagnoser):
-            out = engine.update(np.concatenate((u, y)))
-            if out.status == "none":  # the per-sample case, without the lookups below
-                return DFChannelOutput(
-                    True, False, out.residual, out.alarms, out.statistic, out.detected,
-                    out.episodes, NONE_DETECTED, 0, 0, 0.0, False, out.fault_type,
-                    out.magnitude, self._delay,
-                )
-            if out.status == "single":
-                iso = out.isolated[0] + 1
-            else:
-                iso = {"none": NONE_DETECTED, "not isolated": NOT_ISOLATED,
-                       "pair": MULTIPLE, "multiple": MULTIPLE}[out.status]
-            mask = sum(1 << i for i in out.isolated)
-            types = out.fault_type
-            if out.isolated:
-                kinds = {int(types[i]) for i in out.isolated}
-                ftype = kinds.pop() if len(kinds) == 1 else int(FaultKind.UNKNOWN)
-            else:
-                ftype = int(FaultKind.UNKNOWN) if out.status != "none" else 0
-            valid = len(out.isolated) == 1 and bool(out.magnitude_valid[out.isolated[0]])
-            mag = float(out.magnitude[out.isolated[0]]) if valid else 0.0
-            return DFChannelOutput(
-                True, False, out.residual, out.alarms, out.statistic, out.detected,
-                out.episodes, iso, mask, ftype, mag, valid, types, out.magnitude,
-                self._delay,
-            )
+            return self._decide_sequential(engine, np.concatenate((u, y)))
         assert isinstance(engine, SensorFaultIsolator)
         res = engine.update(u, y)
         residual = engine.main_filter.residual

@@ -333,6 +333,15 @@ class _Batch:
         self.vr_array = (ctypes.c_uint * self.n)(*vrs)
         self.buffer = (c_type * self.n)()
         self.view = np.frombuffer(self.buffer, dtype=np_type)
+        self._columns: tuple[Any, np.ndarray] | None = None
+
+    def columns(self, cols: Any) -> np.ndarray:
+        """``cols[positions]``: where this batch's values go in a row laid out by
+        ``cols`` (one array per group, made at the first call)."""
+        cached = self._columns
+        if cached is None or cached[0] is not cols:
+            cached = self._columns = (cols, np.asarray(cols, dtype=np.intp)[self.positions])
+        return cached[1]
 
 
 class _RawFmi2:
@@ -433,13 +442,19 @@ class _Instance:
             else:
                 self.call(f"{what} {v.name}", t, s.setString, [v.value_reference], [str(value)])
 
-    def read(self, group: _VarGroup, t: float) -> np.ndarray:
-        out = np.empty(group.size)
+    def read(self, group: _VarGroup, t: float, out: np.ndarray | None = None,
+             cols: Any = None) -> np.ndarray:
+        """Values of ``group`` in its order; into ``out[cols]`` when given."""
+        if out is None:
+            out = np.empty(group.size)
+            cols = None
         get, c = self.raw.get, self.component
         for b in group.batches:
             mark = len(self.log)
-            self._checked(f"get{b.kind}", t, get[b.kind](c, b.vr_array, b.n, b.buffer), mark)
-            out[b.positions] = b.view
+            status = get[b.kind](c, b.vr_array, b.n, b.buffer)
+            if status > _FMI_WARNING:
+                raise self._failure(f"get{b.kind}", t, status, None, mark)
+            out[b.positions if cols is None else b.columns(cols)] = b.view
         return out
 
     def write(self, group: _VarGroup, values: np.ndarray, t: float) -> None:
@@ -453,11 +468,15 @@ class _Instance:
             else:
                 b.view[:] = vals > 0.5
             mark = len(self.log)
-            self._checked(f"set{b.kind}", t, set_[b.kind](c, b.vr_array, b.n, b.buffer), mark)
+            status = set_[b.kind](c, b.vr_array, b.n, b.buffer)
+            if status > _FMI_WARNING:
+                raise self._failure(f"set{b.kind}", t, status, None, mark)
 
     def do_step(self, t: float, h: float) -> None:
         mark = len(self.log)
-        self._checked("doStep", t, self.raw.do_step(self.component, t, h, 1), mark)
+        status = self.raw.do_step(self.component, t, h, 1)
+        if status > _FMI_WARNING:
+            raise self._failure("doStep", t, status, None, mark)
 
     def free(self) -> None:
         """Terminate (if healthy) and free the instance; never unload the library."""
@@ -689,7 +708,7 @@ class _Run:
     def _record(self, t: float) -> None:
         row = np.empty(len(self.record_names))
         for name, cols, group in self.record_groups:
-            row[cols] = self.inst[name].read(group, t)
+            self.inst[name].read(group, t, row, cols)
         self.times.append(t)
         self.rows.append(row)
 
