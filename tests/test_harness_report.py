@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import base64
 import html
+import re
 import xml.etree.ElementTree as ET
 from html.parser import HTMLParser
 from pathlib import Path
@@ -468,3 +469,20 @@ def test_titles_say_what_passed(full_run: RunResult) -> None:
     ((title, _fig),) = plots.figures_for_result(broken, BROKEN_SCENARIO, v)
     assert title == ("detection-filter channel — diag: 2 expectations not evaluated "
                      "(run incomplete)")
+
+
+def test_plots_drawn_in_worker_processes_give_the_page_drawn_here(
+        written: dict, full_run: RunResult, tmp_path: Path) -> None:
+    """Sections (tables and plots) rendered by two worker processes are the ones
+    rendered in this process, byte for byte, in the verdicts' order."""
+    runs = [full_run, _broken_run()]
+    scenarios = [FULL_SCENARIO, BROKEN_SCENARIO, MISSING_SCENARIO]
+    verdicts = written["verdicts"]
+    here = report.write_html(verdicts, runs, tmp_path / "here.html", scenarios, workers=1)
+    pool = report.write_html(verdicts, runs, tmp_path / "pool.html", scenarios, workers=2)
+
+    def body(path: Path) -> str:
+        return re.sub(r"generated [^<]* UTC", "", path.read_text(encoding="utf-8"))
+
+    assert body(here) == body(pool)
+    assert body(pool).count("data:image/png;base64,") >= 2

@@ -18,10 +18,16 @@ from __future__ import annotations
 import base64
 import datetime as _dt
 import html
+import logging
 import math
+import multiprocessing
+import os
+import pickle
 import re
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
@@ -31,6 +37,8 @@ import numpy as np
 from harness.reporting import plots
 from harness.verification import metrics
 from harness.verification.expectations import ScenarioVerdict
+
+_log = logging.getLogger(__name__)
 
 if TYPE_CHECKING:
     from harness.cosim.results import RunResult
@@ -374,11 +382,46 @@ def _figures_html(result: RunResult, scenario: Any, verdict: ScenarioVerdict) ->
     return "\n".join(out)
 
 
+def default_workers() -> int:
+    """CPUs this process may run on (the report's default number of plot workers)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def _section_job(job: tuple[ScenarioVerdict, RunResult | None, Any]) -> str:
+    return _scenario_section(*job)
+
+
+def _render_sections(jobs: list[tuple[ScenarioVerdict, RunResult | None, Any]],
+                     workers: int) -> list[str]:
+    """The scenario sections in order; their plots (matplotlib, ~0.6 s of CPU each) in
+    ``workers`` processes when there is more than one section.
+
+    The processes come from a fork server (a clean interpreter, not a fork of a caller
+    that may hold FMU libraries or threads); if they cannot be had, or a job cannot be
+    sent to them, the sections are rendered here, one after the other.
+    """
+    workers = min(int(workers), len(jobs))
+    if workers > 1:
+        try:
+            context = multiprocessing.get_context("forkserver")
+            with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
+                return list(pool.map(_section_job, jobs))
+        except (OSError, BrokenProcessPool, pickle.PicklingError, TypeError,
+                AttributeError, ValueError) as exc:
+            _log.warning("report: plots in parallel failed (%s: %s); rendering them here",
+                         type(exc).__name__, exc)
+    return [_section_job(job) for job in jobs]
+
+
 def write_html(
     verdicts: Sequence[ScenarioVerdict],
     results: Sequence[RunResult],
     path: Path | str,
     scenarios: Sequence[Any] | None = None,
+    workers: int | None = None,
 ) -> Path:
     """Write one self-contained HTML page (tables, plots as base64 PNG).
 
@@ -392,6 +435,8 @@ def write_html(
         Output file (parent directories are created).
     scenarios : sequence of Scenario or dict, optional
         Descriptions, parameters (thresholds) and connections (grey measurement).
+    workers : int, optional
+        Processes that draw the plots (default: the CPUs available; 1 draws them here).
 
     Returns
     -------
@@ -410,8 +455,9 @@ def write_html(
          _esc((v.error or "").strip().splitlines()[0] if (v.error or "").strip() else "")]
         for v in verdicts])
     stamp = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
-    sections = [_scenario_section(v, runs.get(v.scenario), specs.get(v.scenario))
-                for v in verdicts]
+    sections = _render_sections(
+        [(v, runs.get(v.scenario), specs.get(v.scenario)) for v in verdicts],
+        default_workers() if workers is None else workers)
     page = (
         "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
         f"<title>gyrodiag verification report</title><style>{_CSS}</style></head><body>\n"
@@ -438,6 +484,7 @@ def write_report(
     junit_path: Path | str | None = None,
     html_path: Path | str | None = None,
     scenarios: Sequence[Any] | None = None,
+    workers: int | None = None,
 ) -> ReportPaths:
     """Write the JUnit XML and the HTML report.
 
@@ -453,6 +500,8 @@ def write_report(
         Defaults ``out_dir/junit.xml`` and ``out_dir/report.html``.
     scenarios : sequence of Scenario or dict, optional
         See :func:`write_html`.
+    workers : int, optional
+        Plot processes, see :func:`write_html`.
 
     Returns
     -------
@@ -462,5 +511,5 @@ def write_report(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     junit = write_junit(verdicts, junit_path or out / JUNIT_FILE, results)
-    page = write_html(verdicts, results, html_path or out / HTML_FILE, scenarios)
+    page = write_html(verdicts, results, html_path or out / HTML_FILE, scenarios, workers)
     return ReportPaths(junit, page)
