@@ -44,11 +44,31 @@ def timeline(noise_v: float, seed: int, duration: float = 1000.0):
     return t, y
 
 
-def detector(sequential: bool = True) -> GreyFaultDetector:
+def fault_free_record(noise_v: float, seed: int, duration: float = 3600.0):
+    """A fault-free HRG output record (2 Hz) that moves all the time: the seed-001 wave
+    without its taper and flat tail, started at a random phase (from ``seed``)."""
+    phase = np.random.default_rng(seed).uniform(0.0, 6500.0)
+    model = hrg_core.HRGModel(noise_std=noise_v, seed=seed, profile=hrg_core.PROFILE_NONE)
+
+    def rate(tk: float) -> float:
+        s = tk + phase
+        return (0.25 + 0.10 * math.sin(2.0 * math.pi * s / 500.0)
+                + 0.04 * math.sin(2.0 * math.pi * s / 130.0 + 0.5))
+
+    model.reset(0.0, rate(0.0))
+    t = H * np.arange(round(duration / H))
+    y = np.empty(t.size)
+    for k, tk in enumerate(t):
+        y[k] = model.measure()
+        model.step(tk, H, rate(tk))
+    return t, y
+
+
+def detector(sequential: bool = True, **kwargs) -> GreyFaultDetector:
     return GreyFaultDetector(
         ImprovedGreyPredictor(10), 0.01, H, 20.0, calibrate_samples=40,
         sequential=sequential,
-        candidates=[ImprovedGreyPredictor(10, residual_order=o) for o in (1, 0)])
+        candidates=[ImprovedGreyPredictor(10, residual_order=o) for o in (1, 0)], **kwargs)
 
 
 def judge(t, alarm):
