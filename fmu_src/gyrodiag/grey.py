@@ -58,6 +58,7 @@ __all__ = [
     "DEFAULT_LEVEL_RATIO",
     "GM11_MIN_LENGTH",
     "LAG_MAX_LIMIT",
+    "LONGEST_LAG_SHARE",
     "ClassicGreyPredictor",
     "GreyDetectorOutput",
     "GreyFaultDetector",
@@ -799,6 +800,9 @@ class ImprovedGreyPredictor(_WindowedPredictor):
 LAG_MAX_LIMIT = 4
 """Largest number of recent samples the lagged step test looks at (samples)."""
 
+LONGEST_LAG_SHARE = 2.0 / 3.0
+"""Share of the lagged test's design false-alarm rate given to its longest lag."""
+
 #: Variance of the third difference y(k) − 3y(k−1) + 3y(k−2) − y(k−3) of white noise of
 #: unit variance (1 + 9 + 9 + 1), and its variance-estimate inflation 1 + 2Σρ² (lag
 #: correlations −15/20, 6/20, −1/20): N third differences carry N / 2.31 degrees of freedom.
@@ -836,7 +840,7 @@ def lag_step_weights(window: int, order: int, lag: int) -> list[float]:
     the tested samples, so a step there cannot be absorbed by the model before it is
     judged (the one-step predictor takes a step in within two samples).
     """
-    window = check_int("window", window, minimum=4)
+    window = check_int("window", window, minimum=1)
     order = check_int("order", order)
     lag = check_int("lag", lag, minimum=1)
     if window < order + 3:
@@ -1091,7 +1095,8 @@ class GreyFaultDetector:
         # the lagged step test runs with the sequential decision only
         self._lags = self.lag_max if self.sequential else 0
         self.cusum_threshold = math.nan
-        self.lag_threshold = math.nan
+        #: thresholds on |z| of the lagged test, lag 1 first (empty without it)
+        self.lag_thresholds: list[float] = []
         #: shortest reference window the lagged test starts with (it grows to
         #: ``reference_window`` as measured samples come in)
         self.reference_min = min(self.reference_window, max(self.reference_order + 3, 20))
@@ -1104,8 +1109,15 @@ class GreyFaultDetector:
             arl = arl_for_rate(self.false_alarms_per_h, self.sample_period_s, 2)
             self.cusum_threshold = mean_cusum_threshold(arl, self.cusum_k)
             if self._lags:
-                self.lag_threshold = lag_test_threshold(
-                    self.false_alarms_per_h, self.sample_period_s, self._lags)
+                # the longest lag gets LONGEST_LAG_SHARE of the design rate (it has the
+                # most power on a step that is still inside the tested samples); the
+                # shorter ones share the rest and are there for large steps, seen sooner
+                shares = ([1.0] if self._lags == 1 else
+                          [(1.0 - LONGEST_LAG_SHARE) / (self._lags - 1)] * (self._lags - 1)
+                          + [LONGEST_LAG_SHARE])
+                self.lag_thresholds = [
+                    lag_test_threshold(share * self.false_alarms_per_h,
+                                       self.sample_period_s, 1) for share in shares]
                 self._lag_weights = {
                     (m, lag): np.array(_lag_weights_cached(m, self.reference_order, lag))
                     for m in range(self.reference_min, self.reference_window + 1)
@@ -1326,8 +1338,8 @@ class GreyFaultDetector:
             suspect = abs(z) > self.suspicion_sigma or top > 0.5 * h
             if self._lags and not self._in_alarm:
                 self._snapshot(predicted)
-                lag, lag_z = self._lag_test()
-                stat = max(stat, abs(lag_z) / self.lag_threshold)
+                lag, lag_z, lag_ratio = self._lag_test()
+                stat = max(stat, lag_ratio)
                 if lag and not alarm:
                     # a step in the last ``lag`` samples: the CUSUM of its sign starts
                     # at its threshold, so the alarm lasts while the errors do
@@ -1415,29 +1427,31 @@ class GreyFaultDetector:
     @property
     def lag_statistic(self) -> float:
         """Lagged test: the z of the last sample with the largest |z| over the lags
-        (dimensionless, alarm at |z| >= ``lag_threshold``); 0 when not tested."""
+        (dimensionless, alarm at |z| >= ``lag_thresholds[lag − 1]``); 0 when not
+        tested."""
         return self._lag_z
 
-    def _lag_test(self) -> tuple[int, float]:
-        """(lag, z) of the largest |z| over the lags that can be tested now; lag is 0
-        when |z| stays below ``lag_threshold``."""
+    def _lag_test(self) -> tuple[int, float, float]:
+        """(lag, z, ratio) of the lag with the largest |z| / threshold among those that
+        can be tested now; lag is 0 when that ratio stays below 1."""
         sigma = self.noise_sigma
         buf = self._lag_buf
         m = self.reference_window
-        best_lag, best_z = 0, 0.0
+        best_lag, best_z, best_ratio = 0, 0.0, 0.0
         if math.isnan(sigma):
             self._lag_z = 0.0
-            return 0, 0.0
+            return 0, 0.0, 0.0
         arr = np.asarray(buf, dtype=float)
         for lag in range(1, min(self._lags, len(self._lag_hist)) + 1):
             ref = min(m, len(buf) - lag)
             if ref < self.reference_min:
                 break
             z = float(np.dot(self._lag_weights[ref, lag], arr[-(ref + lag):])) / sigma
-            if abs(z) > abs(best_z):
-                best_lag, best_z = lag, z
+            ratio = abs(z) / self.lag_thresholds[lag - 1]
+            if ratio > best_ratio:
+                best_lag, best_z, best_ratio = lag, z, ratio
         self._lag_z = best_z
-        return (best_lag if abs(best_z) >= self.lag_threshold else 0), best_z
+        return (best_lag if best_ratio >= 1.0 else 0), best_z, best_ratio
 
     @property
     def lag_test_ready(self) -> bool:
