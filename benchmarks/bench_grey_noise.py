@@ -4,7 +4,8 @@ false alarms on long fault-free HRG records.
 Usage::
 
     .venv/bin/python benchmarks/bench_grey_noise.py [--seeds 1 40] [--noise 0 5 10 15 20]
-        [--compare] [--long-hours 0] [--long-noise 0 2.5 5 10 15 20] [--workers 2]
+        [--compare] [--faults 27 252 420] [--long-hours 0]
+        [--long-noise 0 2.5 5 10 15 20] [--workers 2]
 
 Library level (the HRG output model of models/hrg at 2 Hz, faults as in
 scenarios/hrg_seed001_grey.toml: bias −0.2 V 27–47 s, stuck at 3 V 252–272 s, scale factor
@@ -14,6 +15,8 @@ flat tail, for the calibrated sequential detector (improved model, residual orde
 among 2, 1, 0 on the calibration window, CUSUM and lagged step test for 1e-3 false
 alarms per hour in all). ``--compare`` adds the calibrated detector without the lagged
 test and with the old suspicion level (3 σ_e) and the paper's fixed 0.05 V threshold.
+``--faults`` moves the onsets (the scale fault is 5 % of the output there: 0.06 V near
+350 s, 0.10 V at 420 s, up to 0.19 V).
 
 ``--long-hours H``: per noise level of ``--long-noise``, H hours of fault-free records of
 the HRG model (1 h each, own noise seed, ω(t) the seed-001 wave 0.25 + 0.1 sin(2πt/500) +
@@ -34,7 +37,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from test_grey_calibrated import H, detector, fault_free_record, judge, timeline
+from test_grey_calibrated import FAULTS, H, detector, fault_free_record, judge, timeline
 
 from gyrodiag.grey import GreyFaultDetector, ImprovedGreyPredictor
 
@@ -49,12 +52,13 @@ def _make(kind: str) -> GreyFaultDetector:
     return GreyFaultDetector(ImprovedGreyPredictor(10), 0.05, H, 20.0)
 
 
-def _timeline_run(args: tuple[str, float, int]) -> tuple[list[float], bool, float]:
-    kind, mv, seed = args
-    t, y = timeline(mv / 1000.0, seed)
+def _timeline_run(args: tuple[str, float, int, tuple[float, float, float]]
+                  ) -> tuple[list[float], bool, float]:
+    kind, mv, seed, faults = args
+    t, y = timeline(mv / 1000.0, seed, faults=faults)
     det = _make(kind)
     alarm = np.array([det.update(v, time_s=tk).alarm for v, tk in zip(y, t, strict=True)])
-    d, outside, tail = judge(t, alarm)
+    d, outside, tail = judge(t, alarm, faults)
     ratio = det.sigma / (mv / 1000.0) if kind != KINDS[2] and mv else math.nan
     return d, bool(outside or tail), ratio
 
@@ -80,6 +84,9 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs=2, default=[1, 40], metavar=("FIRST", "LAST"))
     ap.add_argument("--noise", type=float, nargs="*", default=[0.0, 5.0, 10.0, 15.0, 20.0])
     ap.add_argument("--compare", action="store_true")
+    ap.add_argument("--faults", type=float, nargs=3, default=list(FAULTS),
+                    metavar=("BIAS", "STUCK", "SCALE"),
+                    help="fault onsets, s (default: the seed scenario's 27 252 420)")
     ap.add_argument("--long-hours", type=int, default=0)
     ap.add_argument("--long-noise", type=float, nargs="+",
                     default=[0.0, 2.5, 5.0, 10.0, 15.0, 20.0])
@@ -94,7 +101,8 @@ def main() -> None:
                   "| sigma_e / noise")
         for mv in args.noise:
             for kind in kinds:
-                res = list(pool.map(_timeline_run, [(kind, mv, s) for s in seeds]))
+                res = list(pool.map(_timeline_run, [(kind, mv, s, tuple(args.faults))
+                                                    for s in seeds]))
                 dl = np.array([r[0] for r in res])
                 n = len(dl)
                 within = [int(np.sum(dl[:, i] <= 1.5)) for i in range(3)]
