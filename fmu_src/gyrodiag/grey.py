@@ -976,7 +976,8 @@ class GreyFaultDetector:
     suspicion_sigma : float, optional
         Calibrated: a sample with |e| > suspicion_sigma·σ_e (or a CUSUM above half its
         threshold) is not fed to the predictor, so that a step is not absorbed before
-        the test has decided (default 3).
+        the test has decided (default 4; with 3, substituting for 3 σ_e noise samples
+        locked the model into false alarms at 20 mV of noise on the seed timeline).
     hold_after : int, optional
         Calibrated: suspect samples not followed by an alarm are substituted for at
         most this many samples in a row (default 1: a step of 4 σ_e gives two samples
@@ -989,6 +990,15 @@ class GreyFaultDetector:
         calibration window is kept (e.g. the improved model with residual orders 2, 1
         and 0: the quadratic residual fit is exact on a smooth noise-free signal and
         amplifies noise, 1.64 σ against 1.26 σ for order 1 at m = 10).
+    lag_max : int, optional
+        Sequential: the lagged step test looks at the last 1..lag_max samples (0..4,
+        default 3; 0 turns it off and the CUSUM decides alone). See below.
+    reference_window : int, optional
+        Lagged test: longest reference window M, samples (default 60, in
+        [reference_order + 3, 400]); the test starts with min(M, 20) samples after the
+        start or an alarm and uses up to M as they come in.
+    reference_order : int, optional
+        Lagged test: degree of the reference polynomial (0..3, default 3).
 
     Calibrated detector
     -------------------
@@ -1006,6 +1016,24 @@ class GreyFaultDetector:
     (the window's fit shares samples); its positive correlations are small
     and its long-run variance below its variance (the fit differences), so a CUSUM
     threshold from the white-noise table errs on the side of fewer false alarms.
+
+    Lagged step test (sequential, ``lag_max`` > 0): a one-step predictor takes a step
+    in within two samples, so the errors hold at most two samples of evidence. For each
+    lag L the last L measured samples are tested against the least-squares polynomial
+    of the ``reference_window`` samples before them, extrapolated: the generalised
+    likelihood ratio of a step in those L samples, z_L = w_L·y / σ_n
+    (:func:`lag_step_weights`; z_L ~ N(0, 1) without a step), σ_n the signal's white
+    noise (:attr:`noise_sigma`). Alarm when |z_L| >= ``lag_thresholds[L − 1]``, set from
+    ``false_alarms_per_h`` (:data:`LONGEST_LAG_SHARE` of it to L = ``lag_max``, the rest
+    shared, :func:`lag_test_threshold`). On that alarm the predictor is taken back to
+    its state before the L samples and fed the bounded substitute for them, and the
+    CUSUM of the step's sign starts at its threshold, so the alarm lasts while the
+    errors do. While the lagged test is ready the CUSUM only holds alarms: the improved
+    model's one-step errors have heavier tails than a normal law (−4 σ_e at fixed phases
+    of a moving signal), and a CUSUM on them false-alarmed ~1 per hour on fault-free
+    HRG records at 2.5–5 mV of noise. It decides only until the lagged test is ready
+    (after the start, and for 20 samples after an alarm). Measured on the seed-001
+    timeline and 360 fault-free hours: docs/notes.md (HRG).
 
     Notes
     -----
