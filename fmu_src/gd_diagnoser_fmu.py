@@ -393,10 +393,24 @@ class Diagnoser(FacadeBase):
         p("grey.cusum_k", "Real", "parameter", 1.5,
           "Calibrated, sequential: CUSUM reference in sigma_e")
         _meta("grey.cusum_k", "1", 0.05, 5.0)
-        p("grey.suspicion_sigma", "Real", "parameter", 3.0,
+        p("grey.suspicion_sigma", "Real", "parameter", 4.0,
           "Calibrated: a sample off its prediction by more than this many sigma_e is "
           "not fed to the predictor until the test decides")
         _meta("grey.suspicion_sigma", "1", POSITIVE)
+        p("grey.lag_max", "Integer", "parameter", 3,
+          "Calibrated, sequential: lagged step test on the last 1..lag_max samples "
+          "against a polynomial reference window that ends before them (a generalised "
+          "likelihood ratio per lag, threshold for grey.false_alarm_rate); while it is "
+          "ready the CUSUM only holds alarms; 0: CUSUM alone")
+        _meta("grey.lag_max", None, 0, 4)
+        p("grey.reference_window", "Integer", "parameter", 60,
+          "Calibrated, lagged test: longest reference window, samples (it starts at "
+          "min(20, this) after the start or an alarm and grows)")
+        _meta("grey.reference_window", None, 3, 400)
+        p("grey.reference_order", "Integer", "parameter", 3,
+          "Calibrated, lagged test: degree of the reference polynomial "
+          "(grey.reference_window >= order + 3)")
+        _meta("grey.reference_order", None, 0, 3)
         p("grey.auto_order", "Boolean", "parameter", False,
           "Calibrated, improved model: also run residual orders 1 and 0 during the "
           "calibration and keep the one with the least error (noise favours low orders)")
@@ -419,6 +433,11 @@ class Diagnoser(FacadeBase):
           "Calibrated: standard deviation of the fault-free prediction error in use "
           "(signal units); 0 before it is learned and with a fixed threshold")
         _meta("grey.sigma", GREY_UNIT, 0.0)
+        p("grey.noise_sigma", "Real", "output", 0.0,
+          "Calibrated, lagged test: standard deviation of the signal's white noise in use "
+          "(95 % upper bound from third differences, grey.threshold / grey.k_sigma added "
+          "in quadrature); 0 before it is known or without the lagged test")
+        _meta("grey.noise_sigma", GREY_UNIT, 0.0)
         p("grey.statistic", "Real", "output", 0.0,
           "Alarm statistic in units of its threshold (alarm at 1)")
         _meta("grey.statistic", "1", 0.0)
@@ -1007,7 +1026,9 @@ class Diagnoser(FacadeBase):
             sequential=bool(v["grey.sequential"]) and calibrate > 0,
             false_alarms_per_h=float(v["grey.false_alarm_rate"]),
             cusum_k=float(v["grey.cusum_k"]), suspicion_sigma=float(v["grey.suspicion_sigma"]),
-            candidates=candidates,
+            candidates=candidates, lag_max=_named_int(v, "grey.lag_max"),
+            reference_window=_named_int(v, "grey.reference_window"),
+            reference_order=_named_int(v, "grey.reference_order"),
         )
 
     def reset(self) -> None:  # pythonfmu re-creates the instance on fmi2Reset
@@ -1128,6 +1149,8 @@ class Diagnoser(FacadeBase):
         assert self._grey is not None
         sigma = self._grey.sigma
         v["grey.sigma"] = sigma if sigma == sigma else 0.0
+        noise = self._grey.noise_sigma
+        v["grey.noise_sigma"] = noise if noise == noise else 0.0
 
     def _copy_dtg(self, out: Any) -> None:
         v = self.values
@@ -1253,7 +1276,9 @@ _PARAMETER_NAMES: dict[str, dict[str, str]] = {
         "clear_after_s": "grey.clear_after_s", "residual_order": "grey.residual_order",
         "k_sigma": "grey.k_sigma", "false_alarms_per_h": "grey.false_alarm_rate",
         "cusum_k": "grey.cusum_k", "suspicion_sigma": "grey.suspicion_sigma",
-        "calibrate_samples": "grey.calibrate_s",
+        "calibrate_samples": "grey.calibrate_s", "lag_max": "grey.lag_max",
+        "reference_window": "grey.reference_window",
+        "reference_order": "grey.reference_order",
     },
     "df": {
         "eigenvalues": "df.eigenvalue[1..5]", "calibrate_s": "df.calibrate_s",

@@ -125,6 +125,8 @@ class GuardedSlave(Fmi2Slave):
 
     #: Compute outputs read in initialisation mode (see the class docstring).
     provisional_outputs: bool = True
+    #: Between fmi2EnterInitializationMode and fmi2ExitInitializationMode.
+    _in_initialisation: bool = False
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -170,9 +172,9 @@ class GuardedSlave(Fmi2Slave):
     watched_changed: bool = True
 
     def _mark_inputs_changed(self, vrs: list[int] | None = None) -> None:
-        if vrs is not None and not self.watched_vrs.isdisjoint(vrs):
+        if vrs is not None and self.watched_vrs and not self.watched_vrs.isdisjoint(vrs):
             self.watched_changed = True
-        if getattr(self, "_in_initialisation", False):
+        if self._in_initialisation:
             self._outputs_stale = True
 
     # Fast paths for variables registered by add_variable (value in self.values): one
@@ -193,9 +195,7 @@ class GuardedSlave(Fmi2Slave):
             targets = [names[vr] for vr in vrs]
         except (KeyError, AttributeError):
             return False
-        v = self.values
-        for name, value in zip(targets, values, strict=False):
-            v[name] = value
+        self.values.update(zip(targets, values, strict=False))
         return True
 
     def _sync_outputs(self) -> None:

@@ -37,6 +37,15 @@ CALIBRATED: dict[str, dict[str, Any]] = {
     "calibrated_sequential_auto": {"grey.model": 1, "grey.window": 10,
                                    "grey.calibrate_s": 10.0, "grey.threshold": 0.01,
                                    "grey.sequential": True, "grey.auto_order": True},
+    "calibrated_sequential_cusum_only": {"grey.model": 1, "grey.window": 10,
+                                         "grey.calibrate_s": 10.0, "grey.threshold": 0.01,
+                                         "grey.sequential": True, "grey.lag_max": 0,
+                                         "grey.suspicion_sigma": 3.0},
+    "calibrated_sequential_lag2_ref30": {"grey.model": 1, "grey.window": 10,
+                                         "grey.calibrate_s": 10.0, "grey.threshold": 0.01,
+                                         "grey.sequential": True, "grey.lag_max": 2,
+                                         "grey.reference_window": 30,
+                                         "grey.reference_order": 2},
 }
 #: Steps before the calibrated sequential detector's state is saved (restored, re-run).
 K_SAVE_CALIBRATED = 80
@@ -53,6 +62,12 @@ INVALID: dict[str, dict[str, Any]] = {
     "grey.calibrate_s of 2 samples": {"grey.calibrate_s": 1.0},
     "grey.cusum_k 0": {"grey.calibrate_s": 10.0, "grey.sequential": True,
                        "grey.cusum_k": 0.0},
+    "grey.lag_max 5": {"grey.calibrate_s": 10.0, "grey.sequential": True,
+                       "grey.lag_max": 5},
+    "grey.reference_window 5 with order 3": {"grey.calibrate_s": 10.0,
+                                             "grey.sequential": True,
+                                             "grey.reference_window": 5,
+                                             "grey.reference_order": 3},
 }
 
 

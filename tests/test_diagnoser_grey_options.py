@@ -44,10 +44,13 @@ def calibrated_library(label: str, t: np.ndarray, y: np.ndarray) -> dict[str, np
     sequential = bool(extra.get("grey.sequential", False))
     candidates = ([ImprovedGreyPredictor(10, a_min=1e-6, residual_order=o) for o in (1, 0)]
                   if extra.get("grey.auto_order") else [])
+    lagged = {name: extra[f"grey.{name}"] for name in
+              ("lag_max", "reference_window", "reference_order", "suspicion_sigma")
+              if f"grey.{name}" in extra}
     det = GreyFaultDetector(
         ImprovedGreyPredictor(10, a_min=1e-6), extra["grey.threshold"], H, CLEAR_S,
         calibrate_samples=round(extra["grey.calibrate_s"] / H), sequential=sequential,
-        candidates=candidates)
+        candidates=candidates, **lagged)
     return _grey_columns(det, y, t)
 
 
@@ -147,6 +150,8 @@ def test_whole_record_state_save_and_restore(fmu):
     (3, "grey.auto_order with the classic model", ("grey.auto_order", "grey.model")),
     (4, "grey.calibrate_s of 2 samples", ("grey.calibrate_s",)),
     (5, "grey.cusum_k 0", ("grey.cusum_k",)),
+    (6, "grey.lag_max 5", ("grey.lag_max",)),
+    (7, "grey.reference_window 5 with order 3", ("grey.reference_window",)),
 ])
 def test_invalid_options_are_fmi2error_naming_the_parameter(fmu, i, label, names):
     assert list(INVALID)[i] == label

@@ -67,7 +67,8 @@ COUPLED_BOUNDS: dict[str, dict[str, str]] = {
     "Diagnoser": {"dtg.learn_end_s": "must exceed dtg.learn_start_s by a sample period",
                   "dtg.n_signatures": "> 0 only with dtg.classifier = paper",
                   "dtg.long_window_s": "must be >= dtg.window_s",
-                  "df.calibrate_s": "0 only with df.noise_std given (sequential rule)"},
+                  "df.calibrate_s": "0 only with df.noise_std given (sequential rule)",
+                  "grey.reference_window": "must be >= grey.reference_order + 3"},
 }
 #: Safe-to-change parameters that must be tunable.
 MUST_BE_TUNABLE: dict[str, set[str]] = {

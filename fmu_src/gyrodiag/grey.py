@@ -36,6 +36,7 @@ touching its state and flags it invalid, so a co-simulation can keep running.
 from __future__ import annotations
 
 import copy
+import functools
 import math
 from collections import deque
 from collections.abc import Mapping, Sequence
@@ -56,6 +57,8 @@ from ._validation import (
 __all__ = [
     "DEFAULT_LEVEL_RATIO",
     "GM11_MIN_LENGTH",
+    "LAG_MAX_LIMIT",
+    "LONGEST_LAG_SHARE",
     "ClassicGreyPredictor",
     "GreyDetectorOutput",
     "GreyFaultDetector",
@@ -67,6 +70,8 @@ __all__ = [
     "gm11_predict_classic",
     "gm11_predict_next",
     "gm11_predict_optimized",
+    "lag_step_weights",
+    "lag_test_threshold",
     "positive_shift",
     "prediction_errors_percent",
 ]
@@ -790,6 +795,101 @@ class ImprovedGreyPredictor(_WindowedPredictor):
         return pred
 
 
+# ------------------------------------------------------------------ lagged step test
+
+LAG_MAX_LIMIT = 4
+"""Largest number of recent samples the lagged step test looks at (samples)."""
+
+LONGEST_LAG_SHARE = 2.0 / 3.0
+"""Share of the lagged test's design false-alarm rate given to its longest lag."""
+
+#: Variance of the third difference y(k) − 3y(k−1) + 3y(k−2) − y(k−3) of white noise of
+#: unit variance (1 + 9 + 9 + 1), and its variance-estimate inflation 1 + 2Σρ² (lag
+#: correlations −15/20, 6/20, −1/20): N third differences carry N / 2.31 degrees of freedom.
+_D3_VARIANCE = 20.0
+_D3_DOF_FACTOR = 1.0 + 2.0 * ((15.0 / 20.0) ** 2 + (6.0 / 20.0) ** 2 + (1.0 / 20.0) ** 2)
+
+
+def lag_step_weights(window: int, order: int, lag: int) -> list[float]:
+    """Weights of the generalised likelihood ratio for a step in the last ``lag`` samples.
+
+    Parameters
+    ----------
+    window : int
+        Reference window M (samples), >= order + 3: the M samples that end ``lag``
+        samples before the newest one.
+    order : int
+        Degree of the least-squares polynomial fitted to the reference window and
+        extrapolated over the last ``lag`` samples (0..3).
+    lag : int
+        Number of newest samples tested, 1..:data:`LAG_MAX_LIMIT`.
+
+    Returns
+    -------
+    list of float, length window + lag
+        w (oldest sample first) such that z = w·y / σ is the step test statistic for
+        samples y with white noise of standard deviation σ: under no step z ~ N(0, 1)
+        (exactly, for a polynomial signal of degree <= order), and a step of size Δ in
+        the last ``lag`` samples adds Δ·Σ w[M:]/σ to it.
+
+    Notes
+    -----
+    The errors e = y_new − A·y_ref of the extrapolation A (lag × M) of the reference fit
+    have covariance σ²·C, C = I + A·Aᵀ; the step estimate is Δ̂ = 1ᵀC⁻¹e / 1ᵀC⁻¹1 with
+    variance σ² / 1ᵀC⁻¹1, and z = Δ̂ / its standard deviation. The reference ends before
+    the tested samples, so a step there cannot be absorbed by the model before it is
+    judged (the one-step predictor takes a step in within two samples).
+    """
+    window = check_int("window", window, minimum=1)
+    order = check_int("order", order)
+    lag = check_int("lag", lag, minimum=1)
+    if window < order + 3:
+        raise ValueError(f"window must be >= order + 3 = {order + 3}, got {window}")
+    k = np.arange(window + lag, dtype=float)
+    centre = 0.5 * (window - 1)
+    half = max(0.5 * (window - 1), 1.0)
+    ref = np.vander((k[:window] - centre) / half, order + 1)
+    ext = np.vander((k[window:] - centre) / half, order + 1)
+    extrapolation = ext @ np.linalg.pinv(ref)
+    errors = np.hstack([-extrapolation, np.eye(lag)])
+    ci1 = np.linalg.solve(errors @ errors.T, np.ones(lag))
+    return ((ci1 @ errors) / math.sqrt(float(ci1.sum()))).tolist()
+
+
+@functools.lru_cache(maxsize=1024)
+def _lag_weights_cached(window: int, order: int, lag: int) -> tuple[float, ...]:
+    return tuple(lag_step_weights(window, order, lag))
+
+
+def lag_test_threshold(false_alarms_per_h: float, sample_period_s: float, lags: int
+                       ) -> float:
+    """Threshold on |z| of the lagged step test for a design false-alarm rate.
+
+    Parameters
+    ----------
+    false_alarms_per_h : float
+        Design rate (1/h, > 0) of the test, all lags and both signs together.
+    sample_period_s : float
+        Sample period, s (> 0).
+    lags : int
+        Number of lags tested at every sample (>= 1).
+
+    Returns
+    -------
+    float
+        c with 2·lags·Q(c) = rate·T/3600 (Q the standard normal tail): a union bound over
+        the lags and both signs, and over samples (the statistics of neighbouring
+        samples share data and are positively correlated, so the real rate is lower).
+    """
+    from scipy.special import ndtri
+
+    rate = check_positive("false_alarms_per_h", false_alarms_per_h)
+    period = check_positive("sample_period_s", sample_period_s)
+    lags = check_int("lags", lags, minimum=1)
+    per_test = min(rate * period / 3600.0, 0.5) / (2.0 * lags)
+    return float(-ndtri(per_test))
+
+
 # ------------------------------------------------------------------ detector
 
 
@@ -876,7 +976,8 @@ class GreyFaultDetector:
     suspicion_sigma : float, optional
         Calibrated: a sample with |e| > suspicion_sigma·σ_e (or a CUSUM above half its
         threshold) is not fed to the predictor, so that a step is not absorbed before
-        the test has decided (default 3).
+        the test has decided (default 4; with 3, substituting for 3 σ_e noise samples
+        locked the model into false alarms at 20 mV of noise on the seed timeline).
     hold_after : int, optional
         Calibrated: suspect samples not followed by an alarm are substituted for at
         most this many samples in a row (default 1: a step of 4 σ_e gives two samples
@@ -889,6 +990,15 @@ class GreyFaultDetector:
         calibration window is kept (e.g. the improved model with residual orders 2, 1
         and 0: the quadratic residual fit is exact on a smooth noise-free signal and
         amplifies noise, 1.64 σ against 1.26 σ for order 1 at m = 10).
+    lag_max : int, optional
+        Sequential: the lagged step test looks at the last 1..lag_max samples (0..4,
+        default 3; 0 turns it off and the CUSUM decides alone). See below.
+    reference_window : int, optional
+        Lagged test: longest reference window M, samples (default 60, in
+        [reference_order + 3, 400]); the test starts with min(M, 20) samples after the
+        start or an alarm and uses up to M as they come in.
+    reference_order : int, optional
+        Lagged test: degree of the reference polynomial (0..3, default 3).
 
     Calibrated detector
     -------------------
@@ -906,6 +1016,24 @@ class GreyFaultDetector:
     (the window's fit shares samples); its positive correlations are small
     and its long-run variance below its variance (the fit differences), so a CUSUM
     threshold from the white-noise table errs on the side of fewer false alarms.
+
+    Lagged step test (sequential, ``lag_max`` > 0): a one-step predictor takes a step
+    in within two samples, so the errors hold at most two samples of evidence. For each
+    lag L the last L measured samples are tested against the least-squares polynomial
+    of the ``reference_window`` samples before them, extrapolated: the generalised
+    likelihood ratio of a step in those L samples, z_L = w_L·y / σ_n
+    (:func:`lag_step_weights`; z_L ~ N(0, 1) without a step), σ_n the signal's white
+    noise (:attr:`noise_sigma`). Alarm when |z_L| >= ``lag_thresholds[L − 1]``, set from
+    ``false_alarms_per_h`` (:data:`LONGEST_LAG_SHARE` of it to L = ``lag_max``, the rest
+    shared, :func:`lag_test_threshold`). On that alarm the predictor is taken back to
+    its state before the L samples and fed the bounded substitute for them, and the
+    CUSUM of the step's sign starts at its threshold, so the alarm lasts while the
+    errors do. While the lagged test is ready the CUSUM only holds alarms: the improved
+    model's one-step errors have heavier tails than a normal law (−4 σ_e at fixed phases
+    of a moving signal), and a CUSUM on them false-alarmed ~1 per hour on fault-free
+    HRG records at 2.5–5 mV of noise. It decides only until the lagged test is ready
+    (after the start, and for 20 samples after an alarm). Measured on the seed-001
+    timeline and 360 fault-free hours: docs/notes.md (HRG).
 
     Notes
     -----
@@ -939,8 +1067,9 @@ class GreyFaultDetector:
         clear_after_s: float | None = None, *, reseed_length: int | None = None,
         envelope_margin: float = 1.0, calibrate_samples: int = 0, k_sigma: float = 5.0,
         sequential: bool = False, false_alarms_per_h: float = 1e-3, cusum_k: float = 1.5,
-        suspicion_sigma: float = 3.0, hold_after: int | None = None,
-        candidates: Sequence[GreyPredictor] = (),
+        suspicion_sigma: float = 4.0, hold_after: int | None = None,
+        candidates: Sequence[GreyPredictor] = (), lag_max: int = 3,
+        reference_window: int = 60, reference_order: int = 3,
     ) -> None:
         for attr in ("update", "reset", "get_state", "set_state", "min_samples", "ready"):
             if not hasattr(predictor, attr):
@@ -980,12 +1109,47 @@ class GreyFaultDetector:
             else check_int("reseed_length", reseed_length, minimum=1)
         )
         self.envelope_margin = check_nonnegative("envelope_margin", envelope_margin)
+        self.lag_max = check_int("lag_max", lag_max)
+        if self.lag_max > LAG_MAX_LIMIT:
+            raise ValueError(f"lag_max must be in [0, {LAG_MAX_LIMIT}], got {lag_max!r}")
+        self.reference_order = check_int("reference_order", reference_order)
+        if self.reference_order > 3:
+            raise ValueError(f"reference_order must be in [0, 3], got {reference_order!r}")
+        self.reference_window = check_int("reference_window", reference_window,
+                                          minimum=self.reference_order + 3)
+        if self.reference_window > 400:
+            raise ValueError(f"reference_window must be in [{self.reference_order + 3}, 400], "
+                             f"got {reference_window!r}")
+        # the lagged step test runs with the sequential decision only
+        self._lags = self.lag_max if self.sequential else 0
         self.cusum_threshold = math.nan
+        #: thresholds on |z| of the lagged test, lag 1 first (empty without it)
+        self.lag_thresholds: list[float] = []
+        #: shortest reference window the lagged test starts with (it grows to
+        #: ``reference_window`` as measured samples come in)
+        self.reference_min = min(self.reference_window, max(self.reference_order + 3, 20))
+        self._lag_weights: dict[tuple[int, int], NDArray[np.float64]] = {}
         if self.sequential:
             from .sequential import arl_for_rate, mean_cusum_threshold
 
+            # the CUSUM decides only while the lagged test cannot (see class notes): each
+            # has the whole design rate
             arl = arl_for_rate(self.false_alarms_per_h, self.sample_period_s, 2)
             self.cusum_threshold = mean_cusum_threshold(arl, self.cusum_k)
+            if self._lags:
+                # the longest lag gets LONGEST_LAG_SHARE of the design rate (it has the
+                # most power on a step that is still inside the tested samples); the
+                # shorter ones share the rest and are there for large steps, seen sooner
+                shares = ([1.0] if self._lags == 1 else
+                          [(1.0 - LONGEST_LAG_SHARE) / (self._lags - 1)] * (self._lags - 1)
+                          + [LONGEST_LAG_SHARE])
+                self.lag_thresholds = [
+                    lag_test_threshold(share * self.false_alarms_per_h,
+                                       self.sample_period_s, 1) for share in shares]
+                self._lag_weights = {
+                    (m, lag): np.array(_lag_weights_cached(m, self.reference_order, lag))
+                    for m in range(self.reference_min, self.reference_window + 1)
+                    for lag in range(1, self._lags + 1)}
         self.reset()
 
     @property
@@ -1023,6 +1187,16 @@ class GreyFaultDetector:
         self._settle = 0  # samples left to settle after a timed clearing
         self._run = 0  # samples of the current substitution run
         self._held = math.nan
+        # lagged step test: measured samples (reference window + tested lags), the
+        # predictor's state and pending prediction before each of the last lags samples,
+        # third differences of consecutive fault-free samples (noise σ)
+        self._lag_buf: list[float] = []
+        self._lag_hist: deque[tuple[dict[str, Any], float]] = deque(maxlen=self._lags or 1)
+        self._noise_tail: list[float] = []
+        self._noise_sq = 0.0
+        self._noise_n = 0
+        self._noise_sigma = math.nan
+        self._lag_z = 0.0
 
     @property
     def sigma(self) -> float:
@@ -1142,6 +1316,10 @@ class GreyFaultDetector:
         was_ready = self.predictor.ready
         self._n_accepted += 1
         self._recent = np.append(self._recent, value)[-self.reseed_length:]
+        if self._lags:
+            self._lag_buf.append(value)
+            if len(self._lag_buf) > self.reference_window + self._lags:
+                del self._lag_buf[0]
         if not was_ready:
             self._accept(value)
             self._feed_candidates(value)
@@ -1151,6 +1329,7 @@ class GreyFaultDetector:
         if self._settle > 0:
             # after a timed clearing the re-seeded model settles on measured samples
             self._settle -= 1
+            self._snapshot(predicted)
             self._accept(value)
             return GreyDetectorOutput(t, value, predicted, error, False, math.nan, True,
                                       False, False, 0.0)
@@ -1172,15 +1351,29 @@ class GreyFaultDetector:
                                       False, math.isnan(self._sigma), 0.0)
         sigma = self._sigma
         z = error / sigma if math.isfinite(error) else math.inf
+        lag_alarm = 0
         if self.sequential:
             h, k = self.cusum_threshold, self.cusum_k
             up = min(max(self._cusum[0] + z - k, 0.0), h)
             down = min(max(self._cusum[1] - z - k, 0.0), h)
             self._cusum = [up, down]
             top = max(up, down)
-            alarm = top >= h or (self._in_alarm and top >= 0.5 * h)
-            stat = top / h
+            # with the lagged test ready, the CUSUM only holds an alarm (its one-step
+            # errors have heavier tails than a normal law, see class notes)
+            deciding = not (self._lags and self.lag_test_ready)
+            alarm = (deciding and top >= h) or (self._in_alarm and top >= 0.5 * h)
+            stat = top / h if deciding or self._in_alarm else 0.0
             suspect = abs(z) > self.suspicion_sigma or top > 0.5 * h
+            if self._lags and not self._in_alarm:
+                self._snapshot(predicted)
+                lag, lag_z, lag_ratio = self._lag_test()
+                stat = max(stat, lag_ratio)
+                if lag and not alarm:
+                    # a step in the last ``lag`` samples: the CUSUM of its sign starts
+                    # at its threshold, so the alarm lasts while the errors do
+                    alarm = True
+                    lag_alarm = lag
+                    self._cusum[0 if lag_z > 0.0 else 1] = h
         else:
             limit = max(self.k_sigma * sigma, self.threshold)
             alarm = abs(error) > limit if math.isfinite(error) else True
@@ -1196,6 +1389,7 @@ class GreyFaultDetector:
             self._in_alarm = False
             self._onset = math.nan
             self._substituting = False
+            self._forget_lagged()
             # the re-seeded window may hold the fault's last samples and the fault may
             # have ended with them (the seed timeline's faults last exactly the 20 s of
             # the clearing): one window of measured samples settles the model before
@@ -1205,7 +1399,10 @@ class GreyFaultDetector:
             return GreyDetectorOutput(t, value, predicted, error, False, math.nan, True,
                                       True, False, stat)
         self._in_alarm = alarm
-        if alarm or (suspect and not (self._substituting and self._run >= self.hold_after)):
+        if lag_alarm:
+            self._roll_back(lag_alarm)
+        elif alarm or (suspect and not (self._substituting and self._run >= self.hold_after)):
+            self._noise_tail.clear()
             self._pending = self.predictor.update(self._substitute(predicted))
             if alarm:
                 # the prediction the next sample is judged against stays bounded too
@@ -1216,9 +1413,94 @@ class GreyFaultDetector:
             self._pending = self.predictor.update(value)
             self._accept(value, predict=False)
             self._refine_sigma(error)
+        if alarm and self._lags:
+            self._forget_lagged()
         return GreyDetectorOutput(t, value, predicted, error, alarm,
                                   self._onset if alarm else math.nan, True, False, False,
                                   stat)
+
+    def _snapshot(self, predicted: float) -> None:
+        """Lagged test: keep the predictor's state and pending prediction from before this
+        sample, so that an alarm on a step in the last samples can take the model back
+        to before the step."""
+        if self._lags:
+            self._lag_hist.append((self.predictor.get_state(), predicted))
+
+    def _forget_lagged(self) -> None:
+        """Start the lagged test's reference afresh (alarm, clearing): its window must
+        hold measured samples of the signal as it is now."""
+        self._lag_buf.clear()
+        self._lag_hist.clear()
+        self._noise_tail.clear()
+        self._lag_z = 0.0
+
+    @property
+    def noise_sigma(self) -> float:
+        """Lagged test: standard deviation of the signal's white noise (signal units),
+        from the third differences of consecutive fault-free samples, raised to its 95 %
+        upper confidence bound, and ``threshold / k_sigma`` added in quadrature (an
+        allowance for the reference polynomial's model error, which is what remains on a
+        noise-free signal); NaN before ten
+        differences are known or without the lagged test."""
+        n = self._noise_n
+        if not self._lags or n < 10:
+            return math.nan
+        dof = n / _D3_DOF_FACTOR
+        c = 2.0 / (9.0 * dof)
+        # χ²(0.05, dof) by Wilson–Hilferty (within 1 % for dof >= 4)
+        q05 = dof * (1.0 - c - 1.6448536269514722 * math.sqrt(c)) ** 3
+        var = self._noise_sq / (_D3_VARIANCE * n) * dof / q05
+        return math.sqrt(var + (self.threshold / self.k_sigma) ** 2)
+
+    @property
+    def lag_statistic(self) -> float:
+        """Lagged test: the z of the last sample with the largest |z| over the lags
+        (dimensionless, alarm at |z| >= ``lag_thresholds[lag − 1]``); 0 when not
+        tested."""
+        return self._lag_z
+
+    def _lag_test(self) -> tuple[int, float, float]:
+        """(lag, z, ratio) of the lag with the largest |z| / threshold among those that
+        can be tested now; lag is 0 when that ratio stays below 1."""
+        sigma = self.noise_sigma
+        buf = self._lag_buf
+        m = self.reference_window
+        best_lag, best_z, best_ratio = 0, 0.0, 0.0
+        if math.isnan(sigma):
+            self._lag_z = 0.0
+            return 0, 0.0, 0.0
+        arr = np.asarray(buf, dtype=float)
+        for lag in range(1, min(self._lags, len(self._lag_hist)) + 1):
+            ref = min(m, len(buf) - lag)
+            if ref < self.reference_min:
+                break
+            z = float(np.dot(self._lag_weights[ref, lag], arr[-(ref + lag):])) / sigma
+            ratio = abs(z) / self.lag_thresholds[lag - 1]
+            if ratio > best_ratio:
+                best_lag, best_z, best_ratio = lag, z, ratio
+        self._lag_z = best_z
+        return (best_lag if best_ratio >= 1.0 else 0), best_z, best_ratio
+
+    @property
+    def lag_test_ready(self) -> bool:
+        """The lagged step test decides on the sample being processed (noise known, at
+        least ``reference_min`` + 1 measured samples, this one included, since the start
+        or the last alarm)."""
+        return (bool(self._lags) and not math.isnan(self.noise_sigma)
+                and len(self._lag_buf) > self.reference_min)
+
+    def _roll_back(self, lag: int) -> None:
+        """A step in the last ``lag`` samples: the predictor goes back to its state
+        before them and is fed the bounded substitute for each (as in alarm), so that
+        the alarm's substitute extrapolates the signal from before the step."""
+        state, pending = self._lag_hist[-lag]
+        self.predictor.set_state(state)
+        self._noise_tail.clear()
+        self._substituting = False
+        pred = pending
+        for _ in range(lag):
+            pred = self.predictor.update(self._substitute(pred))
+        self._pending = self._clip(pred)
 
     def _refine_sigma(self, error: float) -> None:
         """σ_e keeps learning from the samples judged fault-free: they are only those
@@ -1282,6 +1564,14 @@ class GreyFaultDetector:
         if len(self._clean) > self.trend_samples:
             del self._clean[0]
         self._n_clean += 1
+        if self._lags:
+            tail = self._noise_tail
+            tail.append(value)
+            if len(tail) == 4:
+                d3 = ((tail[3] - tail[0]) - 3.0 * (tail[2] - tail[1]))
+                self._noise_sq += d3 * d3
+                self._noise_n += 1
+                del tail[0]
 
     def _clip(self, value: float) -> float:
         """``value`` limited to the fault-free envelope widened by ``envelope_margin``
@@ -1410,6 +1700,18 @@ class GreyFaultDetector:
         for i, cand in enumerate(self.candidates):
             for key, val in cand.get_state().items():
                 state[f"candidate{i}.{key}"] = copy.deepcopy(val)
+        if self._lags:
+            state.update(
+                lag_buf=np.asarray(self._lag_buf, dtype=float),
+                lag_hist_pending=np.array([p for _, p in self._lag_hist], dtype=float),
+                noise_tail=np.asarray(self._noise_tail, dtype=float),
+                noise_sq=float(self._noise_sq),
+                noise_n=int(self._noise_n),
+                lag_z=float(self._lag_z),
+            )
+            for i, (snap, _) in enumerate(self._lag_hist):
+                for key, val in snap.items():
+                    state[f"lag_hist{i}.{key}"] = copy.deepcopy(val)
         return state
 
     def set_state(self, state: Mapping[str, Any]) -> None:
@@ -1476,6 +1778,33 @@ class GreyFaultDetector:
         self._settle = int(state["settle"])
         self._held = float(state["held"])
         self._substituting = bool(state["substituting"])
+        self._set_lag_state(state)
+
+    def _set_lag_state(self, state: Mapping[str, Any]) -> None:
+        """The lagged test's part of :meth:`set_state` (a state saved without it, or by a
+        detector without the test, starts the test afresh)."""
+        self._lag_hist = deque(maxlen=self._lags or 1)
+        if not self._lags or "lag_buf" not in state:
+            self._lag_buf, self._noise_tail = [], []
+            self._noise_sq, self._noise_n, self._lag_z = 0.0, 0, 0.0
+            return
+        buf = np.array(state["lag_buf"], dtype=float).reshape(-1)
+        pending = np.array(state["lag_hist_pending"], dtype=float).reshape(-1)
+        tail = np.array(state["noise_tail"], dtype=float).reshape(-1)
+        if (buf.size > self.reference_window + self._lags or pending.size > self._lags
+                or tail.size > 3):
+            raise ValueError("state['lag_buf'] / state['lag_hist_pending'] / "
+                             "state['noise_tail'] do not fit this detector")
+        for i, p in enumerate(pending):
+            pre = f"lag_hist{i}."
+            snap = {k[len(pre):]: copy.deepcopy(v) for k, v in state.items()
+                    if k.startswith(pre)}
+            self._lag_hist.append((snap, float(p)))
+        self._lag_buf = buf.tolist()
+        self._noise_tail = tail.tolist()
+        self._noise_sq = float(state["noise_sq"])
+        self._noise_n = int(state["noise_n"])
+        self._lag_z = float(state["lag_z"])
 
 
 def _calibrated_sigma(errors: NDArray[np.float64]) -> float:
