@@ -1170,7 +1170,8 @@ class GreyFaultDetector:
         self._pending = math.nan
         self._in_alarm = False
         self._onset = math.nan
-        self._recent: NDArray[np.float64] = np.empty(0)
+        # the newest measured samples (re-seeding); a bounded deque, not np.append per sample
+        self._recent: deque[float] = deque(maxlen=self.reseed_length)
         self._n_accepted = 0
         self._envelope_min = math.inf
         self._envelope_max = -math.inf
@@ -1275,7 +1276,7 @@ class GreyFaultDetector:
 
         was_ready = self.predictor.ready
         self._n_accepted += 1
-        self._recent = np.append(self._recent, value)[-self.reseed_length :]
+        self._recent.append(value)
         error = value - predicted
         if not was_ready:
             alarm = False
@@ -1315,7 +1316,7 @@ class GreyFaultDetector:
         """One sample of the calibrated detector (class notes)."""
         was_ready = self.predictor.ready
         self._n_accepted += 1
-        self._recent = np.append(self._recent, value)[-self.reseed_length:]
+        self._recent.append(value)
         if self._lags:
             self._lag_buf.append(value)
             if len(self._lag_buf) > self.reference_window + self._lags:
@@ -1676,7 +1677,7 @@ class GreyFaultDetector:
             pending_prediction=float(self._pending),
             in_alarm=int(self._in_alarm),
             onset_time_s=float(self._onset),
-            recent=self._recent.copy(),
+            recent=np.array(self._recent, dtype=float),
             n_accepted=int(self._n_accepted),
             envelope_min=float(self._envelope_min),
             envelope_max=float(self._envelope_max),
@@ -1761,7 +1762,7 @@ class GreyFaultDetector:
         self._pending = float(state["pending_prediction"])
         self._in_alarm = bool(state["in_alarm"])
         self._onset = float(state["onset_time_s"])
-        self._recent = recent
+        self._recent = deque((float(x) for x in recent), maxlen=self.reseed_length)
         self._n_accepted = int(state["n_accepted"])
         self._envelope_min = float(state["envelope_min"])
         self._envelope_max = float(state["envelope_max"])
