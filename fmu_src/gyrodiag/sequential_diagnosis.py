@@ -325,6 +325,8 @@ class ObserverStack:
         self.channel_scale = scales
         self._ab = self._ab0
         self._cd = cd
+        # [A B; Cz Dz] stacked: one matrix-vector product per sample instead of two
+        self._abcd = np.vstack([self._ab, cd])
 
     def reset(self) -> None:
         """All states zero."""
@@ -353,10 +355,10 @@ class ObserverStack:
         """(z of all generators, a-priori estimates of all excluded sensors, and the raw
         residuals when built with ``residuals``) for the sample ``w = [u; y]``; then
         advance. ``w`` is not validated."""
-        v = np.concatenate((self.x, w))
-        out = self._cd @ v
-        self.x = self._ab @ v
-        return out[:self.n_out], out[self.n_out:]
+        full = self._abcd @ np.concatenate((self.x, w))
+        ns = self.n_state
+        self.x = full[:ns]
+        return full[ns:ns + self.n_out], full[ns + self.n_out:]
 
 
 
