@@ -76,8 +76,8 @@ def test_case_rate_keeps_theta_at_its_level_flight_value(runs) -> None:
             _, outs = _run_dtg(runs[name], cr)
             th[name] = np.mean([o.theta for o in outs[10000:]], axis=0)
         change[cr] = {n: np.abs(th[n] / th["level"] - 1.0) for n in ("square_from_0", "off_trim")}
-    # measured: ≤ 1.0 % (square) and ≤ 0.6 % (off trim) with the case rate; 30-150 % on
-    # θ3/θ4 without
+    # measured (forgetting 0.9998, seed as here): ≤ 1.9 % (square) and ≤ 2.3 % (off trim,
+    # θL of x) with the case rate; 72-233 % on θ3/θ4 and up to 100 % on θ5 without
     for name, d in change["central"].items():
         assert d.max() < 0.025, (name, (100 * d).round(2))
     assert change[None]["square_from_0"][:, 2:4].min() > 0.3, change[None]
