@@ -51,6 +51,7 @@ from pythonfmu import DefaultExperiment
 from gyrodiag.aircraft import seed_aircraft
 from gyrodiag.decision import UNKNOWN_CODE
 from gyrodiag.dtg import N_THETA
+from gyrodiag.dtg_case_rate import CASE_RATE_SCHEMES
 from gyrodiag.dtg_channel import (
     CLASSIFIERS,
     ESTIMATOR_KINDS,
@@ -102,7 +103,8 @@ _TUNABLE_NAMES = frozenset(n for names in TUNABLE.values() for n in names)
 
 # Variable names used at every step, formatted once (an f-string per variable per step
 # cost ~10 % of a step).
-_DTG_INPUT_KEYS = ("dtg.Utx", "dtg.Uty", "dtg.Ux", "dtg.Uy")
+_DTG_INPUT_KEYS = ("dtg.Utx", "dtg.Uty", "dtg.Ux", "dtg.Uy", "dtg.case_rate_x",
+                   "dtg.case_rate_y")
 _dtg_inputs = operator.itemgetter(*_DTG_INPUT_KEYS)
 _DTG_THETA_KEYS = tuple(tuple(f"dtg.theta_{axis}[{i + 1}]" for i in range(N_THETA))
                         for axis in ("x", "y"))
@@ -111,6 +113,9 @@ _DTG_ETA_KEYS = tuple(tuple(f"dtg.eta_{axis}[{i + 1}]" for i in range(N_THETA))
 _DTG_THETA_FLAT_KEYS = tuple(k for row in _DTG_THETA_KEYS for k in row)
 _DTG_ETA_FLAT_KEYS = tuple(k for row in _DTG_ETA_KEYS for k in row)
 _DTG_THETA0_KEYS = tuple(f"dtg.theta0_used[{i + 1}]" for i in range(N_THETA))
+_DTG_THETA0_Y_KEYS = tuple(f"dtg.theta0_used_y[{i + 1}]" for i in range(N_THETA))
+#: dtg.case_rate codes (0: the paper's regression, the case at rest).
+DTG_CASE_RATE_CODES = (None, *CASE_RATE_SCHEMES)
 _DTG_PHYSICAL_KEYS = tuple(f"dtg.{name}" for name in PHYSICAL_NAMES)
 _ZEROS_5 = (0.0,) * N_THETA
 _DF_U_KEYS = tuple(f"df.u[{j + 1}]" for j in range(DF_P))
@@ -316,6 +321,15 @@ class Diagnoser(FacadeBase):
           "Learning guard: largest spread of a learning segment's theta against the "
           "segments before it, in units of its least-squares covariance")
         _meta("dtg.theta_spread_threshold", "1", POSITIVE)
+        p("dtg.case_rate", "Integer", "parameter", 0,
+          "Case rate in the DTG regression: 0 none (paper, case at rest), 1 central scheme, "
+          "2 paper scheme; the rates are the inputs dtg.case_rate_x/_y, an estimate not from "
+          "this gyro (e.g. a second gyro); theta0 and the reference are then per axis")
+        _meta("dtg.case_rate", None, 0, len(CASE_RATE_SCHEMES))
+        p("dtg.pickoff_scale", "Real", "parameter", 1e-3,
+          "Nominal pick-off scale KT of the gyro (datasheet); the case rate enters the "
+          "regressors as rate*T/KT (used when dtg.case_rate > 0)")
+        _meta("dtg.pickoff_scale", "rad/V", POSITIVE)
         p("dtg.clear_after_s", "Real", "parameter", 0.5,
           "Pattern classifier: a residual alarm clears this long after the last block "
           "with a test above its hold threshold")
@@ -323,6 +337,11 @@ class Diagnoser(FacadeBase):
         for name in ("Utx", "Uty", "Ux", "Uy"):
             p(f"dtg.{name}", "Real", "input", 0.0, f"DTG signal {name}")
             _meta(f"dtg.{name}", "V")
+        for axis in ("x", "y"):
+            p(f"dtg.case_rate_{axis}", "Real", "input", 0.0,
+              f"Case rate about the gyro's {axis} axis held over the sample, from an "
+              "estimate independent of this gyro (used when dtg.case_rate > 0)")
+            _meta(f"dtg.case_rate_{axis}", "rad/s")
         for axis in ("x", "y"):
             for i in range(1, N_THETA + 1):
                 p(f"dtg.theta_{axis}[{i}]", "Real", "output", 0.0,
@@ -333,8 +352,13 @@ class Diagnoser(FacadeBase):
                 _meta(f"dtg.eta_{axis}[{i}]", "1")
         for i in range(1, N_THETA + 1):
             p(f"dtg.theta0_used[{i}]", "Real", "output", 0.0,
-              f"Nominal theta{i} in use (0 while learning)")
+              f"Nominal theta{i} in use, x axis (both axes when dtg.case_rate = 0; 0 while "
+              "learning)")
             _meta(f"dtg.theta0_used[{i}]", "1")
+            p(f"dtg.theta0_used_y[{i}]", "Real", "output", 0.0,
+              f"Nominal theta{i} in use, y axis (= dtg.theta0_used[{i}] when "
+              "dtg.case_rate = 0; 0 while learning)")
+            _meta(f"dtg.theta0_used_y[{i}]", "1")
         for name, unit in zip(PHYSICAL_NAMES, PHYSICAL_UNITS, strict=True):
             p(f"dtg.{name}", "Real", "output", 0.0,
               f"Identified {name}; 0 while dtg.physical_valid is false")
@@ -505,7 +529,11 @@ class Diagnoser(FacadeBase):
                 f"Long-window variance ratio of the {axis} residual", "1")
         for i in range(1, N_THETA + 1):
             out(f"dtg.ref_theta0[{i}]", "Real", 0.0,
-                f"Reference theta{i} of the residuals (0 before the reference)", "1")
+                f"Reference theta{i} of the residuals, x axis (both axes when "
+                "dtg.case_rate = 0; 0 before the reference)", "1")
+            out(f"dtg.ref_theta0_y[{i}]", "Real", 0.0,
+                f"Reference theta{i} of the residuals, y axis (0 before the reference)",
+                "1")
         for key, unit, text in (("ref_mean", "V", "nominal mean"),
                                 ("ref_block_std", "V", "nominal spread of block means"),
                                 ("ref_var_short", "V2", "nominal variance, short window"),
@@ -575,6 +603,11 @@ class Diagnoser(FacadeBase):
           "d in [-df.align_max, df.align_max]); the master's coupling order needs no setting")
         p("df.align_max", "Integer", "parameter", 2, "Largest |d| tried by df.align_auto")
         _meta("df.align_max", None, 0, 50)
+        p("df.sensor_dynamics_file", "String", "parameter", "",
+          "JSON file of one sensor's read-out dynamics G (e.g. the DTG's rebalance loop on "
+          "q, models/dtg/gd_dtg_readout.py; relative paths are in the FMU's resources): "
+          "every input and every other sensor go through the same G (matched filtering); "
+          "empty: every sensor is y = Cx")
         p("df.calibrate_s", "Real", "parameter", 10.0,
           "Fault-free calibration window for the alignment, noise and thresholds; 0: "
           "none (paper rule: df.threshold[i]; sequential rule: df.noise_std[i])")
@@ -681,6 +714,22 @@ class Diagnoser(FacadeBase):
           "Alignment d in use (chosen on the calibration window with df.align_auto)")
         p("df.valid", "Boolean", "output", True, "Last u, y sample was finite")
 
+    def _df_sensor_dynamics(self, period: float) -> Any:
+        """The :class:`~gyrodiag.sensor_dynamics.SensorDynamics` of
+        df.sensor_dynamics_file, or None when it is empty."""
+        from gyrodiag.sensor_dynamics import SensorDynamics
+
+        text = str(self.values["df.sensor_dynamics_file"]).strip()
+        if not text:
+            return None
+        path = Path(text)
+        if not path.is_absolute() and self.resources:
+            path = Path(self.resources) / path
+        try:
+            return SensorDynamics.from_json(path, period)
+        except ValueError as exc:
+            raise ValueError(f"df.sensor_dynamics_file: {exc}") from None
+
     def _df_config(self, period: float) -> DFChannelConfig:
         from gyrodiag.df_channel import DFChannelConfig
 
@@ -715,6 +764,7 @@ class Diagnoser(FacadeBase):
             input_delay_samples=_named_int(v, "df.input_delay_samples"),
             align_auto=bool(v["df.align_auto"]), align_max=_named_int(v, "df.align_max"),
             x0=vector("x0", DF_N),
+            sensor_dynamics=self._df_sensor_dynamics(period),
         )
 
     def _copy_df(self, out: DFChannelOutput) -> None:
@@ -893,6 +943,10 @@ class Diagnoser(FacadeBase):
         if classifier not in CLASSIFIERS:
             raise ValueError(f"dtg.classifier must be one of {', '.join(CLASSIFIERS)}, got "
                              f"{classifier!r}")
+        case_rate = int(v["dtg.case_rate"])
+        if case_rate not in range(len(DTG_CASE_RATE_CODES)):
+            raise ValueError(f"dtg.case_rate must be 0 (none), 1 (central) or 2 (paper), got "
+                             f"{case_rate}")
         signatures, patterns = self._dtg_library(classifier, period)
         return DTGChannelConfig(
             sample_period_s=period,
@@ -929,6 +983,8 @@ class Diagnoser(FacadeBase):
             long_var_threshold=float(v["dtg.long_var_threshold"]),
             theta_spread_threshold=float(v["dtg.theta_spread_threshold"]),
             clear_after_s=float(v["dtg.clear_after_s"]),
+            case_rate=DTG_CASE_RATE_CODES[case_rate],
+            pickoff_scale=float(v["dtg.pickoff_scale"]),
         )
 
     def _dtg_library(self, classifier: str, period: float
@@ -1161,8 +1217,9 @@ class Diagnoser(FacadeBase):
         theta0 = self._dtg.theta0
         if theta0 is not self._theta0_copied:  # set once, when learning ends
             self._theta0_copied = theta0
-            v.update(zip(_DTG_THETA0_KEYS, [0.0] * N_THETA if theta0 is None
-                         else _flat_floats(theta0), strict=True))
+            rows = (_ZEROS_5, _ZEROS_5) if theta0 is None else theta0.reshape(-1, N_THETA)
+            v.update(zip(_DTG_THETA0_KEYS, _flat_floats(rows[0]), strict=True))
+            v.update(zip(_DTG_THETA0_Y_KEYS, _flat_floats(rows[-1]), strict=True))
         physical = out.physical.tolist()
         # the sum of finite values is finite unless it overflows (then: the exact test)
         total = sum(physical)
@@ -1213,8 +1270,11 @@ class Diagnoser(FacadeBase):
                                                                     0.0)
         assert self._dtg is not None
         ref = self._dtg.reference
+        per_axis = None if ref is None else ref.theta0.reshape(-1, N_THETA)
         for i in range(N_THETA):
-            v[f"dtg.ref_theta0[{i + 1}]"] = 0.0 if ref is None else float(ref.theta0[i])
+            v[f"dtg.ref_theta0[{i + 1}]"] = 0.0 if per_axis is None else float(per_axis[0, i])
+            v[f"dtg.ref_theta0_y[{i + 1}]"] = (0.0 if per_axis is None
+                                               else float(per_axis[-1, i]))
         for key, attr in (("ref_mean", "mean"), ("ref_block_std", "block_std"),
                           ("ref_var_short", "var_short"), ("ref_var_long", "var_long")):
             for i in range(N_CHANNELS):
@@ -1270,6 +1330,7 @@ _PARAMETER_NAMES: dict[str, dict[str, str]] = {
         "long_var_threshold": "dtg.long_var_threshold",
         "theta_spread_threshold": "dtg.theta_spread_threshold",
         "clear_after_s": "dtg.clear_after_s", "patterns": "dtg.signature_file",
+        "case_rate": "dtg.case_rate", "pickoff_scale": "dtg.pickoff_scale",
     },
     "grey": {
         "window": "grey.window", "threshold": "grey.threshold", "a_min": "grey.a_min",
@@ -1287,6 +1348,7 @@ _PARAMETER_NAMES: dict[str, dict[str, str]] = {
         "noise_std": "df.noise_std[1..6]", "persistence_k": "df.persistence_k",
         "persistence_n": "df.persistence_n", "confirm_samples": "df.confirm_samples",
         "x0": "df.x0[1..5]", "decision": "df.decision",
+        "sensor_dynamics": "df.sensor_dynamics_file",
         "false_alarms_per_h": "df.false_alarm_rate", "cusum_k": "df.cusum_k",
         "variance_ratio": "df.variance_ratio", "max_faults": "df.max_faults",
         "history_s": "df.history_s", "memory_s": "df.memory_s",

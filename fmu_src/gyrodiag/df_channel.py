@@ -59,6 +59,7 @@ from .aircraft import seed_aircraft
 from .detection_filter import DetectionFilter, ResidualThresholds, design_detection_filter
 from .isolation import FaultType, SensorFaultIsolator
 from .residual_model import ResidualModel, estimate_sensor_variances
+from .sensor_dynamics import SensorDynamics, SensorDynamicsEqualiser
 from .sequential_diagnosis import FaultKind, SequentialDiagnoser, SequentialSettings
 
 __all__ = ["DECISIONS", "DFChannel", "DFChannelConfig", "DFChannelOutput"]
@@ -133,6 +134,12 @@ class DFChannelConfig:
         Largest |d| tried.
     x0 : array_like, shape (n,), optional
         Initial state estimate of every observer (default zeros).
+    sensor_dynamics : SensorDynamics, optional
+        Read-out dynamics G(z) of one sensor (e.g. the DTG's rebalance loop on q), at
+        ``sample_period_s``: every input and every other sensor are passed through the
+        same G before the filter (matched filtering, :mod:`gyrodiag.sensor_dynamics`,
+        docs/readout_dynamics.md), so that a manoeuvre seen through the sensor's lag is
+        not a fault of it. None (default): every sensor is y = Cx.
     """
 
     A: ArrayLike = field(default_factory=_seed_a)
@@ -160,6 +167,7 @@ class DFChannelConfig:
     align_auto: bool = True
     align_max: int = 2
     x0: ArrayLike | None = None
+    sensor_dynamics: SensorDynamics | None = None
 
     def matrices(self) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
         """Validated (A, B, C, eigenvalues, x0) as float arrays."""
@@ -232,6 +240,17 @@ class DFChannelConfig:
         if isinstance(d, bool) or not isinstance(d, (int, np.integer)):
             raise TypeError(f"input_delay_samples must be an integer, got {d!r}")
         check_in_range("input_delay_samples", float(d), -50.0, 50.0)
+        if self.sensor_dynamics is not None:
+            g = self.sensor_dynamics
+            if not isinstance(g, SensorDynamics):
+                raise TypeError("sensor_dynamics must be a SensorDynamics, got "
+                                f"{type(g).__name__}")
+            if abs(g.sample_period_s - period) > 1e-9 * period:
+                raise ValueError(f"sensor_dynamics is given at {g.sample_period_s!r} s, the "
+                                 f"filter samples at sample_period_s = {period!r} s")
+            if g.sensor >= m:
+                raise ValueError(f"sensor_dynamics: sensor {g.sensor + 1} (1-based) exceeds "
+                                 f"the {m} sensors of C")
         if self.align_auto and calibrate == 0.0:
             raise ValueError("align_auto needs a calibration window (calibrate_s > 0); "
                              "set input_delay_samples and align_auto = False")
@@ -323,6 +342,8 @@ class DFChannel:
         self._n_cal = round(config.calibrate_s / self.T)
         self._n_burn = min(round(config.burn_in_s / self.T), max(self._n_cal - 10, 0))
         self._monitor = DetectionFilter(A, B, C, self.K, self.T)
+        self._equaliser = (None if config.sensor_dynamics is None else
+                           SensorDynamicsEqualiser(config.sensor_dynamics, self.p, self.m))
         self.reset()
 
     # ------------------------------------------------------------------ set-up
@@ -341,6 +362,8 @@ class DFChannel:
         self._thresholds: list[NDArray[np.float64]] | None = None
         self._noise_std: NDArray[np.float64] | None = None
         self._monitor.reset(self._x0)
+        if self._equaliser is not None:
+            self._equaliser.reset()
         self._calibrated = False
         self._last = self._initial_output()
         if self._n_cal == 0:
@@ -407,6 +430,8 @@ class DFChannel:
             if not (np.all(np.isfinite(uu)) and np.all(np.isfinite(yy))):
                 self._last = _invalid(self._last)
                 return self._last
+        if self._equaliser is not None:
+            uu, yy = self._equaliser.update(uu, yy, validate=False)
         k = self._n_samples
         self._n_samples = k + 1
         if not self._calibrated:
@@ -433,6 +458,7 @@ class DFChannel:
         calibrated sequential decision."""
         total = sum(u) + sum(y)
         if not (total - total == 0.0 and self._calibrated and self._delay == 0
+                and self._equaliser is None
                 and isinstance(self._engine, SequentialDiagnoser)):
             return self.update(u, y)  # NaN/inf, calibration, a delay line, the paper rule
         self._n_samples += 1
@@ -670,6 +696,7 @@ class DFChannel:
             "thresholds": None if self._thresholds is None else [
                 t.copy() for t in self._thresholds],
             "last": _output_state(self._last),
+            "equaliser": None if self._equaliser is None else self._equaliser.get_state(),
         }
 
     def set_state(self, state: dict[str, Any]) -> None:
@@ -689,6 +716,12 @@ class DFChannel:
 
     def _apply_state(self, state: dict[str, Any]) -> None:
         c = self.config
+        eq = state.get("equaliser")
+        if (eq is None) != (self._equaliser is None):
+            raise ValueError("state['equaliser'] does not match sensor_dynamics (a state of "
+                             "a channel with other read-out dynamics)")
+        if self._equaliser is not None:
+            self._equaliser.set_state(eq)
         calibrated = bool(state["calibrated"])
         delay = int(state["delay"])
         noise = state["noise_std"]

@@ -44,6 +44,11 @@ from .decision import (
     feature_floats,
 )
 from .dtg import N_THETA, DTGRegressor
+from .dtg_case_rate import (
+    CASE_RATE_SCHEMES,
+    CaseRateDTGRegressor,
+    physical_from_theta_central,
+)
 from .dtg_patterns import PatternClassifier, PatternLibrary, PatternResult
 from .dtg_reference import (
     N_CHANNELS,
@@ -51,6 +56,7 @@ from .dtg_reference import (
     NominalPrior,
     NominalReference,
     ReferenceLearner,
+    RegressionModel,
     ResidualMonitor,
     ResidualThresholds,
 )
@@ -151,6 +157,18 @@ class DTGChannelConfig:
     clear_after_s : float
         An alarm of the residual tests clears this long after the last block in which a
         test exceeded its hold threshold.
+    case_rate : {"central", "paper"} or None
+        None (default): the paper's regression, the case at rest; ``update``'s case rates
+        are ignored. Otherwise the case rates ωx, ωy given to ``update`` (rad/s, an
+        estimate that does not come from the gyro under test, e.g. a second gyro) enter
+        the regression in that discretisation (:mod:`gyrodiag.dtg_case_rate`,
+        docs/dtg_case_rate.md): they go through the prefilter with the voltages, θ0 and
+        the reference are per axis (``theta0`` of shape (5,) is used for both axes, or
+        give (2, 5)), ``physical`` inverts the central scheme's θ with ``"central"``.
+        A pattern library with a nominal prior learned without the case rate is refused.
+    pickoff_scale : float
+        Nominal pick-off scale KT of the gyro, rad/V (datasheet value; case rate only):
+        the case rate enters the regressors as ω·T/KT, in V.
     """
 
     sample_period_s: float = 1e-3
@@ -183,6 +201,13 @@ class DTGChannelConfig:
     long_var_threshold: float = 2.0
     theta_spread_threshold: float = 30.0
     clear_after_s: float = 0.5
+    case_rate: str | None = None
+    pickoff_scale: float = 1e-3
+
+    @property
+    def regression(self) -> RegressionModel:
+        """The regression of the reference residuals (paper's, or with the case rate)."""
+        return RegressionModel(self.case_rate, self.sample_period_s, self.pickoff_scale)
 
     @property
     def thresholds(self) -> ResidualThresholds:
@@ -214,8 +239,16 @@ class DTGChannelConfig:
         check_int("window", self.window, minimum=N_THETA)
         check_in_range("forgetting", self.forgetting, 0.0, 1.0, low_open=True)
         check_positive("p0", self.p0)
+        if self.case_rate is not None:
+            if self.case_rate not in CASE_RATE_SCHEMES:
+                raise ValueError(f"case_rate must be None or one of {CASE_RATE_SCHEMES}, "
+                                 f"got {self.case_rate!r}")
+            check_positive("pickoff_scale", self.pickoff_scale)
         if self.theta0 is not None:
-            t0 = check_finite_array("theta0", self.theta0, shape=(N_THETA,))
+            t0 = np.asarray(self.theta0, dtype=float)
+            shape = ((N_THETA,) if self.case_rate is None or t0.shape == (N_THETA,)
+                     else (2, N_THETA))
+            t0 = check_finite_array("theta0", self.theta0, shape=shape)
             if np.any(t0 == 0.0):
                 raise ValueError(f"theta0 must have no zero entry, got {list(t0)}")
         # the pattern classifier measures its nominal statistics over the learning window
@@ -258,6 +291,11 @@ class DTGChannelConfig:
                 if not isinstance(self.patterns, PatternLibrary):
                     raise TypeError("patterns must be a PatternLibrary, got "
                                     f"{type(self.patterns).__name__}")
+                if self.case_rate is not None and self.patterns.prior is not None:
+                    raise ValueError(
+                        "patterns: the library's nominal prior was learned with the "
+                        "paper's regression (one θ0 for both axes); with case_rate the "
+                        "reference is per axis: use a library without a prior")
                 block_s = self.block_samples * self.sample_period_s
                 for name, mine, theirs in (
                         ("sample_period_s", self.sample_period_s,
@@ -404,6 +442,13 @@ class DTGChannel:
         # the prefilter's memory (impulse response above 1e-3 of its peak)
         self._gap_samples = 2 + (_ringing_samples(config, self.T)
                                  if config.prefilter_enabled else 0)
+        self._model = config.regression
+        self._case_rate = self._model.case_rate
+        self._width = self._model.width
+        self._given_theta0: NDArray[np.float64] | None = (
+            None if config.theta0 is None
+            else np.broadcast_to(np.asarray(config.theta0, dtype=float),
+                                 self._theta0_shape()).copy())
         self._pattern = (PatternClassifier(config.patterns)
                          if config.patterns is not None else None)
         self._prior: NominalPrior | None = (
@@ -420,37 +465,45 @@ class DTGChannel:
         return ForgettingRLS(N_THETA, forgetting=c.forgetting, p0=c.p0)
 
     def _make_decisions(self, theta0: NDArray[np.float64]) -> list[ThresholdDecision]:
+        """One ratio decision per axis; θ0 (5,) for both or (2, 5) per axis."""
         c = self.config
+        per_axis = theta0.reshape(-1, N_THETA)
         return [
             ThresholdDecision(
-                theta0, c.low, c.high, c.persistence_k, c.persistence_n, c.latch, c.monitored
+                per_axis[min(i, per_axis.shape[0] - 1)], c.low, c.high, c.persistence_k,
+                c.persistence_n, c.latch, c.monitored
             )
-            for _ in range(2)
+            for i in range(2)
         ]
+
+    def _theta0_shape(self) -> tuple[int, ...]:
+        return (2, N_THETA) if self._case_rate else (N_THETA,)
 
     def reset(self) -> None:
         """Return to the state right after construction."""
         c = self.config
         self._prefilter = (
             ButterworthPrefilter(
-                c.prefilter_order, c.prefilter_cutoff_hz, 1.0 / self.T, 4,
+                c.prefilter_order, c.prefilter_cutoff_hz, 1.0 / self.T, self._width,
                 highpass_hz=c.prefilter_highpass_hz,
             )
             if c.prefilter_enabled
             else None
         )
-        self._regressor = DTGRegressor()
+        self._regressor: DTGRegressor | CaseRateDTGRegressor = (
+            CaseRateDTGRegressor(self.T, c.pickoff_scale, scheme=c.case_rate)  # type: ignore[arg-type]
+            if c.case_rate is not None else DTGRegressor())
         self._estimators = [self._make_estimator(), self._make_estimator()]
         self._theta_now = tuple(tuple(e.theta.tolist()) for e in self._estimators)
         self._classifier = (
             SignatureClassifier(c.signatures, c.max_distance) if c.signatures else None
         )
         self._n_samples = 0
-        self._learn_sum = np.zeros(N_THETA)
+        self._learn_sum = np.zeros(self._theta0_shape())
         self._learn_count = 0
+        # (5,) for both axes; (2, 5) per axis with the case rate
         self.theta0: NDArray[np.float64] | None = (
-            None if c.theta0 is None else np.asarray(c.theta0, dtype=float).copy()
-        )
+            None if self._given_theta0 is None else self._given_theta0.copy())
         self._decisions = None if self.theta0 is None else self._make_decisions(self.theta0)
         self._first_alarm_time = float("nan")
         # both ends of the window, as the training window of harness.campaigns.signatures
@@ -463,7 +516,7 @@ class DTGChannel:
         self._blk_filtered: list[tuple[float, ...]] = []
         self._blk_theta: list[tuple[float, ...]] = []
         self._blk_valid: list[bool] = []
-        self._hist_filtered: list[tuple[float, ...]] = [(0.0,) * 4, (0.0,) * 4]
+        self._hist_filtered: list[tuple[float, ...]] = [(0.0,) * self._width] * 2
         self._gap = 0
         # pattern classifier: when the residual tests clear, the fast estimators are
         # rolled back to their state half a test window before the alarm rose (a fault's
@@ -474,7 +527,8 @@ class DTGChannel:
         self._rollback: tuple[Any, ...] | None = None
         self._snapshots: deque[tuple[Any, ...]] = deque(maxlen=self._short_blocks + 1)
         self._learner: ReferenceLearner | None = ReferenceLearner(
-            self._nb, self._short_blocks, self._long_blocks, c.thresholds, self._nb * self.T)
+            self._nb, self._short_blocks, self._long_blocks, c.thresholds, self._nb * self.T,
+            self._model)
         self.reference: NominalReference | None = None
         self._monitor: ResidualMonitor | None = None
         self._diagnosis = DTGDiagnosis()
@@ -488,21 +542,46 @@ class DTGChannel:
             first_alarm_time_s=float("nan"), diagnosis=self._diagnosis,
         )
 
+    def _physical(self, th_x: tuple[float, ...], th_y: tuple[float, ...]
+                  ) -> NDArray[np.float64]:
+        if self.config.case_rate != "central":
+            return _physical(th_x, th_y, self.T)
+        mean = 0.5 * (np.array(th_x) + np.array(th_y))
+        try:
+            return physical_from_theta_central(mean, self.T).as_array()
+        except ValueError:
+            return np.full(N_THETA, np.nan)
+
     @property
     def pattern_mode(self) -> bool:
         """The pattern classifier is configured."""
         return self._pattern_mode
 
     # -- streaming ------------------------------------------------------------
-    def update(self, Utx: float, Uty: float, Ux: float, Uy: float) -> DTGChannelOutput:
-        """Process one sample (volts) and return the channel outputs.
+    def update(self, Utx: float, Uty: float, Ux: float, Uy: float,
+               omega_x: float = 0.0, omega_y: float = 0.0) -> DTGChannelOutput:
+        """Process one sample and return the channel outputs.
 
-        A sample with any NaN/Inf is skipped: the state is untouched and the previous
-        outputs are returned with ``valid=False``.
+        Parameters
+        ----------
+        Utx, Uty, Ux, Uy : float
+            Pick-off and torquer voltages, V.
+        omega_x, omega_y : float
+            Case rates about the gyro's x and y axes held over the sample, rad/s (an
+            independent estimate); used only when ``config.case_rate`` is set.
+
+        A sample with any NaN/Inf (case rates included when they are used) is skipped:
+        the state is untouched and the previous outputs are returned with
+        ``valid=False``.
         """
         raw = (float(Utx), float(Uty), float(Ux), float(Uy))
-        if not (math.isfinite(raw[0]) and math.isfinite(raw[1]) and math.isfinite(raw[2])
-                and math.isfinite(raw[3])):
+        if self._case_rate:
+            w = (float(omega_x), float(omega_y))
+            ok = math.isfinite(w[0]) and math.isfinite(w[1])
+        else:
+            ok = True
+        if not (ok and math.isfinite(raw[0]) and math.isfinite(raw[1])
+                and math.isfinite(raw[2]) and math.isfinite(raw[3])):
             # the regression rows spanning the gap, and the prefilter's ringing after it,
             # are left out of the reference statistics (a one-sample jump would look
             # like a burst of noise)
@@ -513,8 +592,13 @@ class DTGChannel:
         t = n * self.T
         self._n_samples += 1
         # raw was checked finite above; the stages downstream need not check again
-        sample = tuple(self._prefilter.step(raw)) if self._prefilter is not None else raw
-        rows = self._regressor.step(*sample)
+        signals = raw + w if self._case_rate else raw
+        sample = (tuple(self._prefilter.step(signals)) if self._prefilter is not None
+                  else signals)
+        if self._case_rate:
+            rows = self._regressor.update(*sample, validate=False)  # type: ignore[call-arg]
+        else:
+            rows = self._regressor.step(*sample)  # type: ignore[union-attr]
         if rows is not None:
             self._theta_now = (self._estimators[0].step(rows[0], rows[1]),
                                self._estimators[1].step(rows[2], rows[3]))
@@ -528,7 +612,7 @@ class DTGChannel:
         if self.theta0 is None or self._decisions is None:
             self._last = DTGChannelOutput(
                 True, not self.reference_failed, theta, np.ones((2, N_THETA)),
-                _physical(th_x, th_y, self.T), False, 0, np.zeros(N_THETA, dtype=np.int64),
+                self._physical(th_x, th_y), False, 0, np.zeros(N_THETA, dtype=np.int64),
                 self._first_alarm_time, self._diagnosis,
             )
             return self._last
@@ -537,7 +621,7 @@ class DTGChannel:
         eta_y, alarm_y = self._decisions[1].step(th_y)
         eta = np.array((eta_x, eta_y))
         band_alarm = alarm_x or alarm_y
-        physical = _physical(th_x, th_y, self.T)
+        physical = self._physical(th_x, th_y)
         if self._pattern_mode:
             return self._pattern_output(t, theta, eta, physical, band_alarm, block_done)
         alarm = band_alarm
@@ -710,8 +794,8 @@ class DTGChannel:
         if learner is None:
             return
         try:
-            ref = learner.finish(None if c.theta0 is None else np.asarray(c.theta0, float),
-                                 self._prior)
+            ref = learner.finish(None if self._given_theta0 is None
+                                 else self._given_theta0.ravel(), self._prior)
         except ValueError:
             self._learner = None
             if self.pattern_mode:
@@ -727,11 +811,12 @@ class DTGChannel:
         self.reference = ref
         if self.pattern_mode:
             mon = ResidualMonitor(ref, self._nb, self._nb * self.T, self._short_blocks,
-                                  self._long_blocks, c.thresholds, self._clear_blocks)
+                                  self._long_blocks, c.thresholds, self._clear_blocks,
+                                  self._model)
             mon.prefill(*learner.reference_blocks(ref, self._long_blocks))
             self._monitor = mon
             if self.theta0 is None:
-                self.theta0 = ref.theta0_eta.copy()
+                self.theta0 = ref.theta0_eta.reshape(self._theta0_shape()).copy()
                 self._decisions = self._make_decisions(self.theta0)
         self._learner = None  # its data are no longer needed
         self._diagnosis = DTGDiagnosis(reference_status=ref.status,
@@ -740,7 +825,7 @@ class DTGChannel:
     def _learn(self, t: float, theta: NDArray[np.float64]) -> None:
         c = self.config
         if c.learn_start_s <= t < c.learn_end_s:
-            self._learn_sum += theta.mean(axis=0)
+            self._learn_sum += theta if self._case_rate else theta.mean(axis=0)
             self._learn_count += 1
         elif t >= c.learn_end_s and self._learn_count > 0:
             theta0 = self._learn_sum / self._learn_count
@@ -780,7 +865,8 @@ class DTGChannel:
             "first_alarm_time": self._first_alarm_time,
             "features": self._features.get_state(),
             "buffers": {"raw": np.array(self._blk_raw, dtype=float).reshape(-1, 4),
-                        "filtered": np.array(self._blk_filtered, dtype=float).reshape(-1, 4),
+                        "filtered": np.array(self._blk_filtered, dtype=float).reshape(
+                            -1, self._width),
                         "theta": np.array(self._blk_theta, dtype=float).reshape(
                             -1, 2 * N_THETA),
                         "valid": np.array(self._blk_valid, dtype=bool),
@@ -830,13 +916,13 @@ class DTGChannel:
         k = raw.shape[0]
         self._blk_raw = [tuple(r) for r in raw.tolist()]
         self._blk_filtered = [tuple(r) for r in np.asarray(
-            buffers["filtered"], dtype=float).reshape(k, 4).tolist()]
+            buffers["filtered"], dtype=float).reshape(k, self._width).tolist()]
         self._blk_theta = [tuple(r) for r in np.asarray(
             buffers["theta"], dtype=float).reshape(k, 2 * N_THETA).tolist()]
         self._blk_valid = [bool(v) for v in np.asarray(buffers["valid"], dtype=bool)
                            .reshape(k).tolist()]
         self._hist_filtered = [tuple(r) for r in np.asarray(
-            buffers["history"], dtype=float).reshape(2, 4).tolist()]
+            buffers["history"], dtype=float).reshape(2, self._width).tolist()]
         self._gap = int(buffers["gap"])
         self._theta_now = tuple(tuple(e.theta.tolist()) for e in self._estimators)
         def snapshot(raw: Any) -> tuple[Any, ...]:
@@ -852,7 +938,7 @@ class DTGChannel:
             self._learner = None
         else:
             self._learner = ReferenceLearner(self._nb, self._short_blocks, self._long_blocks,
-                                             c.thresholds, self._nb * self.T)
+                                             c.thresholds, self._nb * self.T, self._model)
             self._learner.set_state(state["learner"])
         ref = state["reference"]
         self.reference = None if ref is None else NominalReference.from_state(ref)
@@ -862,7 +948,7 @@ class DTGChannel:
             assert self.reference is not None
             self._monitor = ResidualMonitor(self.reference, self._nb, self._nb * self.T,
                                             self._short_blocks, self._long_blocks,
-                                            c.thresholds, self._clear_blocks)
+                                            c.thresholds, self._clear_blocks, self._model)
             self._monitor.set_state(state["monitor"])
         self._diagnosis = _diagnosis_from_dict(state["diagnosis"])
         self._last = _output_from_dict(state["last"], self._diagnosis)

@@ -51,6 +51,7 @@ from numpy.typing import NDArray
 
 from ._validation import check_finite_array, check_int, check_positive
 from .dtg import N_THETA
+from .dtg_case_rate import CASE_RATE_SCHEMES, dtg_case_rate_regression
 
 __all__ = [
     "CHANNELS",
@@ -60,6 +61,7 @@ __all__ = [
     "NominalPrior",
     "NominalReference",
     "ReferenceLearner",
+    "RegressionModel",
     "ResidualMonitor",
     "ResidualThresholds",
     "block_moments",
@@ -84,23 +86,93 @@ _VAR_FLOOR = 1e-30
 
 
 # --------------------------------------------------------------------------- helpers
-def regression_residuals(filtered: NDArray[np.float64],
-                         theta: NDArray[np.float64]) -> NDArray[np.float64]:
+@dataclass(frozen=True)
+class RegressionModel:
+    """The regression the reference is built on: the paper's, or one with the case rate.
+
+    Attributes
+    ----------
+    case_rate_scheme : {"central", "paper"} or None
+        None: the paper's regression of DESIGN §2 on (Utx, Uty, Ux, Uy), one θ0 (5,) for
+        both axes (pooled). Otherwise the case-rate regression of
+        :mod:`gyrodiag.dtg_case_rate` on (Utx, Uty, Ux, Uy, ωx, ωy) in that scheme, with
+        a θ0 per axis (10,: x then y): the two lines see the case rate differently
+        (docs/dtg_case_rate.md §5).
+    sample_period_s : float
+        T, s (case rate only).
+    pickoff_scale : float
+        Nominal pick-off scale KT, rad/V (case rate only).
+    """
+
+    case_rate_scheme: str | None = None
+    sample_period_s: float = 1e-3
+    pickoff_scale: float = 1e-3
+
+    def __post_init__(self) -> None:
+        if self.case_rate_scheme is not None:
+            if self.case_rate_scheme not in CASE_RATE_SCHEMES:
+                raise ValueError(f"case_rate_scheme must be None or one of "
+                                 f"{CASE_RATE_SCHEMES}, got {self.case_rate_scheme!r}")
+            check_positive("sample_period_s", self.sample_period_s)
+            check_positive("pickoff_scale", self.pickoff_scale)
+
+    @property
+    def case_rate(self) -> bool:
+        """The case rate is in the regression."""
+        return self.case_rate_scheme is not None
+
+    @property
+    def width(self) -> int:
+        """Filtered signals per sample: 4 (V), or 6 with ωx, ωy (rad/s)."""
+        return 6 if self.case_rate else 4
+
+    @property
+    def n_par(self) -> int:
+        """Reference parameters: 5 pooled, or 10 (θ0 per axis)."""
+        return 2 * N_THETA if self.case_rate else N_THETA
+
+    def rows(self, filtered: NDArray[np.float64]
+             ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
+                        NDArray[np.float64]]:
+        """(φx (n, 5), yx (n,), φy (n, 5), yy (n,)) of a run of ``width``-wide filtered
+        samples, the first two rows being the samples before the first row wanted."""
+        f = filtered
+        if self.case_rate:
+            return dtg_case_rate_regression(
+                *f.T, self.sample_period_s, self.pickoff_scale,
+                scheme=self.case_rate_scheme)  # type: ignore[arg-type]
+        phx = np.column_stack([f[1:-1, 0], -f[:-2, 0], -f[2:, 1], f[1:-1, 1], f[2:, 2]])
+        phy = np.column_stack([f[1:-1, 1], -f[:-2, 1], f[2:, 0], -f[1:-1, 0], f[2:, 3]])
+        return phx, f[2:, 0], phy, f[2:, 1]
+
+
+#: The paper's regression (the default of every class here).
+PAPER_MODEL = RegressionModel()
+
+
+def regression_residuals(filtered: NDArray[np.float64], theta: NDArray[np.float64],
+                         model: RegressionModel = PAPER_MODEL) -> NDArray[np.float64]:
     """Reference residuals of both axes for a run of filtered samples.
 
     Parameters
     ----------
-    filtered : ndarray, shape (n + 2, 4)
-        Filtered (Utx, Uty, Ux, Uy) in V; the first two rows are the samples before the
-        first one whose residual is wanted.
-    theta : ndarray, shape (5,)
-        Reference θ.
+    filtered : ndarray, shape (n + 2, model.width)
+        Filtered (Utx, Uty, Ux, Uy) in V (and ωx, ωy in rad/s with the case rate); the
+        first two rows are the samples before the first one whose residual is wanted.
+    theta : ndarray, shape (model.n_par,)
+        Reference θ (5,), or with the case rate θ of the x then the y axis (10,).
+    model : RegressionModel
+        The regression (default: the paper's, DESIGN §2).
 
     Returns
     -------
     ndarray, shape (n, 2)
-        e = y − φᵀθ of the x and y regressions of DESIGN §2 (V).
+        e = y − φᵀθ of the x and y regressions (V).
     """
+    if model.case_rate:
+        th = np.asarray(theta, dtype=float).reshape(2, N_THETA)
+        phx, yx, phy, yy = model.rows(filtered)
+        return np.column_stack([yx - phx @ th[0], yy - phy @ th[1]])
     t1, t2, t3, t4, t5 = (float(v) for v in theta)
     f = filtered
     tx, ty = f[2:, 0], f[2:, 1]
@@ -280,12 +352,13 @@ class NominalReference:
 
     Attributes
     ----------
-    theta0 : ndarray, shape (5,)
+    theta0 : ndarray, shape (5,) or (10,)
         Reference θ of the residuals (least squares over the accepted learning data, or
-        the given / prior θ0).
-    theta0_eta : ndarray, shape (5,)
+        the given / prior θ0); (10,), x then y axis, with the case rate
+        (:class:`RegressionModel`).
+    theta0_eta : ndarray, shape (5,) or (10,)
         Nominal θ of the ratio test η = |θ|/|θ0| (mean fast-estimator θ over the accepted
-        data, the paper's rule).
+        data, the paper's rule); per axis like ``theta0``.
     mean : ndarray, shape (6,)
         Channel means, V.
     block_std : ndarray, shape (6,)
@@ -337,8 +410,12 @@ class NominalReference:
     @classmethod
     def from_state(cls, s: dict[str, Any]) -> NominalReference:
         """Inverse of :meth:`get_state`."""
+        n_par = np.asarray(s["theta0"]).size
+        if n_par not in (N_THETA, 2 * N_THETA):
+            raise ValueError(f"state['theta0'] must have {N_THETA} or {2 * N_THETA} entries, "
+                             f"got {n_par}")
         arr = {k: check_finite_array(f"state[{k!r}]", s[k], shape=(n,)).copy()
-               for k, n in (("theta0", N_THETA), ("theta0_eta", N_THETA),
+               for k, n in (("theta0", n_par), ("theta0_eta", n_par),
                             ("mean", N_CHANNELS), ("block_std", N_CHANNELS),
                             ("var_short", N_CHANNELS), ("var_long", N_CHANNELS))}
         return cls(**arr, status=int(s["status"]), segments_used=int(s["segments_used"]),
@@ -396,28 +473,32 @@ class ReferenceLearner:
         Thresholds of the segment checks (the residual tests' own, plus θ spread).
     block_s : float
         Block duration, s.
+    model : RegressionModel, optional
+        The regression (default: the paper's; with the case rate θ0 is fitted per axis).
 
     Notes
     -----
     Between :meth:`start` and :meth:`finish` it keeps the filtered samples of the
-    learning window (4 floats per sample) and per block the raw-signal moments and the
+    learning window (``model.width`` floats per sample) and per block the raw-signal moments and the
     mean fast-estimator θ: the reference θ0 is not known before the end, so the
     residuals are computed then.
     """
 
     def __init__(self, block_samples: int, short_blocks: int, long_blocks: int,
-                 thresholds: ResidualThresholds, block_s: float) -> None:
+                 thresholds: ResidualThresholds, block_s: float,
+                 model: RegressionModel = PAPER_MODEL) -> None:
         self.block_samples = check_int("block_samples", block_samples, minimum=1)
         self.block_s = check_positive("block_s", block_s)
         self.short_blocks = check_int("short_blocks", short_blocks, minimum=1)
         self.long_blocks = check_int("long_blocks", long_blocks, minimum=1)
         self.thresholds = thresholds
+        self.model = model
         self.reset()
 
     def reset(self) -> None:
         """Empty: nothing collected."""
         self._filtered: list[NDArray[np.float64]] = []   # blocks (nb, 4), in order
-        self._history = np.zeros((2, 4))                  # the 2 samples before the window
+        self._history = np.zeros((2, self.model.width))   # the 2 samples before the window
         self._raw_mean: list[NDArray[np.float64]] = []
         self._raw_var: list[NDArray[np.float64]] = []
         self._theta: list[NDArray[np.float64]] = []       # per block mean θ, (2, 5)
@@ -430,11 +511,12 @@ class ReferenceLearner:
 
     def set_history(self, history: NDArray[np.float64]) -> None:
         """The two filtered samples before the first block (rows k−2, k−1)."""
-        self._history = np.array(history, dtype=float).reshape(2, 4)
+        self._history = np.array(history, dtype=float).reshape(2, self.model.width)
 
     def push_block(self, raw: NDArray[np.float64], filtered: NDArray[np.float64],
                    theta: NDArray[np.float64], valid: NDArray[np.bool_]) -> None:
-        """Add one block: raw and filtered samples (nb, 4), fast-estimator θ (nb, 10),
+        """Add one block: raw (nb, 4) and filtered samples (nb, model.width),
+        fast-estimator θ (nb, 10),
         and which samples' regression rows are sound (False next to a skipped sample)."""
         m, v = block_moments(raw)
         self._raw_mean.append(m)
@@ -450,7 +532,7 @@ class ReferenceLearner:
 
         Parameters
         ----------
-        theta0 : ndarray, shape (5,), optional
+        theta0 : ndarray, shape (model.n_par,), optional
             A given reference θ0 (used as is; the window still supplies the statistics
             and is still checked).
         prior : NominalPrior, optional
@@ -466,14 +548,18 @@ class ReferenceLearner:
             raise ValueError("the learning window holds no complete block of samples: make "
                              "learn_end_s - learn_start_s longer than a block")
         nb = self.block_samples
+        model = self.model
+        npar = model.n_par
         filt = np.vstack([self._history, *self._filtered])
-        # normal equations per block (both axes pooled): z = [phi, y]
-        f = filt
-        phx = np.column_stack([f[1:-1, 0], -f[:-2, 0], -f[2:, 1], f[1:-1, 1], f[2:, 2]])
-        phy = np.column_stack([f[1:-1, 1], -f[:-2, 1], f[2:, 0], -f[1:-1, 0], f[2:, 3]])
+        # normal equations per block: z = [phi, y], both axes pooled (paper) or one
+        # block-diagonal system of the two axes' own θ (case rate: θ0 per axis)
+        phx, yx, phy, yy = model.rows(filt)
+        if model.case_rate:
+            zero = np.zeros_like(phx)
+            phx, phy = np.hstack([phx, zero]), np.hstack([zero, phy])
         use = np.concatenate(self._valid).astype(float)[:, None]
-        zx = (np.column_stack([phx, f[2:, 0]]) * use).reshape(nblk, nb, N_THETA + 1)
-        zy = (np.column_stack([phy, f[2:, 1]]) * use).reshape(nblk, nb, N_THETA + 1)
+        zx = (np.column_stack([phx, yx]) * use).reshape(nblk, nb, npar + 1)
+        zy = (np.column_stack([phy, yy]) * use).reshape(nblk, nb, npar + 1)
         valid_blocks = self._valid
         M = np.einsum("bki,bkj->bij", zx, zx) + np.einsum("bki,bkj->bij", zy, zy)
         raw_mean = np.array(self._raw_mean)
@@ -483,12 +569,12 @@ class ReferenceLearner:
 
         def fit(blocks: slice) -> tuple[NDArray[np.float64] | None, NDArray[np.float64]]:
             Ms = M[blocks].sum(axis=0)
-            return _ls(Ms[:N_THETA, :N_THETA], Ms[:N_THETA, N_THETA]), Ms
+            return _ls(Ms[:npar, :npar], Ms[:npar, npar]), Ms
 
         def channel_blocks(theta: NDArray[np.float64], blocks: slice
                            ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
             b0, b1, _ = blocks.indices(nblk)
-            e = regression_residuals(filt[b0 * nb:b1 * nb + 2], theta)
+            e = regression_residuals(filt[b0 * nb:b1 * nb + 2], theta, model)
             e = e.reshape(b1 - b0, nb, 2)
             em, ev = _fill_gaps([_residual_moments(blk, ok) for blk, ok in
                                  zip(e, valid_blocks[b0:b1], strict=True)])
@@ -516,9 +602,16 @@ class ReferenceLearner:
             raise ValueError("the regression over the learning window is singular: the "
                              "signals do not excite all θ (no torquer dither?)")
         ref_theta = th_ls if theta0 is None else np.asarray(theta0, dtype=float)
+        if ref_theta.shape != (npar,):
+            raise ValueError(f"theta0 must have shape ({npar},) for this regression, got "
+                             f"{ref_theta.shape}")
         means, variances = channel_blocks(ref_theta, used)
-        theta_eta = (theta_blk[used].mean(axis=(0, 1)) if theta0 is None
-                     else np.asarray(theta0, dtype=float))
+        if theta0 is not None:
+            theta_eta = np.asarray(theta0, dtype=float)
+        elif model.case_rate:
+            theta_eta = theta_blk[used].mean(axis=0).reshape(npar)
+        else:
+            theta_eta = theta_blk[used].mean(axis=(0, 1))
         ref = NominalReference(
             theta0=ref_theta.copy(), theta0_eta=theta_eta.copy(),
             mean=means.mean(axis=0),
@@ -534,6 +627,9 @@ class ReferenceLearner:
         if np.any(ref.theta0_eta == 0.0):
             raise ValueError("the learned nominal θ has a zero entry (no excitation in the "
                              f"learning window?): {list(ref.theta0_eta)}")
+        if prior is not None and prior.theta0.shape != ref.theta0.shape:
+            raise ValueError("the nominal prior has one θ0 for both axes; this regression "
+                             "(with the case rate) has one per axis: learn the prior with it")
         if prior is not None and not self._matches_prior(ref, prior):
             return NominalReference(
                 theta0=prior.theta0.copy(), theta0_eta=prior.theta0.copy(),
@@ -554,7 +650,7 @@ class ReferenceLearner:
         nb = self.block_samples
         filt = np.vstack([self._history, *self._filtered])
         b0 = nblk - k
-        e = regression_residuals(filt[:nblk * nb + 2], reference.theta0)
+        e = regression_residuals(filt[:nblk * nb + 2], reference.theta0, self.model)
         em, ev = _fill_gaps([_residual_moments(blk, ok) for blk, ok in
                              zip(e.reshape(nblk, nb, 2), self._valid, strict=True)])
         means = np.column_stack([np.array(self._raw_mean[b0:]), em[b0:]])
@@ -588,15 +684,16 @@ class ReferenceLearner:
             return True  # the segment alone is singular: the signals changed character
         # θ spread: LS covariance σ²·A⁻¹ of each estimate, σ² per sample from the
         # reference fit (residual sum of squares / samples)
+        npar = th_prev.size
         w = np.concatenate([-th_prev, [1.0]])
         rss = float(w @ M_prev @ w)
         samples = 2 * ref_means.shape[0] * self.block_samples  # both axes
-        sigma2 = rss / max(samples - N_THETA, 1)
-        A_prev, A_seg = M_prev[:N_THETA, :N_THETA], M_seg[:N_THETA, :N_THETA]
+        sigma2 = rss / max(samples - npar, 1)
+        A_prev, A_seg = M_prev[:npar, :npar], M_seg[:npar, :npar]
         try:
             C = sigma2 * (np.linalg.inv(A_prev) + np.linalg.inv(A_seg))
             d = th_seg - th_prev
-            spread = float(d @ np.linalg.solve(C, d)) / N_THETA
+            spread = float(d @ np.linalg.solve(C, d)) / npar
         except np.linalg.LinAlgError:
             return True
         self.last_spread = spread
@@ -619,7 +716,8 @@ class ReferenceLearner:
     # -- state -----------------------------------------------------------------------
     def get_state(self) -> dict[str, Any]:
         """Collected data (copies)."""
-        return {"filtered": np.array(self._filtered).reshape(-1, 4),
+        w = self.model.width
+        return {"filtered": np.array(self._filtered).reshape(-1, w),
                 "history": self._history.copy(),
                 "raw_mean": np.array(self._raw_mean).reshape(-1, 4),
                 "raw_var": np.array(self._raw_var).reshape(-1, 4),
@@ -629,14 +727,15 @@ class ReferenceLearner:
     def set_state(self, state: dict[str, Any]) -> None:
         """Restore :meth:`get_state` output."""
         nb = self.block_samples
-        filt = np.asarray(state["filtered"], dtype=float).reshape(-1, 4)
+        w = self.model.width
+        filt = np.asarray(state["filtered"], dtype=float).reshape(-1, w)
         raw_mean = np.asarray(state["raw_mean"], dtype=float).reshape(-1, 4)
         nblk = raw_mean.shape[0]
         if filt.shape[0] != nblk * nb:
             raise ValueError(f"state['filtered'] has {filt.shape[0]} samples, expected "
                              f"{nblk} blocks of {nb}")
         self._filtered = [filt[i * nb:(i + 1) * nb].copy() for i in range(nblk)]
-        self._history = np.asarray(state["history"], dtype=float).reshape(2, 4).copy()
+        self._history = np.asarray(state["history"], dtype=float).reshape(2, w).copy()
         self._raw_mean = list(raw_mean.copy())
         self._raw_var = list(np.asarray(state["raw_var"], dtype=float).reshape(-1, 4).copy())
         self._theta = [t.reshape(2, N_THETA) for t in
@@ -696,6 +795,9 @@ class ResidualMonitor:
         Raise thresholds.
     clear_blocks : int
         Blocks without any test above its hold threshold after which an alarm clears.
+    model : RegressionModel, optional
+        The regression of the residuals (default: the paper's); must match the
+        reference's θ0 (5 pooled, or 10 per axis with the case rate).
     """
 
     #: Blocks after the alarm's first block that classification leaves out (the
@@ -704,7 +806,11 @@ class ResidualMonitor:
 
     def __init__(self, reference: NominalReference, block_samples: int, block_s: float,
                  short_blocks: int, long_blocks: int, thresholds: ResidualThresholds,
-                 clear_blocks: int) -> None:
+                 clear_blocks: int, model: RegressionModel = PAPER_MODEL) -> None:
+        if reference.theta0.size != model.n_par:
+            raise ValueError(f"the reference has {reference.theta0.size} θ0 entries, the "
+                             f"regression {model.n_par}")
+        self.model = model
         self.reference = reference
         self.block_samples = check_int("block_samples", block_samples, minimum=1)
         self.block_s = check_positive("block_s", block_s)
@@ -714,7 +820,9 @@ class ResidualMonitor:
         self.thresholds = thresholds
         self.clear_blocks = check_int("clear_blocks", clear_blocks, minimum=1)
         self._theta0 = reference.theta0.copy()
-        self._log_theta0_eta = np.log10(np.abs(np.tile(reference.theta0_eta, 2)))
+        eta0 = reference.theta0_eta
+        self._log_theta0_eta = np.log10(np.abs(
+            eta0 if eta0.size == 2 * N_THETA else np.tile(eta0, 2)))
         self.reset()
 
     def reset(self) -> None:
@@ -761,14 +869,14 @@ class ResidualMonitor:
         ----------
         raw : ndarray, shape (nb, 4)
             Raw samples.
-        filtered : ndarray, shape (nb + 2, 4)
+        filtered : ndarray, shape (nb + 2, model.width)
             Filtered samples with the two before the block first.
         theta : ndarray, shape (nb, 10)
             Fast-estimator θ of both axes per sample.
         valid : ndarray of bool, shape (nb,)
             Samples whose regression rows are sound (False next to a skipped sample).
         """
-        e = regression_residuals(filtered, self._theta0)
+        e = regression_residuals(filtered, self._theta0, self.model)
         m, v = block_moments(raw)
         res = _residual_moments(e, valid)
         if res is None:  # no usable row (a skipped sample): repeat the last block's
