@@ -444,6 +444,7 @@ class DTGChannel:
                                  if config.prefilter_enabled else 0)
         self._model = config.regression
         self._case_rate = self._model.case_rate
+        self._central = config.case_rate == "central"
         self._width = self._model.width
         self._given_theta0: NDArray[np.float64] | None = (
             None if config.theta0 is None
@@ -544,7 +545,7 @@ class DTGChannel:
 
     def _physical(self, th_x: tuple[float, ...], th_y: tuple[float, ...]
                   ) -> NDArray[np.float64]:
-        if self.config.case_rate != "central":
+        if not self._central:
             return _physical(th_x, th_y, self.T)
         mean = 0.5 * (np.array(th_x) + np.array(th_y))
         try:
@@ -621,7 +622,8 @@ class DTGChannel:
         eta_y, alarm_y = self._decisions[1].step(th_y)
         eta = np.array((eta_x, eta_y))
         band_alarm = alarm_x or alarm_y
-        physical = self._physical(th_x, th_y)
+        physical = (self._physical(th_x, th_y) if self._central
+                    else _physical(th_x, th_y, self.T))
         if self._pattern_mode:
             return self._pattern_output(t, theta, eta, physical, band_alarm, block_done)
         alarm = band_alarm
