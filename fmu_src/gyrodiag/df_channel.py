@@ -48,6 +48,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ._records import fast_init
 from ._validation import (
     check_finite_array,
     check_in_range,
@@ -256,6 +257,7 @@ class DFChannelConfig:
                              "set input_delay_samples and align_auto = False")
 
 
+@fast_init
 @dataclass(frozen=True)
 class DFChannelOutput:
     """Outputs of one :meth:`DFChannel.update`.

@@ -29,6 +29,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from ._records import fast_init
 from ._validation import (
     check_finite_array,
     check_in_range,
@@ -374,6 +375,7 @@ class DTGDiagnosis:
     block: int = 0
 
 
+@fast_init
 @dataclass(frozen=True)
 class DTGChannelOutput:
     """Outputs of one :meth:`DTGChannel.update`.

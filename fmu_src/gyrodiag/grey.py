@@ -47,6 +47,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from . import _accel
+from ._records import fast_init
 from ._validation import (
     check_finite_array,
     check_int,
@@ -893,6 +894,7 @@ def lag_test_threshold(false_alarms_per_h: float, sample_period_s: float, lags: 
 # ------------------------------------------------------------------ detector
 
 
+@fast_init
 @dataclass(frozen=True)
 class GreyDetectorOutput:
     """Result of one :meth:`GreyFaultDetector.update`.

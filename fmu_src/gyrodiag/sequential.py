@@ -370,6 +370,7 @@ class CusumBank:
         drift = np.concatenate([np.full(2 * n, -self.k), np.full(n, -self._c)])
         self._map = np.hstack([np.vstack([eye, -eye, zero]),
                                np.vstack([zero, zero, self._a * eye]), drift[:, None]])
+        self._buf = np.ones(2 * n + 1)  # scratch of update()
         self.reset()
 
     def reset(self, next_sample: int = 0) -> None:
@@ -397,7 +398,12 @@ class CusumBank:
         """Process one standardised sample ``z`` (shape (n,)); True if any channel is in
         alarm afterwards."""
         self._previous = self._s
-        s = self._s + self._map @ np.concatenate((z, z * z, _ONE))
+        n = self.n_channels
+        buf = self._buf  # [z; z²; 1] without allocating it
+        buf[:n] = z
+        np.multiply(z, z, out=buf[n:2 * n])
+        s = self._map @ buf
+        s += self._s
         np.maximum(s, 0.0, out=s)
         np.minimum(s, self._cap, out=s)
         self._s = s
@@ -405,7 +411,6 @@ class CusumBank:
         raised = s >= self._cap
         if not (self._any or raised.any()):
             return False
-        n = self.n_channels
         chart = (self._chart_alarm & (s >= self._release_level)) | raised
         self._chart_alarm = chart
         alarm = chart[:n] | chart[n:2 * n] | chart[2 * n:]

@@ -58,6 +58,7 @@ import scipy.linalg
 import scipy.stats
 from numpy.typing import ArrayLike, NDArray
 
+from ._records import fast_init
 from ._validation import (
     check_finite_array,
     check_in_range,
@@ -440,6 +441,7 @@ class SequentialSettings:
         check_positive("type_significance", self.type_significance)
 
 
+@fast_init
 @dataclass(frozen=True)
 class DiagnosisOutput:
     """Result of one :meth:`SequentialDiagnoser.update`.
