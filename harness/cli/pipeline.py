@@ -52,6 +52,7 @@ from harness.cli.common import (
 from harness.cosim.batch import load_all, run_all
 from harness.cosim.interrupt import BatchInterrupted
 from harness.cosim.results import SIGNALS_FILE, drop_signals
+from harness.cosim.scenario import RESULTS_PREFIX
 from harness.verification.isolability import render, seed_isolability_report, write
 
 log = logging.getLogger("harness.cli")
@@ -106,6 +107,13 @@ def _drop_training_signals(folder: Path, scenarios: list[Any]) -> None:
              "them), run.json of each in %s", freed / 1e6, folder)
 
 
+def _reads_results(scenario: Any) -> bool:
+    """The scenario takes a file from the results folder (``${out}/``, e.g. a library
+    learned by this job)."""
+    return any(str(spec).startswith(RESULTS_PREFIX)
+               for inst in scenario.fmus.values() for spec in inst.files.values())
+
+
 def cmd_all(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     training_dir = args.scenarios / "training"
@@ -128,42 +136,49 @@ def cmd_all(args: argparse.Namespace) -> int:
             log.error("building the FMUs failed")
             return EXIT_FAILED
 
-    if training:
-        log.info("== learning the DTG fault signatures from %s", training_dir)
-        try:
-            runs = run_all(training, out / "training", args.fmu_dir, progress,
-                           workers=args.workers, results_dir=out,
-                           precision=signals_precision(args))
-        except BatchInterrupted as stop:
-            log.warning("stopped by %s while learning the signatures; training runs saved "
-                        "in %s", stop.reason, out / "training")
+    # Scenarios that read nothing from the results folder (the learned libraries) run in
+    # the same batch as the training runs: one batch tail less on a machine of few cores.
+    free = [sc for sc in scenarios if not _reads_results(sc)]
+    waiting = [sc for sc in scenarios if _reads_results(sc)]
+    first = [*training, *patterns, *free]
+    outs = [out / "training"] * (len(training) + len(patterns)) + [out] * len(free)
+    stop: BatchInterrupted | None = None
+    if training or patterns:
+        log.info("== learning the DTG fault signatures from %s and patterns from %s, and "
+                 "running the %d seed scenarios that do not read them", training_dir,
+                 patterns_dir, len(free))
+    else:
+        log.info("== verifying the seed scenarios in %s", args.scenarios)
+    try:
+        first_runs = run_all(first, outs, args.fmu_dir, progress, workers=args.workers,
+                             results_dir=out, precision=signals_precision(args))
+    except BatchInterrupted as exc:
+        if training or patterns:
+            log.warning("stopped by %s while learning the signatures and patterns; runs "
+                        "saved in %s", exc.reason, out)
             return EXIT_INTERRUPTED
-        if any(r.error is not None for r in runs):
+        stop, first_runs = exc, exc.results
+    n_train = len(training) + len(patterns)
+    train_runs, free_runs = first_runs[:len(training)], first_runs[n_train:]
+    pattern_runs = first_runs[len(training):n_train]
+    if stop is None and training:
+        if any(r.error is not None for r in train_runs):
             log.error("a training run failed")
             return EXIT_FAILED
         try:
-            library = learn_signatures(training, runs)
+            library = learn_signatures(training, train_runs)
         except (ValueError, KeyError) as exc:
             log.error("learning the signatures failed: %s", exc)
             return EXIT_FAILED
         library.write(out / "dtg_signatures.json")
         for name, sig in library.signatures.items():
             log.info("  signature %s %s: C = %s", library.codes[name], name, sig.tolist())
-    if patterns:
-        log.info("== learning the DTG fault patterns from %s", patterns_dir)
-        try:
-            runs = run_all(patterns, out / "training", args.fmu_dir, progress,
-                           workers=args.workers, results_dir=out,
-                           precision=signals_precision(args))
-        except BatchInterrupted as stop:
-            log.warning("stopped by %s while learning the patterns; training runs saved "
-                        "in %s", stop.reason, out / "training")
-            return EXIT_INTERRUPTED
-        if any(r.error is not None for r in runs):
+    if stop is None and patterns:
+        if any(r.error is not None for r in pattern_runs):
             log.error("a pattern training run failed")
             return EXIT_FAILED
         try:
-            _, content = learn_pattern_library(patterns, runs)
+            _, content = learn_pattern_library(patterns, pattern_runs)
         except (ValueError, KeyError) as exc:
             log.error("learning the patterns failed: %s", exc)
             return EXIT_FAILED
@@ -175,17 +190,24 @@ def cmd_all(args: argparse.Namespace) -> int:
     if (training or patterns) and not args.keep_training_signals:
         _drop_training_signals(out / "training", [*training, *patterns])
 
-    log.info("== verifying the seed scenarios in %s", args.scenarios)
-    stop: BatchInterrupted | None = None
-    try:
-        results = run_all(scenarios, out, args.fmu_dir, progress, workers=args.workers,
-                          precision=signals_precision(args))
-    except BatchInterrupted as exc:
-        stop, results = exc, exc.results
+    results = list(free_runs)
+    if stop is None and waiting:
+        log.info("== verifying the seed scenarios that read the learned libraries")
+        try:
+            results += run_all(waiting, out, args.fmu_dir, progress, workers=args.workers,
+                               precision=signals_precision(args))
+        except BatchInterrupted as exc:
+            stop = exc
+            results += exc.results
+    not_started: list[str] = []
+    if stop is not None:
+        not_started = list(stop.not_started)
+        if stop.results is first_runs:  # stopped in the first batch: none of the rest ran
+            not_started += [sc.name for sc in waiting]
         log.warning("stopped by %s: %d run(s) saved, %d not started", stop.reason,
-                    len(results), len(stop.not_started))
+                    len(results), len(not_started))
     status = verify_and_report(results, scenarios, out, None, None,
-                               not_started=stop.not_started if stop else (),
+                               not_started=not_started,
                                interrupted_by=stop.reason if stop else None)
     if stop is not None:
         return status

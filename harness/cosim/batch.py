@@ -46,7 +46,7 @@ log = logging.getLogger(__name__)
 
 #: After forwarding a stop request, how long the runs get to stop and save, s.
 STOP_GRACE_S = 30.0
-_POLL_S = 0.05
+_POLL_S = 0.01
 
 
 def default_workers() -> int:
@@ -127,7 +127,8 @@ def _cost(s: Scenario) -> float:
     return s.n_steps * sum(1.0 / i.step_ratio for i in s.fmus.values())
 
 
-def run_all(scenarios: Sequence[Scenario], out: Path, fmu_dir: Path | None = None,
+def run_all(scenarios: Sequence[Scenario], out: Path | Sequence[Path],
+            fmu_dir: Path | None = None,
             progress: bool = True, *, workers: int | None = 1,
             results_dir: Path | None = None, precision: str | None = None
             ) -> list[RunResult]:
@@ -137,8 +138,9 @@ def run_all(scenarios: Sequence[Scenario], out: Path, fmu_dir: Path | None = Non
     ----------
     scenarios : sequence of Scenario
         Loaded scenarios (:func:`load_all`), names unique.
-    out : Path
-        Results folder; ``out/<scenario name>/`` per run.
+    out : Path or sequence of Path
+        Results folder; ``out/<scenario name>/`` per run. A sequence gives each
+        scenario its own folder (e.g. training runs beside seed scenarios in one batch).
     fmu_dir : Path, optional
         Folder of the FMUs (default: per scenario, see
         :func:`harness.cosim.scenario.resolve_fmu_dir`).
@@ -171,8 +173,15 @@ def run_all(scenarios: Sequence[Scenario], out: Path, fmu_dir: Path | None = Non
     if precision is not None and precision not in PRECISIONS:
         raise ValueError(f"precision must be one of {', '.join(map(repr, PRECISIONS))} or "
                          f"None, got {precision!r}")
-    out = Path(out)
-    results_dir = out if results_dir is None else Path(results_dir)
+    if isinstance(out, (str, Path)):
+        outs = [Path(out)] * len(scenarios)
+    else:
+        outs = [Path(o) for o in out]
+        if len(outs) != len(scenarios):
+            raise ValueError(f"out must be one folder or one per scenario ({len(scenarios)}),"
+                             f" got {len(outs)}")
+    results_dir = (outs[0] if outs else Path(".")) if results_dir is None \
+        else Path(results_dir)
     preflight_all(scenarios, fmu_dir, results_dir)
     order = sorted(range(len(scenarios)), key=lambda i: -_cost(scenarios[i]))
     results: list[RunResult | None] = [None] * len(scenarios)
@@ -203,14 +212,14 @@ def run_all(scenarios: Sequence[Scenario], out: Path, fmu_dir: Path | None = Non
                                 reason, len(running))
             while pending and len(running) < workers:
                 i = pending.pop(0)
-                running[i] = _start(scenarios[i], i, out, fmu_dir, results_dir, Path(tmp),
+                running[i] = _start(scenarios[i], i, outs[i], fmu_dir, results_dir, Path(tmp),
                                     progress and workers == 1, precision)
             for i, r in list(running.items()):
                 if r.process.poll() is None:
                     continue
                 del running[i]
-                results[i] = _collect(scenarios[i], out / scenarios[i].name, r)
-                _log_result(results[i], out / scenarios[i].name)
+                results[i] = _collect(scenarios[i], outs[i] / scenarios[i].name, r)
+                _log_result(results[i], outs[i] / scenarios[i].name)
             if forwarded_at is not None and time.monotonic() - forwarded_at > STOP_GRACE_S:
                 kill_all(signal.SIGKILL)
             if running:

@@ -315,6 +315,11 @@ class _VarGroup:
         self.batches = [_Batch(kind, positions, vrs)
                         for kind, (positions, vrs) in self.by_type.items()
                         if kind in _C_VALUE]
+        # the common case (every variable Real, in order): one foreign call, no scatter
+        only = self.batches[0] if len(self.batches) == 1 else None
+        self.real_in_order: _Batch | None = (
+            only if only is not None and only.kind == "Real" and only.n == self.size
+            and only.positions.tolist() == list(range(self.size)) else None)
 
 
 #: ctypes value type and numpy view type of the batched FMI types
@@ -446,6 +451,13 @@ class _Instance:
              cols: Any = None) -> np.ndarray:
         """Values of ``group`` in its order; into ``out[cols]`` when given."""
         if out is None:
+            b = group.real_in_order
+            if b is not None:
+                mark = len(self.log)
+                status = self.raw.get["Real"](self.component, b.vr_array, b.n, b.buffer)
+                if status > _FMI_WARNING:
+                    raise self._failure("getReal", t, status, None, mark)
+                return b.view.copy()
             out = np.empty(group.size)
             cols = None
         get, c = self.raw.get, self.component
@@ -459,6 +471,14 @@ class _Instance:
 
     def write(self, group: _VarGroup, values: np.ndarray, t: float) -> None:
         set_, c = self.raw.set, self.component
+        b = group.real_in_order
+        if b is not None:
+            b.view[:] = values
+            mark = len(self.log)
+            status = set_["Real"](c, b.vr_array, b.n, b.buffer)
+            if status > _FMI_WARNING:
+                raise self._failure("setReal", t, status, None, mark)
+            return
         for b in group.batches:
             vals = values[b.positions]
             if b.kind == "Real":
