@@ -168,3 +168,47 @@ os._exit(1)
     assert (word, reason, flag, still) == ("interrupted", "SIGINT", "True", "SIGINT")
     saved = _check_partial(tmp_path / "api_out", "SIGINT")
     assert len(saved.time) == int(n)
+
+
+def _marked_processes(marker: str) -> list[int]:
+    """PIDs of processes whose environment holds ``marker`` (Linux /proc)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            if marker.encode() in (entry / "environ").read_bytes():
+                found.append(int(entry.name))
+        except OSError:
+            continue
+    return found
+
+
+def test_a_killed_batch_leaves_no_run_process_and_no_fork_server(tmp_path, fmu_dir):
+    """SIGKILL of the batch cannot be forwarded: its fork server sees the request pipe
+    close and exits, the runs forked from it see their parent change and stop, saving
+    their partial signals (as runs of a killed batch always did)."""
+    if not Path("/proc/self/environ").exists():
+        import pytest
+
+        pytest.skip("needs /proc")
+    marker = f"GYRODIAG_TEST_MARKER=killed-batch-{os.getpid()}-{time.time_ns()}"
+    scenarios = [_long_scenario(tmp_path, f"k{i}", seed=20 + i) for i in range(3)]
+    out = tmp_path / "results"
+    key, value = marker.split("=", 1)
+    os.environ[key] = value
+    try:
+        proc, _, stderr = _start(["run", *map(str, scenarios), "--out", str(out),
+                                  "--fmu-dir", str(fmu_dir), "--workers", "2"], tmp_path)
+    finally:
+        del os.environ[key]
+    _wait_for(stderr, "initialised, stepping", 2, proc)
+    assert len(_marked_processes(marker)) >= 4  # batch, server, two runs
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=30)
+    t0 = time.monotonic()
+    while _marked_processes(marker) and time.monotonic() - t0 < 30.0:
+        time.sleep(0.2)
+    assert _marked_processes(marker) == [], "run processes or the server outlived the batch"
+    for run_dir in (p for p in out.iterdir() if p.is_dir()):
+        _check_partial(run_dir, "the batch that started this run exited")

@@ -1,5 +1,7 @@
 """Scenarios run in parallel worker processes give exactly the results of a serial run:
-the same samples to the last bit, the same verdicts, the same reports (times aside)."""
+the same samples to the last bit, the same verdicts, the same reports (times aside); run
+processes forked from the pre-imported server give those of processes started with
+``python -m`` (GYRODIAG_FORK_SERVER=0)."""
 
 from __future__ import annotations
 
@@ -9,6 +11,7 @@ import subprocess
 import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -23,8 +26,10 @@ SCENARIOS = [DATA / "closed_loop.toml", DATA / "aircraft_pitch.toml",
              ROOT / "scenarios" / "hrg_seed001_grey.toml"]
 
 
-def _verify(out: Path, fmu_dir: Path, workers: int) -> subprocess.CompletedProcess:
+def _verify(out: Path, fmu_dir: Path, workers: int,
+            fork_server: bool = True) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    env["GYRODIAG_FORK_SERVER"] = "1" if fork_server else "0"
     return subprocess.run([sys.executable, "-m", "harness", "verify", *map(str, SCENARIOS),
                            "--out", str(out), "--fmu-dir", str(fmu_dir), "--workers",
                            str(workers), "--no-progress"], cwd=ROOT, env=env,
@@ -46,11 +51,16 @@ def runs(fmu_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> dict:
         proc = _verify(out, fmu_dir, workers)
         assert proc.returncode == 0, proc.stdout + proc.stderr
         outs[workers] = (out, proc)
+    out = tmp_path_factory.mktemp("no_fork_server")
+    proc = _verify(out, fmu_dir, 3, fork_server=False)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    outs["python -m"] = (out, proc)
     return outs
 
 
-def test_parallel_signals_are_bit_identical_to_serial(runs: dict) -> None:
-    (serial, _), (parallel, _) = runs[1], runs[3]
+@pytest.mark.parametrize("other", [3, "python -m"])
+def test_parallel_signals_are_bit_identical_to_serial(runs: dict, other: Any) -> None:
+    (serial, _), (parallel, _) = runs[1], runs[other]
     for path in SCENARIOS:
         name = path.stem
         a, b = RunResult.load(serial / name), RunResult.load(parallel / name)

@@ -21,10 +21,12 @@ A second signal kills the runs still going.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
 import pickle
+import select
 import signal
 import subprocess
 import sys
@@ -112,10 +114,116 @@ def summary_line(result: RunResult, out_dir: Path | None) -> str:
             f"{first}{where}")
 
 
+#: Environment variable: ``0`` starts every run process with ``python -m`` instead of
+#: forking it from a pre-imported server (:mod:`harness.cosim.zygote`).
+FORK_SERVER_ENV = "GYRODIAG_FORK_SERVER"
+
+
+class _ForkedRun:
+    """The part of :class:`subprocess.Popen` the batch uses, for a run process forked by
+    the server: ``pid``, ``poll()``, ``returncode``, ``send_signal()``."""
+
+    def __init__(self, pid: int, server: _RunServer) -> None:
+        self.pid = pid
+        self.returncode: int | None = None
+        self._server = server
+
+    def poll(self) -> int | None:
+        if self.returncode is None:
+            self.returncode = self._server.exit_code(self.pid)
+        return self.returncode
+
+    def send_signal(self, signum: int) -> None:
+        os.kill(self.pid, signum)
+
+
+class _RunServer:
+    """Client of :mod:`harness.cosim.zygote`: forks run processes from a process that
+    has imported the harness already (0.2 s of CPU saved per run)."""
+
+    def __init__(self) -> None:
+        request_r, self._request_w = os.pipe()
+        self._reply_r, reply_w = os.pipe()
+        try:
+            self.process = subprocess.Popen(
+                [sys.executable, "-m", "harness.cosim.zygote", str(request_r), str(reply_w)],
+                pass_fds=(request_r, reply_w), stdin=subprocess.DEVNULL,
+                start_new_session=True)
+        finally:
+            os.close(request_r)
+            os.close(reply_w)
+        self._buffer = b""
+        self._pids: list[int] = []
+        self._exits: dict[int, int] = {}
+
+    def _read(self, block: bool) -> None:
+        """Parse the server's reply lines; wait for one read if ``block``. Unbuffered
+        (os.read) so that select() never misses a line already read."""
+        fd = self._reply_r
+        while block or select.select([fd], [], [], 0)[0]:
+            data = os.read(fd, 65536)
+            if not data:
+                raise OSError("the run-process server (harness.cosim.zygote) exited")
+            self._buffer += data
+            *lines, self._buffer = self._buffer.split(b"\n")
+            for line in lines:
+                kind, number, *rest = line.decode().split()
+                if kind == "pid":
+                    self._pids.append(int(number))
+                elif kind == "exit":
+                    self._exits[int(number)] = int(rest[0])
+            block = False
+
+    def spawn(self, job_file: Path) -> _ForkedRun:
+        os.write(self._request_w, f"{job_file}\n".encode())
+        while not self._pids:
+            self._read(block=True)
+        return _ForkedRun(self._pids.pop(0), self)
+
+    def exit_code(self, pid: int) -> int | None:
+        try:
+            self._read(block=False)
+        except OSError:  # the server is gone; the exits it reported are kept
+            pass
+        if pid in self._exits:
+            return self._exits.pop(pid)
+        if self.process.poll() is not None:  # the server died: ask the system
+            try:
+                os.kill(pid, 0)
+            except ProcessLookupError:
+                return -signal.SIGKILL  # gone without a report: treated as killed
+        return None
+
+    def close(self) -> None:
+        """No more runs: the server exits (runs still going on stop as orphans)."""
+        try:
+            os.close(self._request_w)
+        except OSError:
+            pass
+        try:
+            self.process.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+        os.close(self._reply_r)
+
+
+def _run_server(n_runs: int) -> _RunServer | None:
+    """A fork server for a batch of several runs, where the system has fork; None (start
+    each run with ``python -m``) otherwise or when ``GYRODIAG_FORK_SERVER=0``."""
+    if n_runs < 2 or not hasattr(os, "fork") or os.environ.get(FORK_SERVER_ENV) == "0":
+        return None
+    try:
+        return _RunServer()
+    except OSError as exc:
+        log.warning("run-process server not started (%s); starting each run on its own",
+                    exc)
+        return None
+
+
 @dataclass
 class _Running:
     index: int
-    process: subprocess.Popen[bytes]
+    process: subprocess.Popen[bytes] | _ForkedRun
     job_file: Path
     status_file: Path
     handover_file: Path
@@ -194,8 +302,11 @@ def run_all(scenarios: Sequence[Scenario], out: Path | Sequence[Path],
             _signal(r.process, signal.SIGKILL)
             r.killed = True
 
+    server = _run_server(len(scenarios))
     with tempfile.TemporaryDirectory(prefix="gyrodiag-batch-") as tmp, \
-            stop_on_signals(on_second=kill_all):
+            stop_on_signals(on_second=kill_all), contextlib.ExitStack() as stack:
+        if server is not None:
+            stack.callback(server.close)
         pending = list(order)
         while pending or running:
             reason = stop_requested()
@@ -213,7 +324,7 @@ def run_all(scenarios: Sequence[Scenario], out: Path | Sequence[Path],
             while pending and len(running) < workers:
                 i = pending.pop(0)
                 running[i] = _start(scenarios[i], i, outs[i], fmu_dir, results_dir, Path(tmp),
-                                    progress and workers == 1, precision)
+                                    progress and workers == 1, precision, server)
             for i, r in list(running.items()):
                 if r.process.poll() is None:
                     continue
@@ -246,7 +357,8 @@ def preflight_all(scenarios: Sequence[Scenario], fmu_dir: Path | None,
 
 
 def _start(scenario: Scenario, index: int, out: Path, fmu_dir: Path | None,
-           results_dir: Path, tmp: Path, progress: bool, precision: str | None) -> _Running:
+           results_dir: Path, tmp: Path, progress: bool, precision: str | None,
+           server: _RunServer | None = None) -> _Running:
     job_file = tmp / f"job-{index}.pickle"
     status_file = tmp / f"status-{index}.json"
     handover_file = tmp / f"run-{index}.pickle"
@@ -254,18 +366,30 @@ def _start(scenario: Scenario, index: int, out: Path, fmu_dir: Path | None,
               fmu_dir=None if fmu_dir is None else str(fmu_dir),
               results_dir=str(results_dir), status_file=str(status_file), progress=progress,
               log_level=logging.getLogger("harness").getEffectiveLevel(),
-              parent_pid=os.getpid(), precision=precision,
+              parent_pid=os.getpid() if server is None else server.process.pid,
+              precision=precision,
               handover_file=str(handover_file))
     job_file.write_bytes(pickle.dumps(job))
     log.debug("%s: starting", scenario.name)
     # a session of its own: the terminal's Ctrl-C reaches the batch only, which forwards
     # it exactly once (a second one would be "stop now" inside the run)
-    process = subprocess.Popen([sys.executable, "-m", "harness.cosim.worker", str(job_file)],
-                               stdin=subprocess.DEVNULL, start_new_session=True)
+    process: subprocess.Popen[bytes] | _ForkedRun | None = None
+    if server is not None:
+        try:
+            process = server.spawn(job_file)
+        except OSError as exc:
+            log.warning("%s: the run-process server failed (%s); starting the run on its "
+                        "own", scenario.name, exc)
+            job.parent_pid = os.getpid()
+            job_file.write_bytes(pickle.dumps(job))
+    if process is None:
+        process = subprocess.Popen([sys.executable, "-m", "harness.cosim.worker",
+                                    str(job_file)],
+                                   stdin=subprocess.DEVNULL, start_new_session=True)
     return _Running(index, process, job_file, status_file, handover_file)
 
 
-def _signal(process: subprocess.Popen[bytes], signum: int) -> None:
+def _signal(process: subprocess.Popen[bytes] | _ForkedRun, signum: int) -> None:
     if process.poll() is None:
         try:
             process.send_signal(signum)
