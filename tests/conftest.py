@@ -31,6 +31,19 @@ ROOT = Path(__file__).resolve().parents[1]
 pytest_plugins = ["pytester"]
 
 
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Byte-compile the project once per suite (the controller, before its workers
+    start): the suite starts hundreds of Python processes (run processes, CLI commands,
+    C hosts), and with PYTHONDONTWRITEBYTECODE set (as in some CI shells) each of them
+    would compile every module it imports from source."""
+    if hasattr(session.config, "workerinput"):
+        return
+    import compileall
+
+    for folder in ("harness", "fmu_src", "models"):
+        compileall.compile_dir(str(ROOT / folder), quiet=1, workers=1)
+
+
 def load_builder() -> Any:
     """Import build_fmu.py as a module (registry and staleness helpers only)."""
     spec = importlib.util.spec_from_file_location("gd_build_fmu_for_tests", ROOT / "build_fmu.py")

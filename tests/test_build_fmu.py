@@ -112,3 +112,23 @@ def test_cli_rejects_unknown_name(tmp_path):
     proc = subprocess.run([sys.executable, str(ROOT / "build_fmu.py"), "--out", str(tmp_path),
                            "NoSuchFMU"], capture_output=True, text=True)
     assert proc.returncode == 2 and "unknown FMU name" in proc.stderr
+
+
+@pytest.mark.parametrize("name", AVAILABLE)
+def test_every_python_file_ships_with_its_checked_bytecode(fmu_dir, name):
+    """Hosts unzip an FMU afresh and may not write into it: each resources/*.py has a
+    hash-checked pyc of the building Python beside it, for exactly that source."""
+    import importlib.util
+
+    with zipfile.ZipFile(fmu_dir / f"{name}.fmu") as zf:
+        names = set(zf.namelist())
+        sources = [n for n in names if n.startswith("resources/") and n.endswith(".py")]
+        assert sources
+        for source in sources:
+            pyc = importlib.util.cache_from_source(source)
+            assert pyc in names, pyc
+            data = zf.read(pyc)
+            assert data[:4] == importlib.util.MAGIC_NUMBER
+            flags = int.from_bytes(data[4:8], "little")
+            assert flags == 0b11, (pyc, flags)  # hash-based, checked
+            assert data[8:16] == importlib.util.source_hash(zf.read(source)), source
