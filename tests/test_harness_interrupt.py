@@ -203,7 +203,7 @@ def test_a_killed_batch_leaves_no_run_process_and_no_fork_server(tmp_path, fmu_d
     finally:
         del os.environ[key]
     _wait_for(stderr, "initialised, stepping", 2, proc)
-    assert len(_marked_processes(marker)) >= 4  # batch, server, two runs
+    assert len(_marked_processes(marker)) >= 3  # batch, two runs (and the fork server)
     proc.send_signal(signal.SIGKILL)
     proc.wait(timeout=30)
     t0 = time.monotonic()
