@@ -138,8 +138,11 @@ def cmd_all(args: argparse.Namespace) -> int:
 
     # Scenarios that read nothing from the results folder (the learned libraries) run in
     # the same batch as the training runs: one batch tail less on a machine of few cores.
-    free = [sc for sc in scenarios if not _reads_results(sc)]
-    waiting = [sc for sc in scenarios if _reads_results(sc)]
+    # (without training runs nothing is learned here: every scenario goes first, and a
+    # file one of them reads must be there already, checked before anything runs)
+    learns = bool(training or patterns)
+    free = [sc for sc in scenarios if not (learns and _reads_results(sc))]
+    waiting = [sc for sc in scenarios if learns and _reads_results(sc)]
     first = [*training, *patterns, *free]
     outs = [out / "training"] * (len(training) + len(patterns)) + [out] * len(free)
     stop: BatchInterrupted | None = None
