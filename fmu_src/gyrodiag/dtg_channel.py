@@ -624,8 +624,7 @@ class DTGChannel:
         eta_y, alarm_y = self._decisions[1].step(th_y)
         eta = np.array((eta_x, eta_y))
         band_alarm = alarm_x or alarm_y
-        physical = (self._physical(th_x, th_y) if self._central
-                    else _physical(th_x, th_y, self.T))
+        physical = self._physical(th_x, th_y)
         if self._pattern_mode:
             return self._pattern_output(t, theta, eta, physical, band_alarm, block_done)
         alarm = band_alarm
