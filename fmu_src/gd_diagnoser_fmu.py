@@ -60,7 +60,7 @@ from gyrodiag.dtg_channel import (
     DTGChannelOutput,
 )
 from gyrodiag.dtg_patterns import PatternLibrary
-from gyrodiag.dtg_reference import CHANNELS, N_CHANNELS
+from gyrodiag.dtg_reference import CHANNELS, N_CHANNELS, POWER_THRESHOLD
 from gyrodiag.grey import ClassicGreyPredictor, GreyFaultDetector, ImprovedGreyPredictor
 
 if TYPE_CHECKING:  # imported when the channel is built: it needs SciPy (design time)
@@ -96,7 +96,8 @@ TUNABLE = {
     "dtg": ("dtg.low", "dtg.high", "dtg.persistence_k", "dtg.latch", "dtg.max_distance",
             *(f"dtg.monitored[{i}]" for i in range(1, N_THETA + 1)),
             # the pattern classifier's residual tests (the monitor is rebuilt with them)
-            "dtg.level_threshold", "dtg.var_threshold", "dtg.long_var_threshold"),
+            "dtg.level_threshold", "dtg.var_threshold", "dtg.long_var_threshold",
+            "dtg.power_threshold"),
     "grey": ("grey.threshold", "grey.clear_after_s"),
 }
 _TUNABLE_NAMES = frozenset(n for names in TUNABLE.values() for n in names)
@@ -317,6 +318,11 @@ class Diagnoser(FacadeBase):
         p("dtg.long_var_threshold", "Real", "parameter", 2.0,
           "Pattern classifier: the same over the long window")
         _meta("dtg.long_var_threshold", "1", 1.0 + 1e-9)
+        p("dtg.power_threshold", "Real", "parameter", POWER_THRESHOLD,
+          "Pattern classifier: threshold of the CUSUM of the residuals' low-frequency "
+          "power (squared 25 ms block means in nominal spreads, tuned to a tripling; the "
+          "witness of torquer read-out noise); held down to half of it; 0: off")
+        _meta("dtg.power_threshold", "1", 0.0)
         p("dtg.theta_spread_threshold", "Real", "parameter", 30.0,
           "Learning guard: largest spread of a learning segment's theta against the "
           "segments before it, in units of its least-squares covariance")
@@ -527,6 +533,9 @@ class Diagnoser(FacadeBase):
                 f"Short-window variance ratio of the {axis} residual", "1")
             out(f"dtg.residual_long_var_ratio[{i}]", "Real", 0.0,
                 f"Long-window variance ratio of the {axis} residual", "1")
+            out(f"dtg.residual_power_cusum[{i}]", "Real", 0.0,
+                f"Low-frequency power CUSUM of the {axis} residual over "
+                "dtg.power_threshold (alarm at 1)", "1")
         for i in range(1, N_THETA + 1):
             out(f"dtg.ref_theta0[{i}]", "Real", 0.0,
                 f"Reference theta{i} of the residuals, x axis (both axes when "
@@ -982,6 +991,7 @@ class Diagnoser(FacadeBase):
             var_threshold=float(v["dtg.var_threshold"]),
             long_var_threshold=float(v["dtg.long_var_threshold"]),
             theta_spread_threshold=float(v["dtg.theta_spread_threshold"]),
+            power_threshold=float(v["dtg.power_threshold"]),
             clear_after_s=float(v["dtg.clear_after_s"]),
             case_rate=DTG_CASE_RATE_CODES[case_rate],
             pickoff_scale=float(v["dtg.pickoff_scale"]),
@@ -1268,6 +1278,7 @@ class Diagnoser(FacadeBase):
             v[f"dtg.residual_var_ratio[{a + 1}]"] = _finite_or(float(d.tests[2 + a]), 0.0)
             v[f"dtg.residual_long_var_ratio[{a + 1}]"] = _finite_or(float(d.tests[4 + a]),
                                                                     0.0)
+            v[f"dtg.residual_power_cusum[{a + 1}]"] = _finite_or(float(d.tests[6 + a]), 0.0)
         assert self._dtg is not None
         ref = self._dtg.reference
         per_axis = None if ref is None else ref.theta0.reshape(-1, N_THETA)
@@ -1329,6 +1340,7 @@ _PARAMETER_NAMES: dict[str, dict[str, str]] = {
         "level_threshold": "dtg.level_threshold", "var_threshold": "dtg.var_threshold",
         "long_var_threshold": "dtg.long_var_threshold",
         "theta_spread_threshold": "dtg.theta_spread_threshold",
+        "power_threshold": "dtg.power_threshold",
         "clear_after_s": "dtg.clear_after_s", "patterns": "dtg.signature_file",
         "case_rate": "dtg.case_rate", "pickoff_scale": "dtg.pickoff_scale",
     },

@@ -53,6 +53,8 @@ from .dtg_case_rate import (
 from .dtg_patterns import PatternClassifier, PatternLibrary, PatternResult
 from .dtg_reference import (
     N_CHANNELS,
+    N_TESTS,
+    POWER_THRESHOLD,
     REFERENCE_STATUS,
     NominalPrior,
     NominalReference,
@@ -155,6 +157,9 @@ class DTGChannelConfig:
         ResidualThresholds`): level z, short- and long-window variance ratios.
     theta_spread_threshold : float
         Learning guard: a segment's θ spread against the segments before it.
+    power_threshold : float
+        Threshold h of the residuals' low-frequency power CUSUM (:mod:`~gyrodiag.
+        dtg_reference`; the torquer read-out noise witness); 0 switches it off.
     clear_after_s : float
         An alarm of the residual tests clears this long after the last block in which a
         test exceeded its hold threshold.
@@ -201,6 +206,7 @@ class DTGChannelConfig:
     var_threshold: float = 4.0
     long_var_threshold: float = 2.0
     theta_spread_threshold: float = 30.0
+    power_threshold: float = POWER_THRESHOLD
     clear_after_s: float = 0.5
     case_rate: str | None = None
     pickoff_scale: float = 1e-3
@@ -214,7 +220,8 @@ class DTGChannelConfig:
     def thresholds(self) -> ResidualThresholds:
         """The residual-test thresholds."""
         return ResidualThresholds(self.level_threshold, self.var_threshold,
-                              self.long_var_threshold, self.theta_spread_threshold)
+                                  self.long_var_threshold, self.theta_spread_threshold,
+                                  self.power_threshold)
 
     @property
     def block_samples(self) -> int:
@@ -350,9 +357,10 @@ class DTGDiagnosis:
         Growth of the residual level in that window (drift witness).
     window_s : float
         Length of that window, s.
-    tests : ndarray, shape (6,)
+    tests : ndarray, shape (8,)
         Residual test statistics: level z of ex, ey, short variance ratios of ex, ey,
-        long variance ratios of ex, ey.
+        long variance ratios of ex, ey, low-frequency power CUSUMs of ex, ey over their
+        threshold.
     block : int
         Update counter.
     """
@@ -371,7 +379,7 @@ class DTGDiagnosis:
     log_variance: NDArray[np.float64] = field(default_factory=lambda: np.zeros(N_CHANNELS))
     growth: float = 0.0
     window_s: float = 0.0
-    tests: NDArray[np.float64] = field(default_factory=lambda: np.zeros(6))
+    tests: NDArray[np.float64] = field(default_factory=lambda: np.zeros(N_TESTS))
     block: int = 0
 
 
@@ -696,8 +704,11 @@ class DTGChannel:
                     # which no physical class explains)
                     physical = self._pattern.classify_physical(
                         mon.window_statistics(self._long_blocks))
+                    # the ratio band out and only the slow residual power up: a θ change
+                    # (physical fault) explains both, a read-out noise not the band
                     if physical.fault_type > 0 and (
-                            result.fault_type < 0 or physical.distance < result.distance):
+                            result.fault_type < 0 or physical.distance < result.distance
+                            or (band_alarm and mon.power_only)):
                         result = physical
         elif band_alarm:
             stats = mon.window_statistics(self._long_blocks)
@@ -1040,6 +1051,6 @@ def _diagnosis_from_dict(d: dict[str, Any]) -> DTGDiagnosis:
         level=np.asarray(d["level"], dtype=float).reshape(N_CHANNELS),
         log_variance=np.asarray(d["log_variance"], dtype=float).reshape(N_CHANNELS),
         growth=float(d["growth"]), window_s=float(d["window_s"]),
-        tests=np.asarray(d["tests"], dtype=float).reshape(6), block=int(d["block"]),
+        tests=np.asarray(d["tests"], dtype=float).reshape(N_TESTS), block=int(d["block"]),
     )
 

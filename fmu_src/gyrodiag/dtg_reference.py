@@ -27,10 +27,19 @@ instead and tests the *data* against it:
 * **Residual tests** (:class:`ResidualMonitor`): per block, over the last
   ``window_blocks``, the level z = |mean(e) − μ|/(σ_block/√K) and the variance ratio
   var(e)/var₀ of both residuals, and the variance ratio over ``long_window_blocks``.
-  An alarm is raised when any exceeds its threshold, held while any exceeds its hold
-  threshold (level ×2/3, variance ratios ^(2/3)) and cleared ``clear_blocks`` after the
-  last block that did: an intermittent fault's alarm clears at most
-  ``long window + clear time`` after it goes away; a persistent fault keeps it.
+  A CUSUM of the residuals' *low-frequency power* runs beside them: per block
+  q = ((m − μ)/σ_block)², the squared block mean in nominal block spreads, enters
+  S ← min(h, max(0, S + min(q, q_cap) − κ)), the log-likelihood-ratio CUSUM of a
+  variance change by :data:`POWER_RATIO` (κ = ln ρ/(1 − 1/ρ)). The residual's nominal
+  power sits at 40–60 Hz (the regression differences the pick-offs) while a noise on a
+  torquer read-out enters through the 50 Hz prefilter and θ5: below 20 Hz a 0.3 V torquer
+  noise raises the residual power ×12–45, over all frequencies ×2.2 (docs/notes.md, DTG),
+  so a block mean (25 ms: a low-pass to ~18 Hz) is its best witness.
+  An alarm is raised when any test exceeds its threshold (the CUSUM: reaches h), held
+  while any exceeds its hold threshold (level ×2/3, variance ratios ^(2/3), CUSUM h/2)
+  and cleared ``clear_blocks`` after the last block that did: an intermittent fault's
+  alarm clears at most ``long window + clear time`` after it goes away (the CUSUM,
+  capped at h, falls below h/2 in (h/2)/(κ − 1) blocks); a persistent fault keeps it.
 
 σ_block (the spread of block means) over-estimates the spread of a window mean of the
 residuals (their block means are negatively correlated), so the level test is
@@ -56,6 +65,7 @@ from .dtg_case_rate import CASE_RATE_SCHEMES, dtg_case_rate_regression
 __all__ = [
     "CHANNELS",
     "N_CHANNELS",
+    "N_TESTS",
     "REFERENCE_STATUS",
     "ClassificationStatistics",
     "NominalPrior",
@@ -74,6 +84,9 @@ CHANNELS = ("Utx", "Uty", "Ux", "Uy", "ex", "ey")
 N_CHANNELS = len(CHANNELS)
 #: Residual channels (indices into :data:`CHANNELS`).
 RESIDUALS = (4, 5)
+#: Residual test statistics (:attr:`ResidualMonitor.statistics`): level z, short and long
+#: variance ratio, power CUSUM / threshold, each for ex and ey.
+N_TESTS = 8
 #: Reference status codes: learning, valid, change inside the learning window (reference
 #: from the segments before it), rejected against the prior (prior in use).
 REFERENCE_STATUS = {"learning": 0, "valid": 1, "change_in_window": 2, "prior_mismatch": 3}
@@ -81,6 +94,12 @@ REFERENCE_STATUS = {"learning": 0, "valid": 1, "change_in_window": 2, "prior_mis
 #: shortest length, s.
 N_SEGMENTS = 8
 MIN_SEGMENT_S = 0.25
+#: Low-frequency power CUSUM: the variance ratio it is tuned to detect, and the cap of one
+#: block's squared mean (in nominal block spreads²), so that one odd block cannot alarm.
+POWER_RATIO = 3.0
+POWER_KAPPA = math.log(POWER_RATIO) / (1.0 - 1.0 / POWER_RATIO)
+POWER_Q_CAP = 10.0
+POWER_THRESHOLD = 50.0
 #: Variance floor relative to the channel's scale, so that a silent channel stays finite.
 _VAR_FLOOR = 1e-30
 
@@ -437,12 +456,15 @@ class ResidualThresholds:
     theta_spread : float
         Learning guard: a segment's θ against the reference of the segments before it,
         (Δθᵀ·C⁻¹·Δθ)/5 with C the least-squares covariance from the residual variance.
+    power : float
+        Threshold h of the low-frequency power CUSUM (hold: h/2); 0 switches it off.
     """
 
     level: float = 6.0
     variance: float = 4.0
     long_variance: float = 2.0
     theta_spread: float = 30.0
+    power: float = POWER_THRESHOLD
 
     def validate(self) -> None:
         """Raise ValueError naming the first bad threshold."""
@@ -452,6 +474,9 @@ class ResidualThresholds:
             if not (math.isfinite(v) and v > 1.0):
                 raise ValueError(f"{name} must be a finite ratio > 1, got {v!r}")
         check_positive("theta_spread_threshold", self.theta_spread)
+        if not (math.isfinite(self.power) and self.power >= 0.0):
+            raise ValueError(f"power_threshold must be a finite number >= 0 (0: off), got "
+                             f"{self.power!r}")
 
     @property
     def hold(self) -> tuple[float, float, float]:
@@ -837,7 +862,10 @@ class ResidualMonitor:
         self.alarm = False
         self._alarm_block = -1
         self._last_hold_block = -1
-        self.statistics = np.zeros(6)  # z_x, z_y, v_x, v_y, vL_x, vL_y
+        self._power = np.zeros(2)  # low-frequency power CUSUM of ex, ey
+        self._other_seen = False   # a test other than the power CUSUM held this alarm
+        # z_x, z_y, v_x, v_y, vL_x, vL_y, P_x, P_y (P: power CUSUM / its threshold)
+        self.statistics = np.zeros(N_TESTS)
 
     def prefill(self, means: NDArray[np.float64], variances: NDArray[np.float64],
                 theta: NDArray[np.float64]) -> None:
@@ -879,6 +907,7 @@ class ResidualMonitor:
         e = regression_residuals(filtered, self._theta0, self.model)
         m, v = block_moments(raw)
         res = _residual_moments(e, valid)
+        fresh = res is not None
         if res is None:  # no usable row (a skipped sample): repeat the last block's
             prev = (self._pos - 1) % self.long_blocks
             res = (self._means[prev, 4:].copy(), self._vars[prev, 4:].copy())
@@ -886,7 +915,18 @@ class ResidualMonitor:
         v = np.concatenate([v, res[1]])
         self._store(m, v, theta.mean(axis=0))
         self._block_index += 1
+        if fresh:  # a repeated block is no new evidence
+            self._update_power(res[0])
         return self._test()
+
+    def _update_power(self, residual_means: NDArray[np.float64]) -> None:
+        h = self.thresholds.power
+        if h <= 0.0:
+            return
+        ref = self.reference
+        res = list(RESIDUALS)
+        q = ((residual_means - ref.mean[res]) / ref.block_std[res]) ** 2
+        self._power = np.clip(self._power + np.minimum(q, POWER_Q_CAP) - POWER_KAPPA, 0.0, h)
 
     def _test(self) -> bool:
         ref = self.reference
@@ -901,11 +941,13 @@ class ResidualMonitor:
         kl = lm.shape[0]
         _, vl, _ = window_moments(lm[:, res], lv[:, res])
         vL = vl / ref.variance_at(kl, self.short_blocks, self.long_blocks)[res]
-        self.statistics = np.concatenate([z, vs, vL])
+        power = self._power / thr.power if thr.power > 0.0 else np.zeros(2)
+        self.statistics = np.concatenate([z, vs, vL, power])
         hz, hv, hl = thr.hold
         raise_now = bool(np.any(z > thr.level) or np.any(vs > thr.variance)
-                         or np.any(vL > thr.long_variance))
-        hold_now = bool(np.any(z > hz) or np.any(vs > hv) or np.any(vL > hl))
+                         or np.any(vL > thr.long_variance) or np.any(power >= 1.0))
+        other_hold = bool(np.any(z > hz) or np.any(vs > hv) or np.any(vL > hl))
+        hold_now = other_hold or bool(np.any(power > 0.5))
         b = self._block_index
         if hold_now:
             self._last_hold_block = b
@@ -913,10 +955,20 @@ class ResidualMonitor:
             if raise_now:
                 self.alarm = True
                 self._alarm_block = b
+                self._other_seen = other_hold
+        elif other_hold:
+            self._other_seen = True
         elif not hold_now and b - self._last_hold_block >= self.clear_blocks:
             self.alarm = False
             self._alarm_block = -1
         return self.alarm
+
+    @property
+    def power_only(self) -> bool:
+        """In alarm, and only the low-frequency power CUSUM has held it: the residuals
+        carry more slow power but neither a level shift nor a variance change of their
+        own (a physical fault's θ change looks like this too)."""
+        return self.alarm and not self._other_seen
 
     @property
     def blocks_in_alarm(self) -> int:
@@ -968,6 +1020,7 @@ class ResidualMonitor:
                 "theta": self._theta.copy(), "pos": self._pos, "count": self._count,
                 "block_index": self._block_index, "alarm": self.alarm,
                 "alarm_block": self._alarm_block, "last_hold_block": self._last_hold_block,
+                "power": self._power.copy(), "other_seen": self._other_seen,
                 "statistics": self.statistics.copy()}
 
     def set_state(self, s: dict[str, Any]) -> None:
@@ -985,5 +1038,7 @@ class ResidualMonitor:
         self.alarm = bool(s["alarm"])
         self._alarm_block = int(s["alarm_block"])
         self._last_hold_block = int(s["last_hold_block"])
-        self.statistics = np.asarray(s["statistics"], dtype=float).reshape(6).copy()
+        self._power = check_finite_array("state['power']", s["power"], shape=(2,)).copy()
+        self._other_seen = bool(s["other_seen"])
+        self.statistics = np.asarray(s["statistics"], dtype=float).reshape(N_TESTS).copy()
 

@@ -457,7 +457,7 @@ def _signals(run: RunSpec) -> list[str]:
             + [f"{d}.dtg.alarm", f"{d}.dtg.learning", f"{d}.dtg.fault_code",
                f"{d}.dtg.fault_axis", f"{d}.dtg.reference_status"]
             + [f"{d}.dtg.residual_{name}[{a}]" for name in
-               ("level_z", "var_ratio", "long_var_ratio") for a in (1, 2)])
+               ("level_z", "var_ratio", "long_var_ratio", "power_cusum") for a in (1, 2)])
 
 
 def build_scenario(run: RunSpec) -> Any:
@@ -559,9 +559,11 @@ def _pattern_statistic(scenario: Any, d: str, t: np.ndarray, sig: dict[str, np.n
                        band: np.ndarray) -> tuple[np.ndarray, float, float]:
     """Pattern classifier: the largest raise statistic in units of its threshold —
     residual level z / dtg.level_threshold, log variance ratios / log of their
-    thresholds, and the ratio band's |η − 1| / (high − 1). ``T = 1`` is the configured
-    setting; the FMU's alarm also holds below the raise thresholds (hold thresholds,
-    ``dtg.clear_after_s``), which ``sweep_mismatch`` shows."""
+    thresholds, the low-frequency power CUSUM / dtg.power_threshold (recorded that way;
+    it is capped at 1, so only ``T <= 1`` is exact for it) and the ratio band's
+    |η − 1| / (high − 1). ``T = 1`` is the configured setting; the FMU's alarm also holds
+    below the raise thresholds (hold thresholds, ``dtg.clear_after_s``), which
+    ``sweep_mismatch`` shows."""
     z_thr = float(_param(scenario, d, "dtg.level_threshold", 6.0))
     v_thr = float(_param(scenario, d, "dtg.var_threshold", 4.0))
     vl_thr = float(_param(scenario, d, "dtg.long_var_threshold", 2.0))
@@ -572,6 +574,9 @@ def _pattern_statistic(scenario: Any, d: str, t: np.ndarray, sig: dict[str, np.n
                      / math.log10(v_thr))
         parts.append(np.log10(np.maximum(sig[f"{d}.dtg.residual_long_var_ratio[{a}]"],
                                          1e-12)) / math.log10(vl_thr))
+        power = sig.get(f"{d}.dtg.residual_power_cusum[{a}]")
+        if power is not None:
+            parts.append(power)
     s = np.max(np.column_stack(parts), axis=1)
     # judged from the first sample with a reference (status >= 1), as the channel
     ready_mask = (sig[f"{d}.dtg.reference_status"] > 0.5) & (t > 0)
