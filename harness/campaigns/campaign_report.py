@@ -265,7 +265,10 @@ def _grey_summary(ok: list[dict[str, Any]]) -> dict[str, Any]:
     grey = [r for r in ok if "rule" in r]
     if not grey:
         return {}
-    rules = list(dict.fromkeys(r["rule"] for r in grey))
+    # in the spec's order (the records' witness dicts are sorted by name)
+    present = {r["rule"] for r in grey}
+    rules = [w for w in dict.fromkeys(w for r in grey for w in r["run"].get("witnesses") or [])
+             if w in present]
     groups = sorted({r["run"].get("group") or "base" for r in grey}, key=_natural)
     cells: dict[tuple, list[dict]] = defaultdict(list)
     for r in grey:
