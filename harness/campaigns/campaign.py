@@ -867,8 +867,8 @@ def judge_grey_witness(t: np.ndarray, sig: dict[str, np.ndarray], witness: str,
     t : ndarray
         Sample times, s.
     sig : dict
-        Recorded signals; needs ``<witness>.grey.{alarm,statistic,calibrating,
-        prediction_valid}``.
+        Recorded signals; needs ``<witness>.<name>`` for every name in
+        :data:`GREY_SIGNALS` (``grey.y`` in V).
     witness : str
         Diagnoser instance name.
     onset_s : float or None
@@ -882,8 +882,11 @@ def judge_grey_witness(t: np.ndarray, sig: dict[str, np.ndarray], witness: str,
     -------
     dict
         ``detected``, ``delay_s`` (s), ``false_alarms``, ``fault_free_s`` (s),
-        ``t_ready_s`` (s), ``sweep`` (lists per threshold), ``sweep_mismatch``,
-        ``peak_before`` / ``peak_after`` (largest statistic before / from the onset).
+        ``t_ready_s`` (s), ``sweep`` (lists per threshold), ``sweep_mismatch`` (share of
+        the judged samples where the rebuilt alarm at 1x differs from the FMU's),
+        ``sweep_replayed``, ``alarm_at_onset`` (the alarm was on at the last sample
+        before the onset), ``peak_before`` / ``peak_after`` (largest statistic before /
+        from the onset).
     """
     missing = [n for n in GREY_SIGNALS if f"{witness}.{n}" not in sig]
     if missing:
