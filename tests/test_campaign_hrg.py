@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from harness.campaigns.campaign import CampaignSpec, expand_runs, run_campaign
+from harness.campaigns.campaign import CampaignSpec, expand_runs, load_campaign, run_campaign
 from harness.campaigns.campaign_report import markdown_summary, summarize
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -64,6 +64,22 @@ def test_disjoint_condition_seeds_and_witnesses_in_the_run() -> None:
                                    "witnesses": ["paper"]}})
     seeds = {r.condition: r.seed for r in expand_runs(paired, ROOT) if r.kind == "nominal"}
     assert seeds["quiet"] == seeds["noisy"]
+
+
+def test_shipped_hrg_campaign_covers_issue_16() -> None:
+    """campaigns/hrg.toml: 5 noise levels, >= 3 onsets, >= 10 nominal hours, own seeds."""
+    spec_, base = load_campaign(ROOT / "campaigns" / "hrg.toml")
+    runs = expand_runs(spec_, base)
+    assert len(runs) == 640 and len({r.seed for r in runs}) == 640
+    assert not {r.seed for r in runs} & set(range(1, 53))  # the benchmark seeds
+    noise = {r.parameters["hrg"]["noise_std"] for r in runs}
+    assert noise == {0.0, 0.005, 0.01, 0.015, 0.02}
+    fault = [r for r in runs if r.kind == "fault"]
+    assert {r.fault_type for r in fault} == {"bias", "stuck", "scale", "failure"}
+    assert len({r.onset_s for r in fault}) >= 3
+    nominal_h = sum(r.duration_s for r in runs if r.kind == "nominal") / 3600.0
+    assert nominal_h >= 10.0
+    assert all(r.witnesses == ["paper", "calibrated"] for r in runs)
 
 
 def test_witnesses_only_for_the_grey_channel() -> None:
