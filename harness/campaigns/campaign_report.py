@@ -625,26 +625,23 @@ def _witness_markdown(w: dict[str, Any]) -> list[str]:
     return lines
 
 
-def _grey_markdown(g: dict[str, Any]) -> list[str]:
-    """Grey section: per rule a fault × noise table, false alarms, threshold sweeps."""
+def _grey_tables(g: dict[str, Any]) -> list[tuple[str, list[str], list[list[Any]]]]:
+    """Grey section as (caption, header, rows): false alarms per rule and group, per rule
+    a fault × group table, per rule the threshold sweep by group."""
     if not g:
         return []
     groups, target = g["groups"], g["target_delay_s"]
-    lines = ["Grey channel: false alarms per rule and condition group (fault-free time "
-             "after warm-up/calibration: nominal runs and before each onset; count in "
-             "hours, 95 % upper bound per hour):", ""]
-    lines += _md_table(["rule", *groups, "all"],
-                       [[rule, *(f"{fa['count']} in {fa['hours']:.2f} h (≤ "
-                                 f"{html.unescape(_fmt(fa['upper_95']))})"
-                                 for fa in (g["false_alarms"][f"{rule}/{grp}"]
-                                            for grp in [*groups, "all"]))]
-                        for rule in g["rules"]])
+    tables = [("Grey channel: false alarms per rule and condition group (fault-free time "
+               "after warm-up/calibration: nominal runs and before each onset; count in "
+               "hours, 95 % upper bound per hour):", ["rule", *groups, "all"],
+               [[rule, *(f"{fa['count']} in {fa['hours']:.2f} h (≤ "
+                         f"{html.unescape(_fmt(fa['upper_95']))})"
+                         for fa in (g["false_alarms"][f"{rule}/{grp}"]
+                                    for grp in [*groups, "all"]))]
+                for rule in g["rules"]])]
     for rule in g["rules"]:
         rows = [r for r in g["detection"] if r["rule"] == rule]
         keys = list(dict.fromkeys((r["fault_type"], r["magnitude"]) for r in rows))
-        lines += [f"Grey channel, rule {rule}: detected of n (of them within {target:g} s) · "
-                  "delay median / p95 / max, s; per condition group (\"+k st\": k of the "
-                  "detections are an alarm already standing at the onset):", ""]
         table = []
         for ftype, mag in keys:
             cells = []
@@ -660,16 +657,26 @@ def _grey_markdown(g: dict[str, Any]) -> list[str]:
                                           for k in ("median_s", "p95_s", "max_s"))
                              + (f" · +{r['standing']} st" if r["standing"] else ""))
             table.append([ftype, mag, *cells])
-        lines += _md_table(["fault", "magnitude", *groups], table)
+        tables.append((f"Grey channel, rule {rule}: detected of n (of them within {target:g} "
+                       "s) · delay median / p95 / max, s; per condition group (\"+k st\": k "
+                       "of the detections are an alarm already standing at the onset):",
+                       ["fault", "magnitude", *groups], table))
     for rule in g["rules"]:
         sw = [g["threshold_sweep"][f"{rule}/{grp}"] for grp in [*groups, "all"]]
-        lines += [f"Threshold sweep, rule {rule} (× its threshold; detection rate / false "
-                  "alarms per hour):", ""]
-        lines += _md_table(["threshold", *groups, "all"],
-                           [[t, *(f"{html.unescape(_fmt(s['detection_rate'][j]))} / "
-                                  f"{html.unescape(_fmt(s['false_alarms_per_h'][j]))}"
-                                  for s in sw)]
-                            for j, t in enumerate(sw[-1]["thresholds"])])
+        tables.append((f"Threshold sweep, rule {rule} (× its threshold; detection rate / "
+                       "false alarms per hour):", ["threshold", *groups, "all"],
+                       [[t, *(f"{html.unescape(_fmt(x['detection_rate'][j]))} / "
+                              f"{html.unescape(_fmt(x['false_alarms_per_h'][j]))}"
+                              for x in sw)]
+                        for j, t in enumerate(sw[-1]["thresholds"])]))
+    return tables
+
+
+def _grey_markdown(g: dict[str, Any]) -> list[str]:
+    """Grey section of ``summary.md`` (:func:`_grey_tables`)."""
+    lines: list[str] = []
+    for caption, header, rows in _grey_tables(g):
+        lines += [caption, "", *_md_table(header, rows)]
     return lines
 
 
@@ -708,6 +715,8 @@ def write_report(summary: dict[str, Any], records: list[dict[str, Any]], out_dir
              _table(["group", "n", "median", "p95", "max"],
                     [[k, d["n"], d["median_s"], d["p95_s"], d["max_s"]]
                      for k, d in summary["delay"].items()])]
+    for caption, header, rows in _grey_tables(summary.get("grey") or {}):
+        parts += [f"<h2>{html.escape(caption.rstrip(':'))}</h2>", _table(header, rows)]
     for ch, c in summary["confusion"].items():
         parts.append(f"<h2>Isolation, {html.escape(ch)}: {c['correct']} of {c['n']} right</h2>")
         parts.append(_table(["injected \\ diagnosed", *c["diagnosed"]],
