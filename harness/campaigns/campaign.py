@@ -70,7 +70,27 @@ isolated sensor, type and size of the detection filter); the top-level fields ju
 filter's isolated sensor.  No threshold sweep.  *Conditions* (``[conditions.NAME]``)
 vary the flight of any class: manoeuvres (the scenario's ``[[manoeuvres]]`` entries)
 and parameter overrides (e.g. turbulence), each with a ``group`` ("level",
-"manoeuvre") that the summary compares.
+"manoeuvre") that the summary compares.  A run is flown with the same seed under every
+condition (a paired comparison) unless its class says ``condition_seeds = "disjoint"``.
+
+Grey-prediction runs (``channel = "grey"``, the HRG): the class's ``witnesses`` are
+Diagnoser instances that watch the same faulty signal with different decision rules
+(e.g. the paper's fixed threshold and the project's calibrated detector), each judged
+on its own ``grey.alarm`` from its first ready sample (``grey.prediction_valid`` and not
+``grey.calibrating``: the window is full and, if calibrated, sigma is learned).  The
+record keeps each under ``witnesses`` with its own threshold sweep; the summary splits a
+grey record into one record per witness (class ``<class>/<witness>``, channel
+``grey/<witness>``), so every table has a row per rule.  The grey channel names no
+fault kind: ``diagnosed`` is None and isolation/classification does not apply.  Sweep
+``T`` in multiples of the rule's threshold.  A fixed-threshold rule (the paper's,
+``grey.calibrate_s = 0``) is *replayed*: the library's detector
+(:class:`gyrodiag.grey.GreyFaultDetector`, the FMU's own code) is run on the recorded
+input ``grey.y`` with threshold ``T · grey.threshold``, substitutions and clearing
+included, so every point is exact; ``sweep_mismatch`` is the replay at ``T = 1``
+against the FMU's alarm (0 when the replay is faithful).  A calibrated rule is rebuilt
+from ``s(t) = grey.statistic`` (its CUSUM over its threshold and the lagged step test's
+``|z|`` over its threshold), exact only up to the first alarm: in alarm the predictor is
+fed substitutes and the CUSUM holds the alarm down to half its threshold.
 """
 
 from __future__ import annotations
@@ -111,8 +131,10 @@ DEFAULT_THRESHOLDS = {
     "df": [3.0, 4.0, 4.5, 5.0, 5.5, 6.0, 6.5, 7.0, 8.0, 10.0, 12.0, 15.0],
     "dtg": [0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.8],
     "system": [],
+    # multiples of each grey rule's threshold (the paper's: of grey.threshold in V)
+    "grey": [0.5, 0.75, 1.0, 1.25, 1.5, 2.0, 3.0],
 }
-Channel = Literal["df", "dtg", "system"]
+Channel = Literal["df", "dtg", "system", "grey"]
 #: Witnesses of a system run: name -> (alarm output, "not judged yet" output).
 SYSTEM_WITNESSES = {"dtg": ("dtg.alarm", "dtg.learning"),
                     "df": ("df.detected", "df.calibrating")}
@@ -133,9 +155,12 @@ class FaultClass(_Strict):
     """A base scenario and how to read its diagnosis.
 
     ``channel`` is the Diagnoser channel judged: ``"df"`` (aircraft detection filter),
-    ``"dtg"``, or ``"system"`` (both, as independent witnesses; module docstring).
+    ``"dtg"``, ``"system"`` (both, as independent witnesses; module docstring) or
+    ``"grey"`` (the grey-prediction channel of each Diagnoser in ``witnesses``).
     ``seed_parameters`` are ``instance.parameter`` names set to each run's seed (offset
-    by their position, so two generators never share a seed).
+    by their position, so two generators never share a seed).  ``condition_seeds``:
+    ``"paired"`` flies a run with the same seed under every condition, ``"disjoint"``
+    gives each condition its own seeds.
     """
 
     scenario: str
@@ -146,6 +171,18 @@ class FaultClass(_Strict):
     #: Parameter overrides per instance, e.g. ``{ diag = { "df.calibrate_s" = 2.0 } }``.
     parameters: dict[str, dict[str, bool | int | float | str]] = Field(default_factory=dict)
     thresholds: list[float] | None = None
+    #: Grey channel: the Diagnoser instances judged side by side (default: diagnoser).
+    witnesses: list[str] = Field(default_factory=list)
+    condition_seeds: Literal["paired", "disjoint"] = "paired"
+
+    @model_validator(mode="after")
+    def _witnesses_for_grey(self) -> FaultClass:
+        if self.witnesses and self.channel != "grey":
+            raise ValueError(f"witnesses: only the grey channel judges several Diagnosers "
+                             f"(channel is {self.channel!r})")
+        if len(set(self.witnesses)) != len(self.witnesses):
+            raise ValueError(f"witnesses: {self.witnesses} names an instance twice")
+        return self
 
 
 class Condition(_Strict):
@@ -322,6 +359,7 @@ class RunSpec(_Strict):
     accepted: list[str] = Field(default_factory=list)  # also right (merged classes)
     also: list[dict[str, Any]] = Field(default_factory=list)  # further simultaneous faults
     thresholds: list[float]
+    witnesses: list[str] = Field(default_factory=list)  # grey: Diagnosers judged
     fmu_dir: str | None = None
     results_dir: str | None = None
 
@@ -359,8 +397,8 @@ def expand_runs(spec: CampaignSpec, base_dir: Path, out_dir: Path | None = None)
                  "replicate": replicate, "base_seed": spec.base_seed}
         if meta.get("also"):
             ident["also"] = meta["also"]
-        # the seed does not depend on the condition: a fault under every condition is
-        # flown with the same noise (a paired comparison of the conditions)
+        # the seed does not depend on the condition (unless the class says "disjoint"): a
+        # fault under every condition is flown with the same noise (a paired comparison)
         seed = _seed(spec.base_seed, json.dumps(ident, sort_keys=True))
         parameters = {inst: dict(v) for inst, v in c.parameters.items()}
         manoeuvres = None
@@ -372,16 +410,22 @@ def expand_runs(spec: CampaignSpec, base_dir: Path, out_dir: Path | None = None)
                 parameters.setdefault(inst, {}).update(values)
             manoeuvres = [dict(m) for m in cond.manoeuvres]
             group = cond.group
+            if c.condition_seeds == "disjoint":
+                seed = _seed(spec.base_seed, json.dumps(ident, sort_keys=True))
         thresholds = list(c.thresholds or DEFAULT_THRESHOLDS[c.channel])
         ident.update(seed_parameters=c.seed_parameters, thresholds=thresholds,
                      diagnoser=c.diagnoser, parameters=c.parameters)
+        witnesses = list(c.witnesses or [c.diagnoser]) if c.channel == "grey" else []
+        if witnesses:  # only then: the ids of the other channels' runs stay as they were
+            ident["witnesses"] = witnesses
         tag = f"{meta.get('fault_type') or 'nominal'}" + (f"-{condition}" if condition else "")
         return RunSpec(run_id=f"{cls_name}-{tag}-{_run_id(ident)}",
                        campaign=spec.name, cls=cls_name, channel=c.channel, kind=kind,
                        scenario=str(scenario), duration_s=duration, seed=seed,
                        seed_parameters=c.seed_parameters, parameters=parameters,
                        diagnoser=c.diagnoser,
-                       fault=fault, thresholds=thresholds, fmu_dir=fmu_dir,
+                       fault=fault, thresholds=thresholds, witnesses=witnesses,
+                       fmu_dir=fmu_dir,
                        results_dir=results_dir, condition=condition, group=group,
                        manoeuvres=manoeuvres, **meta)
 
@@ -439,8 +483,15 @@ def _base_duration(path: Path) -> float:
 
 
 # --------------------------------------------------------------------------- one run
+#: Grey-channel outputs recorded per witness.
+GREY_SIGNALS = ("grey.alarm", "grey.statistic", "grey.calibrating", "grey.prediction_valid",
+                "grey.y")
+
+
 def _signals(run: RunSpec) -> list[str]:
     d = run.diagnoser
+    if run.channel == "grey":
+        return [f"{w}.{name}" for w in run.witnesses for name in GREY_SIGNALS]
     if run.channel == "system":
         return [f"{d}.{alarm}" for alarm, _ in SYSTEM_WITNESSES.values()] + [
             f"{d}.{ready}" for _, ready in SYSTEM_WITNESSES.values()] + [
@@ -475,6 +526,9 @@ def build_scenario(run: RunSpec) -> Any:
     data["expect"] = []
     data["record"] = {"variables": _signals(run)}
     data.pop("training", None)
+    for w in run.witnesses:
+        if w not in data.get("fmus", {}):
+            raise ValueError(f"witnesses: no instance {w!r} in {path}")
     for inst, values in run.parameters.items():
         if inst not in data.get("fmus", {}):
             raise ValueError(f"parameters: no instance {inst!r} in {path}")
@@ -660,6 +714,8 @@ def simulate_run(run_dict: dict[str, Any]) -> dict[str, Any]:
     t, sig, d = result.time, result.signals, run.diagnoser
     if run.channel == "system":
         return _judge_system(run, t, sig, result.wall_time_s)
+    if run.channel == "grey":
+        return _judge_grey(run, scenario, t, sig, result.wall_time_s)
     if run.channel == "df":
         sequential = _df_sequential(scenario, d)
         if sequential:
@@ -754,6 +810,137 @@ def _judge_system(run: RunSpec, t: np.ndarray, sig: dict[str, np.ndarray],
                                                    "false_alarms": []},
             "sweep_mismatch": 0.0, "peak_before": None, "peak_after": None,
             "sim_wall_s": wall_s, "witnesses": witnesses}
+
+
+GreyReplay = Callable[[np.ndarray, np.ndarray, np.ndarray, float], np.ndarray]
+
+
+def grey_replay(scenario: Any, witness: str) -> GreyReplay | None:
+    """A function ``(t, y, valid, T) -> alarm`` replaying a fixed-threshold grey rule of
+    ``witness`` at ``T`` times its ``grey.threshold``, or None for a calibrated rule
+    (``grey.calibrate_s > 0``), which is swept on its statistic instead.
+
+    The detector is built as the Diagnoser FMU builds it (its parameter defaults) and fed
+    the recorded samples ``y`` (V) at times ``t`` (s).  Its first sample is the row that
+    lies the predictor's window before the FMU's first ``grey.prediction_valid`` row
+    (``valid``): with Gauss-Seidel coupling the Diagnoser steps after the plant, so row 0
+    holds initial outputs that it never processed.
+    """
+    from gyrodiag.grey import ClassicGreyPredictor, GreyFaultDetector, ImprovedGreyPredictor
+
+    def par(name: str, default: Any) -> Any:
+        return _param(scenario, witness, name, default)
+
+    if float(par("grey.calibrate_s", 0.0)) > 0.0:
+        return None
+    model, window = int(par("grey.model", 1)), int(par("grey.window", 10))
+    threshold = float(par("grey.threshold", 0.05))
+    clear = float(par("grey.clear_after_s", 20.0))
+    period = float(par("sample_period_s", scenario.step_s))
+
+    def replay(t: np.ndarray, y: np.ndarray, valid: np.ndarray, multiple: float
+               ) -> np.ndarray:
+        if model == 1:
+            predictor: Any = ImprovedGreyPredictor(
+                window, a_min=float(par("grey.a_min", 1e-6)),
+                residual_order=int(par("grey.residual_order", 2)))
+        else:
+            evaluation = int(par("grey.classic_evaluation", 0))
+            predictor = ClassicGreyPredictor(
+                None if window == 0 else window,
+                evaluation="textbook" if evaluation == 1 else "careful")
+        det = GreyFaultDetector(predictor, multiple * threshold, period,
+                                None if clear <= 0 else clear)
+        first = np.flatnonzero(valid > 0.5)
+        start = max(int(first[0]) - predictor.min_samples, 0) if first.size else len(t)
+        alarm = np.zeros(len(t), dtype=bool)
+        for i in range(start, len(t)):
+            alarm[i] = det.update(float(y[i]), time_s=float(t[i])).alarm
+        return alarm
+
+    return replay
+
+
+def judge_grey_witness(t: np.ndarray, sig: dict[str, np.ndarray], witness: str,
+                       onset_s: float | None, thresholds: Sequence[float],
+                       replay: GreyReplay | None = None) -> dict[str, Any]:
+    """One grey-channel witness of a run: its alarm judged from its first ready sample,
+    and its threshold sweep, replayed or on ``grey.statistic`` (module docstring).
+
+    Parameters
+    ----------
+    t : ndarray
+        Sample times, s.
+    sig : dict
+        Recorded signals; needs ``<witness>.<name>`` for every name in
+        :data:`GREY_SIGNALS` (``grey.y`` in V).
+    witness : str
+        Diagnoser instance name.
+    onset_s : float or None
+        Fault onset, s (None: a nominal run).
+    thresholds : sequence of float
+        Sweep grid, multiples of the witness's threshold (1 = its own rule).
+    replay : callable, optional
+        :func:`grey_replay` of a fixed-threshold rule; None: sweep on the statistic.
+
+    Returns
+    -------
+    dict
+        ``detected``, ``delay_s`` (s), ``false_alarms``, ``fault_free_s`` (s),
+        ``t_ready_s`` (s), ``sweep`` (lists per threshold), ``sweep_mismatch`` (share of
+        the judged samples where the rebuilt alarm at 1x differs from the FMU's),
+        ``sweep_replayed``, ``alarm_at_onset`` (the alarm was on at the last sample
+        before the onset), ``peak_before`` / ``peak_after`` (largest statistic before /
+        from the onset).
+    """
+    missing = [n for n in GREY_SIGNALS if f"{witness}.{n}" not in sig]
+    if missing:
+        raise ValueError(f"witness {witness!r}: {witness}.{missing[0]} was not recorded")
+    alarm = sig[f"{witness}.grey.alarm"] > 0.5
+    stat = np.asarray(sig[f"{witness}.grey.statistic"], dtype=float)
+    not_ready = ((sig[f"{witness}.grey.calibrating"] > 0.5)
+                 | (sig[f"{witness}.grey.prediction_valid"] < 0.5)).astype(float)
+    t_ready = _ready_time(t, not_ready)
+    detected, delay, n_false, free = judge(t, alarm, t_ready, onset_s)
+    judged = t >= t_ready
+    y = np.asarray(sig[f"{witness}.grey.y"], dtype=float)
+    valid = sig[f"{witness}.grey.prediction_valid"]
+
+    def rebuilt(multiple: float) -> np.ndarray:
+        return (replay(t, y, valid, multiple) if replay is not None
+                else judged & (stat > multiple))
+
+    mismatch = float(np.mean(rebuilt(1.0)[judged] != alarm[judged])) if judged.any() else 0.0
+    sweep: dict[str, list[Any]] = {"detected": [], "delay_s": [], "false_alarms": []}
+    for thr in thresholds:
+        det_t, del_t, fa_t, _ = judge(t, rebuilt(thr), t_ready, onset_s)
+        sweep["detected"].append(det_t)
+        sweep["delay_s"].append(del_t)
+        sweep["false_alarms"].append(fa_t)
+    end = onset_s if onset_s is not None else math.inf
+    before = stat[judged & (t < end)]
+    after = stat[t >= end]
+    # an alarm already on at the last sample before the onset: a "detection" that the
+    # fault did not raise (a false alarm still standing)
+    k = int(np.searchsorted(t, onset_s - 1e-9)) - 1 if onset_s is not None else -1
+    return {"detected": detected, "delay_s": delay, "false_alarms": n_false,
+            "fault_free_s": free, "t_ready_s": t_ready, "sweep": sweep,
+            "sweep_mismatch": mismatch, "sweep_replayed": replay is not None,
+            "alarm_at_onset": bool(k >= 0 and alarm[k]),
+            "peak_before": float(before.max()) if before.size else None,
+            "peak_after": float(after.max()) if after.size else None}
+
+
+def _judge_grey(run: RunSpec, scenario: Any, t: np.ndarray, sig: dict[str, np.ndarray],
+                wall_s: float) -> dict[str, Any]:
+    """Every witness of a grey run; the top-level fields are the first witness's (the
+    summary splits the record per witness, module docstring)."""
+    witnesses = {w: judge_grey_witness(t, sig, w, run.onset_s, run.thresholds,
+                                       grey_replay(scenario, w))
+                 for w in run.witnesses}
+    first = witnesses[run.witnesses[0]]
+    return {**first, "diagnosed": None, "threshold_config": 1.0, "sim_wall_s": wall_s,
+            "witnesses": witnesses}
 
 
 def _signature_names(scenario: Any, run: RunSpec) -> list[str]:

@@ -17,7 +17,13 @@
 * system runs (two witnesses, flight conditions): per fault, magnitude and condition
   group the detection rate of each witness and how often both saw it; each group's
   rate against the "level" group's (difference in percentage points); false alarms per
-  hour per witness and group.
+  hour per witness and group;
+* grey runs (the HRG, several decision rules watching one signal): each rule (witness) is
+  a class ``<class>/<rule>`` and a channel ``grey/<rule>`` of its own in every table
+  above, and a grey section gives per rule, fault, magnitude and condition group (the
+  output noise) detection and delay median / p95 / max, false alarms per hour per rule
+  and group, and the threshold sweep per rule and group.  The grey channel names no
+  fault kind: isolation/classification is "n/a" there, and it has no confusion matrix.
 
 Only runs with status ``ok`` count; the others are listed with their error.  Nothing in
 the summary depends on wall times or on the order in which runs finished, so the same
@@ -37,6 +43,8 @@ import numpy as np
 from scipy import stats
 
 SECONDS_PER_HOUR = 3600.0
+#: Detection-delay target of the grey channel, s (issue 11: within 1.5 s, three samples).
+GREY_TARGET_DELAY_S = 1.5
 
 
 def garwood_interval(count: int, hours: float, confidence: float = 0.95) -> tuple[float, float]:
@@ -103,8 +111,39 @@ def _axis_right(record: dict[str, Any]) -> bool | None:
     return int(axis) == (1 if int(run["target"]) in (1, 3) else 2)
 
 
+def split_grey(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Grey records split into one record per witness (rule); others unchanged.
+
+    The witness's record has the run's class ``<class>/<rule>``, channel
+    ``grey/<rule>``, ``rule`` set, and the witness's fields at the top level.
+    """
+    out = []
+    for r in records:
+        if r.get("status") != "ok" or r["run"].get("channel") != "grey":
+            out.append(r)
+            continue
+        for w, fields in r["witnesses"].items():
+            run = {**r["run"], "cls": f"{r['run']['cls']}/{w}", "channel": f"grey/{w}"}
+            rest = {k: v for k, v in r.items() if k != "witnesses"}
+            out.append({**rest, **fields, "run": run, "rule": w, "diagnosed": None})
+    return out
+
+
+def _natural(key: str) -> tuple[float, str]:
+    """Sort "5 mV" before "10 mV": the leading number, then the text."""
+    head = key.split()[0] if key.split() else ""
+    try:
+        return float(head), key
+    except ValueError:
+        return math.inf, key
+
+
 def summarize(records: list[dict[str, Any]], n_planned: int | None = None) -> dict[str, Any]:
     """Campaign figures from run records (module docstring); a JSON-able dict."""
+    n_records = len(records)
+    n_fault_raw = sum(r.get("status") == "ok" and r["run"]["kind"] == "fault" for r in records)
+    n_ok_raw = sum(r.get("status") == "ok" for r in records)
+    records = split_grey(records)
     ok = sorted((r for r in records if r.get("status") == "ok"),
                 key=lambda r: r["run"]["run_id"])
     failed = sorted((r for r in records if r.get("status") != "ok"),
@@ -119,11 +158,14 @@ def summarize(records: list[dict[str, Any]], n_planned: int | None = None) -> di
     for (cls, ftype, mag), rs in sorted(groups.items(),
                                         key=lambda kv: (kv[0][0], kv[0][1], kv[0][2] or 0.0)):
         k = sum(bool(r["detected"]) for r in rs)
-        right = sum(_diagnosed_right(r) for r in rs)
         lo, hi = clopper_pearson(k, len(rs))
+        # a channel that names no fault kind (grey) has no isolation: None, not 0
+        classifies = any(r["diagnosed"] is not None for r in rs)
+        right = sum(_diagnosed_right(r) for r in rs) if classifies else None
         row = {"class": cls, "fault_type": ftype, "magnitude": mag, "n": len(rs),
                "detected": k, "rate": k / len(rs), "ci_low": lo, "ci_high": hi,
-               "isolated": right, "isolation_rate": right / len(rs)}
+               "isolated": right,
+               "isolation_rate": right / len(rs) if right is not None else None}
         axes = [_axis_right(r) for r in rs]
         if all(a is not None for a in axes):
             row["axis_right"] = sum(bool(a) for a in axes)
@@ -160,7 +202,7 @@ def summarize(records: list[dict[str, Any]], n_planned: int | None = None) -> di
         delay[key] = _delay_stats(by_channel[key])
 
     confusion: dict[str, dict[str, Any]] = {}
-    for ch in sorted({r["run"]["channel"] for r in fault}):
+    for ch in sorted({r["run"]["channel"] for r in fault if r["diagnosed"] is not None}):
         rs = [r for r in fault if r["run"]["channel"] == ch]
         inj = sorted({r["run"]["injected"] for r in rs})
         diag = sorted({r["diagnosed"] for r in rs} | set(inj))
@@ -196,9 +238,10 @@ def summarize(records: list[dict[str, Any]], n_planned: int | None = None) -> di
                           "max_mismatch": max(float(r["sweep_mismatch"]) for r in sub)}
 
     return {
-        "n_planned": n_planned if n_planned is not None else len(records),
-        "n_finished": len(records), "n_ok": len(ok), "n_failed": len(failed),
-        "n_fault_runs": len(fault), "n_nominal_runs": len(ok) - len(fault),
+        "n_planned": n_planned if n_planned is not None else n_records,
+        "n_finished": n_records, "n_ok": len(ok), "n_failed": len(failed),
+        # runs, not rules: a grey run judged by two rules counts once
+        "n_fault_runs": n_fault_raw, "n_nominal_runs": n_ok_raw - n_fault_raw,
         "failures": [{"run_id": r["run"]["run_id"], "status": r["status"],
                       "error": str(r.get("error")).strip().splitlines()[0][:300]}
                      for r in failed],
@@ -206,7 +249,81 @@ def summarize(records: list[dict[str, Any]], n_planned: int | None = None) -> di
         "detection": detection, "false_alarms": false_alarms, "delay": delay,
         "confusion": confusion, "threshold_sweep": sweep,
         "witnesses": _witness_summary(ok),
+        "grey": _grey_summary(ok),
     }
+
+
+def _grey_summary(ok: list[dict[str, Any]]) -> dict[str, Any]:
+    """The grey section of :func:`summarize` from split records (empty without grey runs).
+
+    Per rule, fault, magnitude and condition group: detection (95 % CI), how many within
+    :data:`GREY_TARGET_DELAY_S`, delay median / p95 / max; per rule and group (and "all"):
+    false alarms per hour with the Garwood 95 % interval; per rule and group the
+    threshold sweep (detection rate and false alarms per hour at each multiple of the
+    rule's threshold).
+    """
+    grey = [r for r in ok if "rule" in r]
+    if not grey:
+        return {}
+    # in the spec's order (the records' witness dicts are sorted by name)
+    present = {r["rule"] for r in grey}
+    rules = [w for w in dict.fromkeys(w for r in grey for w in r["run"].get("witnesses") or [])
+             if w in present]
+    groups = sorted({r["run"].get("group") or "base" for r in grey}, key=_natural)
+    cells: dict[tuple, list[dict]] = defaultdict(list)
+    for r in grey:
+        run = r["run"]
+        if run["kind"] == "fault":
+            cells[(r["rule"], run["fault_type"], run["magnitude"],
+                   run.get("group") or "base")].append(r)
+    detection = []
+    for (rule, ftype, mag, group), rs in sorted(
+            cells.items(), key=lambda kv: (rules.index(kv[0][0]), kv[0][1],
+                                           kv[0][2] if kv[0][2] is not None else 0.0,
+                                           _natural(kv[0][3]))):
+        k = sum(bool(r["detected"]) for r in rs)
+        lo, hi = clopper_pearson(k, len(rs))
+        delays = [float(r["delay_s"]) for r in rs if r["detected"]]
+        detection.append({
+            "rule": rule, "fault_type": ftype, "magnitude": mag, "group": group,
+            "n": len(rs), "detected": k, "rate": k / len(rs), "ci_low": lo, "ci_high": hi,
+            "within_target": sum(d <= GREY_TARGET_DELAY_S + 1e-9 for d in delays),
+            # "detected" by an alarm already standing at the onset (a false alarm)
+            "standing": sum(bool(r["detected"] and r.get("alarm_at_onset")) for r in rs),
+            "delay": _delay_stats(delays)})
+    false_alarms: dict[str, dict[str, Any]] = {}
+    sweep: dict[str, dict[str, Any]] = {}
+    for rule in rules:
+        for group in [*groups, "all"]:
+            rs = [r for r in grey if r["rule"] == rule
+                  and group in ("all", r["run"].get("group") or "base")]
+            count = sum(int(r["false_alarms"]) for r in rs)
+            hours = sum(float(r["fault_free_s"]) for r in rs) / SECONDS_PER_HOUR
+            nominal_h = sum(float(r["fault_free_s"]) for r in rs
+                            if r["run"]["kind"] == "nominal") / SECONDS_PER_HOUR
+            lo, hi = garwood_interval(count, hours) if hours > 0 else (math.nan, math.nan)
+            false_alarms[f"{rule}/{group}"] = {
+                "rule": rule, "group": group, "count": count, "hours": hours,
+                "nominal_hours": nominal_h,
+                "rate_per_h": count / hours if hours > 0 else math.nan,
+                "lower_95": lo, "upper_95": hi,
+                "runs_with_false_alarm": sum(int(r["false_alarms"]) > 0 for r in rs)}
+            thr = list(rs[0]["run"]["thresholds"]) if rs else []
+            fr = [r for r in rs if r["run"]["kind"] == "fault"]
+            det, fa, up = [], [], []
+            for j in range(len(thr)):
+                n_fa = sum(int(r["sweep"]["false_alarms"][j]) for r in rs)
+                det.append(sum(bool(r["sweep"]["detected"][j]) for r in fr) / len(fr)
+                           if fr else math.nan)
+                fa.append(n_fa / hours if hours > 0 else math.nan)
+                up.append(garwood_interval(n_fa, hours)[1] if hours > 0 else math.nan)
+            sweep[f"{rule}/{group}"] = {
+                "rule": rule, "group": group, "thresholds": thr, "detection_rate": det,
+                "false_alarms_per_h": fa, "upper_95_per_h": up, "n_fault_runs": len(fr),
+                "hours": hours,
+                "max_mismatch": max((float(r["sweep_mismatch"]) for r in rs), default=0.0)}
+    return {"rules": rules, "groups": groups, "target_delay_s": GREY_TARGET_DELAY_S,
+            "detection": detection, "false_alarms": false_alarms, "threshold_sweep": sweep}
 
 
 def _witness_summary(ok: list[dict[str, Any]]) -> dict[str, Any]:
@@ -297,7 +414,9 @@ def _plots(summary: dict[str, Any], records: list[dict[str, Any]], out: Path) ->
                        [p["ci_high"] - p["rate"] for p in pts]]
                 ax.errorbar([p["magnitude"] for p in pts], [p["rate"] for p in pts],
                             yerr=err, marker="o", capsize=3, label=ft)
-            ax.set_xscale("log")
+            mags = [r["magnitude"] for r in rows if r["class"] == cls
+                    and r["magnitude"] is not None]
+            ax.set_xscale("log" if all(m > 0 for m in mags) else "linear")
             ax.set_xlabel("fault magnitude (fault units)")
             ax.set_ylabel("detection rate (95 % CI)")
             ax.set_ylim(-0.05, 1.05)
@@ -326,6 +445,8 @@ def _plots(summary: dict[str, Any], records: list[dict[str, Any]], out: Path) ->
         fig.savefig(paths[-1], dpi=110)
         plt.close(fig)
 
+    if summary.get("grey"):
+        paths.append(_grey_plot(summary["grey"], out, plt))
     for ch, c in summary["confusion"].items():
         m = np.asarray(c["matrix"])
         fig, ax = plt.subplots(figsize=(1.2 + 0.8 * m.shape[1], 1.2 + 0.6 * m.shape[0]))
@@ -359,10 +480,54 @@ def _plots(summary: dict[str, Any], records: list[dict[str, Any]], out: Path) ->
         ax.legend(fontsize=7)
         ax.grid(alpha=0.3)
         fig.tight_layout()
-        paths.append(out / f"threshold_sweep_{key.replace(':', '_')}.png")
+        paths.append(out / f"threshold_sweep_{key.replace(':', '_').replace('/', '_')}.png")
         fig.savefig(paths[-1], dpi=110)
         plt.close(fig)
     return paths
+
+
+def _grey_plot(g: dict[str, Any], out: Path, plt: Any) -> Path:
+    """Grey channel: per fault type the share detected within the delay target against
+    the condition group (noise), a line per rule and magnitude; last panel the false
+    alarms per hour (95 % upper bound as error bar) per rule and group."""
+    groups = g["groups"]
+    ftypes = list(dict.fromkeys(r["fault_type"] for r in g["detection"]))
+    fig, axes = plt.subplots(1, len(ftypes) + 1, figsize=(3.6 * (len(ftypes) + 1), 3.6),
+                             squeeze=False)
+    x = np.arange(len(groups))
+    styles = ["-", "--", ":", "-."]
+    for ax, ft in zip(axes[0], ftypes, strict=False):
+        for i, rule in enumerate(g["rules"]):
+            rows = [r for r in g["detection"] if r["rule"] == rule and r["fault_type"] == ft]
+            for j, mag in enumerate(dict.fromkeys(r["magnitude"] for r in rows)):
+                # an alarm standing at the onset is no detection of the fault
+                y = [next(((r["within_target"] - r["standing"]) / r["n"] for r in rows
+                           if r["magnitude"] == mag and r["group"] == grp), math.nan)
+                     for grp in groups]
+                ax.plot(x, y, styles[i % len(styles)], marker="o", ms=3, color=f"C{j}",
+                        label=f"{rule} {_fmt(mag)}")
+        ax.set_xticks(x, groups, fontsize=8)
+        ax.set_ylim(-0.05, 1.05)
+        ax.set_title(f"{ft}: raised ≤ {g['target_delay_s']:g} s after onset", fontsize=9)
+        ax.legend(fontsize=6)
+        ax.grid(alpha=0.3)
+    ax = axes[0][-1]
+    for i, rule in enumerate(g["rules"]):
+        fa = [g["false_alarms"][f"{rule}/{grp}"] for grp in groups]
+        rate = np.array([f["rate_per_h"] for f in fa])
+        upper = np.array([f["upper_95"] for f in fa])
+        ax.errorbar(x + 0.08 * i, rate, yerr=[np.zeros_like(rate), upper - rate],
+                    fmt=styles[i % len(styles)], marker="s", capsize=3, label=rule)
+    ax.set_yscale("symlog", linthresh=0.1)
+    ax.set_xticks(x, groups, fontsize=8)
+    ax.set_title("false alarms per hour (bar: 95 % upper)", fontsize=9)
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    path = out / "grey_by_noise.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
 
 
 def _fmt(x: Any, digits: int = 3) -> str:
@@ -407,17 +572,21 @@ def markdown_summary(summary: dict[str, Any], title: str = "campaign") -> str:
                          f"{html.unescape(_fmt(fa['upper_95']))})",
                      f"{sum(r['detected'] for r in det)} of {sum(r['n'] for r in det)}",
                      " / ".join(_fmt(d.get(k)) for k in ("median_s", "p95_s", "max_s")),
-                     f"{c.get('correct', 0)} of {c.get('n', 0)}"])
+                     f"{c.get('correct', 0)} of {c.get('n', 0)}" if c else
+                     "n/a (names no fault kind)"])
     lines += _md_table(["channel", "false alarms / h (95 % upper)", "detected",
                         "delay median / p95 / max, s", "isolated right"], rows)
     lines += _md_table(["class", "fault", "magnitude", "detected", "isolated right",
                         "axis right", "typed right"],
                        [[r["class"], r["fault_type"], r["magnitude"],
-                         f"{r['detected']} of {r['n']}", f"{r.get('isolated', '–')} of {r['n']}",
+                         f"{r['detected']} of {r['n']}",
+                        f"{r['isolated']} of {r['n']}" if r.get("isolated") is not None
+                        else "n/a",
                          f"{r['axis_right']} of {r['n']}" if "axis_right" in r else "–",
                          f"{r['typed']} of {r['n_typed']}" if "typed" in r else "–"]
                         for r in summary["detection"]])
     lines += _witness_markdown(summary.get("witnesses") or {})
+    lines += _grey_markdown(summary.get("grey") or {})
     for key, sw in summary["threshold_sweep"].items():
         lines.append(f"Threshold sweep, {key} (configured {sw['configured_threshold']}):")
         lines.append("")
@@ -456,6 +625,61 @@ def _witness_markdown(w: dict[str, Any]) -> list[str]:
     return lines
 
 
+def _grey_tables(g: dict[str, Any]) -> list[tuple[str, list[str], list[list[Any]]]]:
+    """Grey section as (caption, header, rows): false alarms per rule and group, per rule
+    a fault × group table, per rule the threshold sweep by group."""
+    if not g:
+        return []
+    groups, target = g["groups"], g["target_delay_s"]
+    tables = [("Grey channel: false alarms per rule and condition group (fault-free time "
+               "after warm-up/calibration: nominal runs and before each onset; count in "
+               "hours, 95 % upper bound per hour):", ["rule", *groups, "all"],
+               [[rule, *(f"{fa['count']} in {fa['hours']:.2f} h (≤ "
+                         f"{html.unescape(_fmt(fa['upper_95']))})"
+                         for fa in (g["false_alarms"][f"{rule}/{grp}"]
+                                    for grp in [*groups, "all"]))]
+                for rule in g["rules"]])]
+    for rule in g["rules"]:
+        rows = [r for r in g["detection"] if r["rule"] == rule]
+        keys = list(dict.fromkeys((r["fault_type"], r["magnitude"]) for r in rows))
+        table = []
+        for ftype, mag in keys:
+            cells = []
+            for grp in groups:
+                r = next((x for x in rows if (x["fault_type"], x["magnitude"], x["group"])
+                          == (ftype, mag, grp)), None)
+                if r is None:
+                    cells.append("–")
+                    continue
+                d = r["delay"]
+                cells.append(f"{r['detected']}/{r['n']} ({r['within_target']}) · "
+                             + " / ".join(html.unescape(_fmt(d[k]))
+                                          for k in ("median_s", "p95_s", "max_s"))
+                             + (f" · +{r['standing']} st" if r["standing"] else ""))
+            table.append([ftype, mag, *cells])
+        tables.append((f"Grey channel, rule {rule}: detected of n (of them within {target:g} "
+                       "s) · delay median / p95 / max, s; per condition group (\"+k st\": k "
+                       "of the detections are an alarm already standing at the onset):",
+                       ["fault", "magnitude", *groups], table))
+    for rule in g["rules"]:
+        sw = [g["threshold_sweep"][f"{rule}/{grp}"] for grp in [*groups, "all"]]
+        tables.append((f"Threshold sweep, rule {rule} (× its threshold; detection rate / "
+                       "false alarms per hour):", ["threshold", *groups, "all"],
+                       [[t, *(f"{html.unescape(_fmt(x['detection_rate'][j]))} / "
+                              f"{html.unescape(_fmt(x['false_alarms_per_h'][j]))}"
+                              for x in sw)]
+                        for j, t in enumerate(sw[-1]["thresholds"])]))
+    return tables
+
+
+def _grey_markdown(g: dict[str, Any]) -> list[str]:
+    """Grey section of ``summary.md`` (:func:`_grey_tables`)."""
+    lines: list[str] = []
+    for caption, header, rows in _grey_tables(g):
+        lines += [caption, "", *_md_table(header, rows)]
+    return lines
+
+
 def _channel_of(summary: dict[str, Any], row: dict[str, Any]) -> str:
     return summary.get("class_channels", {}).get(row["class"], row["class"])
 
@@ -491,6 +715,8 @@ def write_report(summary: dict[str, Any], records: list[dict[str, Any]], out_dir
              _table(["group", "n", "median", "p95", "max"],
                     [[k, d["n"], d["median_s"], d["p95_s"], d["max_s"]]
                      for k, d in summary["delay"].items()])]
+    for caption, header, rows in _grey_tables(summary.get("grey") or {}):
+        parts += [f"<h2>{html.escape(caption.rstrip(':'))}</h2>", _table(header, rows)]
     for ch, c in summary["confusion"].items():
         parts.append(f"<h2>Isolation, {html.escape(ch)}: {c['correct']} of {c['n']} right</h2>")
         parts.append(_table(["injected \\ diagnosed", *c["diagnosed"]],

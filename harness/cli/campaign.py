@@ -87,7 +87,8 @@ def summary_text(summary: dict[str, Any]) -> str:
         mag = "" if row["magnitude"] is None else f" {row['magnitude']:g}"
         lines.append(f"  {row['class']} {row['fault_type']}{mag}: "
                      f"{row['detected']}/{row['n']} detected, "
-                     f"{row.get('isolated', 0)}/{row['n']} isolated right")
+                     + (f"{row['isolated']}/{row['n']} isolated right"
+                        if row.get("isolated") is not None else "no isolation (n/a)"))
     for key, d in summary["delay"].items():
         if d["n"]:
             lines.append(f"  delay {key}: median {d['median_s']:.3g} s, p95 {d['p95_s']:.3g} s, "
