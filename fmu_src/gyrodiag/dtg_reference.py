@@ -301,6 +301,29 @@ def _ls(A: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64] |
     return sol if np.all(np.isfinite(sol)) else None
 
 
+def _refinement_start(M: NDArray[np.float64], theta: NDArray[np.float64]
+                      ) -> dict[str, NDArray[np.float64]]:
+    """A = ΦᵀΦ and the error variance λmax(A⁻¹B) of both axes (:class:`NominalReference`)
+    from the per-block normal matrices of the case-rate regression (nblk, 11, 11):
+    block-diagonal in the axes, z = [φx, φy, y] (see :meth:`ReferenceLearner.finish`);
+    θ (10,) the reference."""
+    n = N_THETA
+    info, err = [], []
+    for a in range(2):
+        sl = slice(a * n, (a + 1) * n)
+        A_b = M[:, sl, sl]
+        s_b = M[:, sl, 2 * n] - np.einsum("bij,j->bi", A_b, theta[sl])
+        A = A_b.sum(axis=0)
+        info.append(A)
+        try:
+            ev = np.linalg.eigvals(np.linalg.solve(A, s_b.T @ s_b)).real
+        except np.linalg.LinAlgError:
+            raise ValueError("the regression over the learning window is singular: the "
+                             "signals do not excite all θ (no torquer dither?)") from None
+        err.append(max(float(ev.max()), _VAR_FLOOR))
+    return {"information": np.stack(info), "error_variance": np.array(err)}
+
+
 # --------------------------------------------------------------------------- reference
 @dataclass(frozen=True)
 class NominalPrior:
@@ -371,6 +394,18 @@ class NominalReference:
         Learning segments the reference was fitted on.
     change_segment : int
         First rejected segment (0-based), −1 if none.
+    information : ndarray, shape (2, 5, 5), or None
+        Case rate only: A = ΦᵀΦ of each axis' regression over the accepted learning rows
+        (V², unnormalised). It says how well the learning data pinned each direction of
+        θ0; the residual monitor refines θ0 from it (:class:`ResidualMonitor`). None
+        for the paper's regression (and for a reference restored from an older state).
+    error_variance : ndarray, shape (2,), or None
+        Case rate only: per axis the scale v (V²) of the covariance v·A⁻¹ of θ0. Least
+        squares with a white residual would give v = σ² (the residual variance); the
+        prefiltered residual is coloured and correlated with the regressors, so v is the
+        largest eigenvalue of A⁻¹B, B = Σ_b s_b s_bᵀ over the learning blocks' scores
+        s_b = Φ_bᵀe_b: v·A⁻¹ then covers the batch-means sandwich covariance A⁻¹BA⁻¹ in
+        every direction (measured v/σ² 5.6-8.7, docs/dtg_case_rate.md §8).
     """
 
     theta0: NDArray[np.float64]
@@ -382,6 +417,8 @@ class NominalReference:
     status: int = REFERENCE_STATUS["valid"]
     segments_used: int = 0
     change_segment: int = -1
+    information: NDArray[np.float64] | None = None
+    error_variance: NDArray[np.float64] | None = None
 
     @property
     def valid(self) -> bool:
@@ -405,7 +442,10 @@ class NominalReference:
                 "mean": self.mean.copy(), "block_std": self.block_std.copy(),
                 "var_short": self.var_short.copy(), "var_long": self.var_long.copy(),
                 "status": self.status, "segments_used": self.segments_used,
-                "change_segment": self.change_segment}
+                "change_segment": self.change_segment,
+                "information": None if self.information is None else self.information.copy(),
+                "error_variance": (None if self.error_variance is None
+                                   else self.error_variance.copy())}
 
     @classmethod
     def from_state(cls, s: dict[str, Any]) -> NominalReference:
@@ -418,8 +458,15 @@ class NominalReference:
                for k, n in (("theta0", n_par), ("theta0_eta", n_par),
                             ("mean", N_CHANNELS), ("block_std", N_CHANNELS),
                             ("var_short", N_CHANNELS), ("var_long", N_CHANNELS))}
+        extra = {}
+        for key, shape in (("information", (2, N_THETA, N_THETA)), ("error_variance", (2,))):
+            val = s.get(key)
+            extra[key] = (None if val is None else check_finite_array(
+                f"state[{key!r}]", val, shape=shape).copy())
+        if (extra["information"] is None) != (extra["error_variance"] is None):
+            raise ValueError("state['information'] and state['error_variance'] come together")
         return cls(**arr, status=int(s["status"]), segments_used=int(s["segments_used"]),
-                   change_segment=int(s["change_segment"]))
+                   change_segment=int(s["change_segment"]), **extra)
 
 
 @dataclass(frozen=True)
@@ -623,6 +670,7 @@ class ReferenceLearner:
             status=REFERENCE_STATUS["valid" if change < 0 else "change_in_window"],
             segments_used=len(segs) if change < 0 else change,
             change_segment=change,
+            **(_refinement_start(M[used], ref_theta) if model.case_rate else {}),
         )
         if np.any(ref.theta0_eta == 0.0):
             raise ValueError("the learned nominal θ has a zero entry (no excitation in the "
@@ -820,6 +868,9 @@ class ResidualMonitor:
         self.thresholds = thresholds
         self.clear_blocks = check_int("clear_blocks", clear_blocks, minimum=1)
         self._theta0 = reference.theta0.copy()
+        # case rate: θ0 is refined by the fault-free blocks and the tests allow for its
+        # remaining uncertainty (class docstring)
+        self._refine = model.case_rate and reference.information is not None
         eta0 = reference.theta0_eta
         self._log_theta0_eta = np.log10(np.abs(
             eta0 if eta0.size == 2 * N_THETA else np.tile(eta0, 2)))
@@ -838,6 +889,23 @@ class ResidualMonitor:
         self._alarm_block = -1
         self._last_hold_block = -1
         self.statistics = np.zeros(6)  # z_x, z_y, v_x, v_y, vL_x, vL_y
+        # θ0-uncertainty allowances per block (V²): block mean x, y; within-block x, y
+        self._allow = np.zeros((L, 4))
+        if self._refine:
+            info = self.reference.information
+            assert info is not None
+            assert self.reference.error_variance is not None
+            self._info = info.copy()                         # (2, 5, 5) ΦᵀΦ per axis
+            self._err_var = self.reference.error_variance.copy()  # θ0 cov = v·A⁻¹
+            theta = self._theta0.reshape(2, N_THETA)
+            self._rhs = np.einsum("aij,aj->ai", self._info, theta)  # Φᵀy of θ0
+            self._theta_ref = theta.copy()
+
+    @property
+    def theta_reference(self) -> NDArray[np.float64]:
+        """θ the residuals are computed with now: θ0, or with the case rate θ0 refined
+        by the fault-free blocks so far ((10,), x then y axis)."""
+        return self._theta_ref.reshape(-1).copy() if self._refine else self._theta0.copy()
 
     def prefill(self, means: NDArray[np.float64], variances: NDArray[np.float64],
                 theta: NDArray[np.float64]) -> None:
@@ -846,11 +914,12 @@ class ResidualMonitor:
             self._store(m, v, t)
 
     def _store(self, m: NDArray[np.float64], v: NDArray[np.float64],
-               t: NDArray[np.float64]) -> None:
+               t: NDArray[np.float64], allow: NDArray[np.float64] | None = None) -> None:
         p = self._pos
         self._means[p] = m
         self._vars[p] = v
         self._theta[p] = t
+        self._allow[p] = 0.0 if allow is None else allow
         self._pos = (p + 1) % self.long_blocks
         self._count = min(self._count + 1, self.long_blocks)
 
@@ -876,17 +945,64 @@ class ResidualMonitor:
         valid : ndarray of bool, shape (nb,)
             Samples whose regression rows are sound (False next to a skipped sample).
         """
-        e = regression_residuals(filtered, self._theta0, self.model)
+        allow = None
+        if self._refine:
+            phx, yx, phy, yy = self.model.rows(filtered)
+            th = self._theta_ref
+            e = np.column_stack([yx - phx @ th[0], yy - phy @ th[1]])
+            use = np.asarray(valid, dtype=bool)
+            allow = self._allowance((phx, phy), use)
+        else:
+            e = regression_residuals(filtered, self._theta0, self.model)
         m, v = block_moments(raw)
         res = _residual_moments(e, valid)
         if res is None:  # no usable row (a skipped sample): repeat the last block's
             prev = (self._pos - 1) % self.long_blocks
             res = (self._means[prev, 4:].copy(), self._vars[prev, 4:].copy())
+            allow = None if allow is None else self._allow[prev].copy()
         m = np.concatenate([m, res[0]])
         v = np.concatenate([v, res[1]])
-        self._store(m, v, theta.mean(axis=0))
+        self._store(m, v, theta.mean(axis=0), allow)
         self._block_index += 1
-        return self._test()
+        alarm = self._test()
+        if self._refine and not alarm:
+            # a block the tests accept as fault-free refines θ0 (no forgetting: the rotor
+            # is constant; in alarm the block is left out, so a fault is not learned)
+            for a, (ph, y) in enumerate(((phx, yx), (phy, yy))):
+                ph, y = ph[use], y[use]
+                self._info[a] += ph.T @ ph
+                self._rhs[a] += ph.T @ y
+                sol = _ls(self._info[a], self._rhs[a])
+                if sol is not None:
+                    self._theta_ref[a] = sol
+        return alarm
+
+    def _allowance(self, phis: tuple[NDArray[np.float64], NDArray[np.float64]],
+                   use: NDArray[np.bool_]) -> NDArray[np.float64]:
+        """θ0-uncertainty variances of this block (V²): of its residual mean, φ̄ᵀPφ̄,
+        and of its residual about the block's line, tr(S·P), per axis; P the covariance
+        of the current θ0 (v·A⁻¹, :class:`NominalReference`, A grown by the accepted
+        blocks) and S the detrended scatter of the block's regressors (as
+        :func:`block_moments` detrends the residual)."""
+        out = np.zeros(4)
+        if np.count_nonzero(use) < 3:
+            return out
+        for a, ph in enumerate(phis):
+            ph = ph[use]
+            try:
+                Ai = np.linalg.inv(self._info[a])
+            except np.linalg.LinAlgError:
+                continue
+            P = self._err_var[a] * Ai
+            mean = ph.mean(axis=0)
+            dev = ph - mean
+            k = np.flatnonzero(use).astype(float)
+            k -= k.mean()
+            slope = (k @ dev) / float(k @ k)
+            dev = dev - np.outer(k, slope)
+            out[a] = max(float(mean @ P @ mean), 0.0)
+            out[2 + a] = max(float(np.einsum("ki,ij,kj->", dev, P, dev)) / ph.shape[0], 0.0)
+        return out
 
     def _test(self) -> bool:
         ref = self.reference
@@ -895,12 +1011,25 @@ class ResidualMonitor:
         means, variances, _ = self._last(self.short_blocks)
         k = means.shape[0]
         m, v, _ = window_moments(means[:, res], variances[:, res])
-        z = np.abs(m - ref.mean[res]) / (ref.block_std[res] / math.sqrt(k))
-        vs = v / ref.variance_at(k, self.short_blocks, self.long_blocks)[res]
         lm, lv = self._last(self.long_blocks)[:2]
         kl = lm.shape[0]
         _, vl, _ = window_moments(lm[:, res], lv[:, res])
-        vL = vl / ref.variance_at(kl, self.short_blocks, self.long_blocks)[res]
+        var_s = ref.variance_at(k, self.short_blocks, self.long_blocks)[res]
+        var_l = ref.variance_at(kl, self.short_blocks, self.long_blocks)[res]
+        if self._refine:
+            # the window mean's θ0 part: the blocks' errors share one θ0 error, so their
+            # standard deviations add (fully correlated); the window variance's: the
+            # within-block parts plus the spread of the block means
+            a_s, a_l = self._last_allowances(k), self._last_allowances(kl)
+            level_var = (ref.block_std[res] / math.sqrt(k)) ** 2 + np.sqrt(
+                a_s[:, :2]).mean(axis=0) ** 2
+            z = np.abs(m - ref.mean[res]) / np.sqrt(level_var)
+            vs = v / (var_s + a_s[:, 2:].mean(axis=0) + a_s[:, :2].mean(axis=0))
+            vL = vl / (var_l + a_l[:, 2:].mean(axis=0) + a_l[:, :2].mean(axis=0))
+        else:
+            z = np.abs(m - ref.mean[res]) / (ref.block_std[res] / math.sqrt(k))
+            vs = v / var_s
+            vL = vl / var_l
         self.statistics = np.concatenate([z, vs, vL])
         hz, hv, hl = thr.hold
         raise_now = bool(np.any(z > thr.level) or np.any(vs > thr.variance)
@@ -917,6 +1046,11 @@ class ResidualMonitor:
             self.alarm = False
             self._alarm_block = -1
         return self.alarm
+
+    def _last_allowances(self, k: int) -> NDArray[np.float64]:
+        """θ0-uncertainty allowances of the newest k blocks, (k, 4)."""
+        k = min(k, self._count)
+        return self._allow[(self._pos - k + np.arange(k)) % self.long_blocks]
 
     @property
     def blocks_in_alarm(self) -> int:
@@ -968,7 +1102,10 @@ class ResidualMonitor:
                 "theta": self._theta.copy(), "pos": self._pos, "count": self._count,
                 "block_index": self._block_index, "alarm": self.alarm,
                 "alarm_block": self._alarm_block, "last_hold_block": self._last_hold_block,
-                "statistics": self.statistics.copy()}
+                "statistics": self.statistics.copy(),
+                "refinement": None if not self._refine else {
+                    "allow": self._allow.copy(), "info": self._info.copy(),
+                    "rhs": self._rhs.copy(), "theta_ref": self._theta_ref.copy()}}
 
     def set_state(self, s: dict[str, Any]) -> None:
         """Restore :meth:`get_state` output of an identically configured monitor."""
@@ -986,4 +1123,17 @@ class ResidualMonitor:
         self._alarm_block = int(s["alarm_block"])
         self._last_hold_block = int(s["last_hold_block"])
         self.statistics = np.asarray(s["statistics"], dtype=float).reshape(6).copy()
+        ref = s.get("refinement")
+        if (ref is None) != (not self._refine):
+            raise ValueError("state['refinement'] does not match this monitor (the case "
+                             "rate's refined reference is kept only with the case rate)")
+        if ref is not None:
+            self._allow = check_finite_array("state['refinement']['allow']", ref["allow"],
+                                             shape=(L, 4)).copy()
+            self._info = check_finite_array("state['refinement']['info']", ref["info"],
+                                            shape=(2, N_THETA, N_THETA)).copy()
+            self._rhs = check_finite_array("state['refinement']['rhs']", ref["rhs"],
+                                           shape=(2, N_THETA)).copy()
+            self._theta_ref = check_finite_array("state['refinement']['theta_ref']",
+                                                 ref["theta_ref"], shape=(2, N_THETA)).copy()
 
