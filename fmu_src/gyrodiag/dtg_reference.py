@@ -324,6 +324,33 @@ def _refinement_start(M: NDArray[np.float64], theta: NDArray[np.float64]
     return {"information": np.stack(info), "error_variance": np.array(err)}
 
 
+def _block_regressor_moments(phi: NDArray[np.float64], nblk: int, nb: int
+                             ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Per block the mean (nblk, 5) and the scatter about the block's straight line
+    (nblk, 5, 5) of regressor rows (nblk·nb, 5), as :func:`block_moments` detrends."""
+    x = phi.reshape(nblk, nb, phi.shape[1])
+    mean = x.mean(axis=1)
+    dev = x - mean[:, None, :]
+    if nb >= 3:
+        k = np.arange(nb) - 0.5 * (nb - 1)
+        slope = np.einsum("k,bki->bi", k, dev) / float(k @ k)
+        dev = dev - k[None, :, None] * slope[:, None, :]
+    return mean, np.einsum("bki,bkj->bij", dev, dev) / nb
+
+
+def _block_allowances(phi_blocks: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
+                      blocks: slice, information: NDArray[np.float64],
+                      error_variance: NDArray[np.float64]) -> NDArray[np.float64]:
+    """θ-uncertainty allowances (k, 4) of the blocks in ``blocks``: φ̄ᵀPφ̄ of x, y and
+    tr(S·P) of x, y with P = v·A⁻¹ per axis (:meth:`ResidualMonitor._allowance`)."""
+    out = []
+    for a, (mean, scatter) in enumerate(phi_blocks):
+        P = error_variance[a] * np.linalg.inv(information[a])
+        out.append((np.einsum("bi,ij,bj->b", mean[blocks], P, mean[blocks]),
+                    np.einsum("bij,ij->b", scatter[blocks], P)))
+    return np.maximum(np.column_stack([out[0][0], out[1][0], out[0][1], out[1][1]]), 0.0)
+
+
 # --------------------------------------------------------------------------- reference
 @dataclass(frozen=True)
 class NominalPrior:
@@ -601,6 +628,10 @@ class ReferenceLearner:
         # normal equations per block: z = [phi, y], both axes pooled (paper) or one
         # block-diagonal system of the two axes' own θ (case rate: θ0 per axis)
         phx, yx, phy, yy = model.rows(filt)
+        # case rate: per-block regressor moments, for the guard's allowance of the
+        # uncertainty of the segments-before fit (as the residual monitor's)
+        phi_blocks = ([_block_regressor_moments(ph, nblk, nb) for ph in (phx, phy)]
+                      if model.case_rate else None)
         if model.case_rate:
             zero = np.zeros_like(phx)
             phx, phy = np.hstack([phx, zero]), np.hstack([zero, phy])
@@ -639,8 +670,15 @@ class ReferenceLearner:
                                  "segment(s): the signals do not excite all θ (no dither?)")
             means, variances = channel_blocks(th_prev, slice(prev.start, segs[j].stop))
             n_prev = prev.stop - prev.start
+            allow = err_var = None
+            if phi_blocks is not None:
+                start = _refinement_start(M[prev], th_prev)
+                err_var = start["error_variance"]
+                allow = _block_allowances(phi_blocks, segs[j], start["information"],
+                                          err_var)
             if self._segment_fails(means[:n_prev], variances[:n_prev], means[n_prev:],
-                                   variances[n_prev:], th_prev, M_prev, th_seg, M_seg):
+                                   variances[n_prev:], th_prev, M_prev, th_seg, M_seg,
+                                   allow, err_var):
                 change = j
                 break
         used = slice(0, segs[change - 1].stop) if change > 0 else slice(0, nblk)
@@ -715,8 +753,12 @@ class ReferenceLearner:
     def _segment_fails(self, ref_means: NDArray[np.float64], ref_vars: NDArray[np.float64],
                        seg_means: NDArray[np.float64], seg_vars: NDArray[np.float64],
                        th_prev: NDArray[np.float64], M_prev: NDArray[np.float64],
-                       th_seg: NDArray[np.float64] | None, M_seg: NDArray[np.float64]
-                       ) -> bool:
+                       th_seg: NDArray[np.float64] | None, M_seg: NDArray[np.float64],
+                       allow: NDArray[np.float64] | None = None,
+                       err_var: NDArray[np.float64] | None = None) -> bool:
+        """``allow`` (k, 4), ``err_var`` (2,): case rate only, the θ-uncertainty
+        allowances of the segment's blocks and the error variances of the fit before it
+        (:meth:`ResidualMonitor._allowance`, :class:`NominalReference`)."""
         thr = self.thresholds
         k = seg_means.shape[0]
         res = list(RESIDUALS)
@@ -724,8 +766,15 @@ class ReferenceLearner:
         sd = np.maximum(ref_means[:, res].std(axis=0), 1e-300)
         m, v, _ = window_moments(seg_means[:, res], seg_vars[:, res])
         v_ref = _window_reference_variance(ref_means[:, res], ref_vars[:, res], k)
-        z = np.abs(m - mu) / (sd / math.sqrt(k))
-        ratio = v / np.maximum(v_ref, _VAR_FLOOR)
+        if allow is None:
+            z = np.abs(m - mu) / (sd / math.sqrt(k))
+            ratio = v / np.maximum(v_ref, _VAR_FLOOR)
+        else:
+            # the monitor's allowance (its _test): a manoeuvre in the segment excites
+            # directions the segments before did not pin down
+            z = np.abs(m - mu) / np.sqrt(sd * sd / k + np.sqrt(allow[:, :2]).mean(axis=0) ** 2)
+            ratio = v / np.maximum(v_ref + allow[:, 2:].mean(axis=0)
+                                   + allow[:, :2].mean(axis=0), _VAR_FLOOR)
         if np.any(z > thr.level) or np.any(ratio > thr.variance):
             return True
         if th_seg is None:
@@ -739,7 +788,13 @@ class ReferenceLearner:
         sigma2 = rss / max(samples - npar, 1)
         A_prev, A_seg = M_prev[:npar, :npar], M_seg[:npar, :npar]
         try:
-            C = sigma2 * (np.linalg.inv(A_prev) + np.linalg.inv(A_seg))
+            C = np.linalg.inv(A_prev) + np.linalg.inv(A_seg)
+            if err_var is None:
+                C *= sigma2
+            else:
+                # case rate: per axis θ covariance v·A⁻¹ (NominalReference.error_variance)
+                C[:N_THETA] *= err_var[0]
+                C[N_THETA:] *= err_var[1]
             d = th_seg - th_prev
             spread = float(d @ np.linalg.solve(C, d)) / npar
         except np.linalg.LinAlgError:
