@@ -277,6 +277,7 @@ def test_df_readout_state_round_trip_and_validation(runs) -> None:
 # ------------------------------------------------------------------------------- FMU
 TOL = {"rtol": 1e-12, "atol": 1e-12}
 K_SAVE, K_RERUN = 6000, 1500
+K_SAVE_PATTERN, K_RERUN_PATTERN = 13900, 1000  # as tests/_system_diagnoser_runner.py
 
 
 @pytest.fixture(scope="module")
@@ -320,6 +321,23 @@ def test_fmu_dtg_case_rate_equals_library(fmu, runs) -> None:
     assert not _col(fmu, "dtg", "dtg.alarm").any()
     seg = slice(K_SAVE, K_SAVE + K_RERUN)
     np.testing.assert_array_equal(fmu["dtg_restored"], fmu["dtg"][seg])
+
+
+def test_fmu_dtg_case_rate_pattern_equals_library(fmu, runs) -> None:
+    """The pattern classifier with the case rate: the residual tests (with the refined
+    reference and its allowance) equal the library's to 1e-12, and the FMU state saved
+    in the manoeuvre (refinement included) restores them exactly."""
+    _, outs = _run_dtg(runs["square"], "central", classifier="pattern")
+    for a in range(2):
+        for i, name in enumerate(("residual_level_z", "residual_var_ratio",
+                                  "residual_long_var_ratio")):
+            np.testing.assert_allclose(_col(fmu, "dtg_pattern", f"dtg.{name}[{a + 1}]"),
+                                       [o.diagnosis.tests[2 * i + a] for o in outs], **TOL)
+    z = _col(fmu, "dtg_pattern", "dtg.residual_level_z[1]")
+    assert z[10100:].max() > 0.1  # the tests ran (not a silent zero)
+    assert not _col(fmu, "dtg_pattern", "dtg.alarm").any()
+    seg = slice(K_SAVE_PATTERN, K_SAVE_PATTERN + K_RERUN_PATTERN)
+    np.testing.assert_array_equal(fmu["dtg_pattern_restored"], fmu["dtg_pattern"][seg])
 
 
 def test_fmu_df_readout_dynamics_equals_library(fmu, runs) -> None:
