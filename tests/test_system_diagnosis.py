@@ -128,6 +128,23 @@ def test_case_rate_pattern_classifier_alarms_off_trim_without_the_case_rate(runs
     assert any(x.alarm for x in outs)
 
 
+def test_case_rate_channel_started_in_a_manoeuvre_is_silent() -> None:
+    """A channel whose first sample falls inside a manoeuvre (an FMU chain whose DTG
+    starts at the case rate; here the off-trim recovery from 0.2 s: q −0.40 rad/s, Ux
+    46 V): its zero-state prefilter shows every signal jumping at the start, a J·Δω
+    impulse on the y line that the rotor never had. The rows of the filter's start are
+    left out of the estimators (as after a gap). Measured: |η − 1| ≤ 0.034 and no alarm;
+    with those rows the y estimator was kicked, |η − 1| up to 15.9, alarm 54 % of the
+    time."""
+    o = _chain(22.0, **OFF_TRIM)
+    cut = {k: v[200:] for k, v in o.items()}
+    assert abs(cut["q"][0]) > 0.3 and abs(cut["Ux"][0]) > 30.0
+    _, outs = _run_dtg(cut, "central", classifier="pattern")
+    assert not any(x.alarm for x in outs)
+    eta = np.array([x.eta for x in outs[10000:]])
+    assert np.abs(eta - 1.0).max() < 0.06, np.abs(eta - 1.0).max()
+
+
 def _with_fault(o, signal: str, size: float, t0: float) -> dict[str, np.ndarray]:
     faulty = dict(o)
     faulty[signal] = np.where(o["t"] >= t0, o[signal] + size, o[signal])
