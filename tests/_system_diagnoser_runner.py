@@ -33,6 +33,10 @@ DF_PARAMS: dict[str, Any] = {
 }
 #: Save point of the state round trip (inside the DTG learning window), samples.
 K_SAVE, K_RERUN = 6000, 1500
+#: The pattern classifier with the case rate (the reference refined in the manoeuvre):
+#: state saved after learning, just before the square wave's second edge (14 s).
+DTG_PATTERN_PARAMS: dict[str, Any] = {**DTG_PARAMS, "dtg.classifier": "pattern"}
+K_SAVE_PATTERN, K_RERUN_PATTERN = 13900, 1000
 INVALID = {
     "dtg.case_rate": ({"dtg.case_rate": 3}, {}),
     "dtg.pickoff_scale": ({"dtg.pickoff_scale": 0.0}, {}),
@@ -73,6 +77,24 @@ def run(fmu_dir: Path, out: Path, inp: Path) -> None:
     d.fmu.setFMUstate(d.fmu.deSerializeFMUstate(state))
     d.k = K_SAVE
     res["dtg_restored"] = d.run(data["dtg"][K_SAVE:K_SAVE + K_RERUN])
+    d.close()
+
+    d = new("dtg_pattern", DTG_PATTERN_PARAMS, DTG_IN)
+    assert d.init_status == 0, d.log
+    rows = []
+    for k, x in enumerate(data["dtg"]):
+        if k == K_SAVE_PATTERN:
+            state = d.fmu.serializeFMUstate(d.fmu.getFMUstate())
+        if d.step(x) != 0:
+            raise RuntimeError(f"doStep at k={k}: {d.log}")
+        rows.append(d.outputs())
+    res["dtg_pattern"] = np.array(rows)
+    d.close()
+    d = new("dtg_pattern_restored", {"sample_period_s": H}, DTG_IN)
+    d.fmu.setFMUstate(d.fmu.deSerializeFMUstate(state))
+    d.k = K_SAVE_PATTERN
+    res["dtg_pattern_restored"] = d.run(
+        data["dtg"][K_SAVE_PATTERN:K_SAVE_PATTERN + K_RERUN_PATTERN])
     d.close()
 
     d = new("df", DF_PARAMS, DF_IN, {"df.sensor_dynamics_file": str(data["readout_path"])})

@@ -610,6 +610,12 @@ class DTGChannel:
             rows = self._regressor.update(*sample, validate=False)  # type: ignore[call-arg]
         else:
             rows = self._regressor.step(*sample)  # type: ignore[union-attr]
+        if rows is not None and self._case_rate and n < self._gap_samples:
+            # a case-rate channel may start in a manoeuvre (off trim: ω ≠ 0, torquer
+            # voltages at L·ω/Ku): the prefilter, from zero state, shows every signal
+            # jumping at t = 0, a ½s·Δω impulse on the y line that the rotor never had;
+            # its rows are left out until the filter's start has rung down, as after a gap
+            rows = None
         if rows is not None:
             self._theta_now = (self._estimators[0].step(rows[0], rows[1]),
                                self._estimators[1].step(rows[2], rows[3]))

@@ -320,6 +320,56 @@ def _ls(A: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64] |
     return sol if np.all(np.isfinite(sol)) else None
 
 
+def _refinement_start(M: NDArray[np.float64], theta: NDArray[np.float64]
+                      ) -> dict[str, NDArray[np.float64]]:
+    """A = ΦᵀΦ and the error variance λmax(A⁻¹B) of both axes (:class:`NominalReference`)
+    from the per-block normal matrices of the case-rate regression (nblk, 11, 11):
+    block-diagonal in the axes, z = [φx, φy, y] (see :meth:`ReferenceLearner.finish`);
+    θ (10,) the reference."""
+    n = N_THETA
+    info, err = [], []
+    for a in range(2):
+        sl = slice(a * n, (a + 1) * n)
+        A_b = M[:, sl, sl]
+        s_b = M[:, sl, 2 * n] - np.einsum("bij,j->bi", A_b, theta[sl])
+        A = A_b.sum(axis=0)
+        info.append(A)
+        try:
+            ev = np.linalg.eigvals(np.linalg.solve(A, s_b.T @ s_b)).real
+        except np.linalg.LinAlgError:
+            raise ValueError("the regression over the learning window is singular: the "
+                             "signals do not excite all θ (no torquer dither?)") from None
+        err.append(max(float(ev.max()), _VAR_FLOOR))
+    return {"information": np.stack(info), "error_variance": np.array(err)}
+
+
+def _block_regressor_moments(phi: NDArray[np.float64], nblk: int, nb: int
+                             ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Per block the mean (nblk, 5) and the scatter about the block's straight line
+    (nblk, 5, 5) of regressor rows (nblk·nb, 5), as :func:`block_moments` detrends."""
+    x = phi.reshape(nblk, nb, phi.shape[1])
+    mean = x.mean(axis=1)
+    dev = x - mean[:, None, :]
+    if nb >= 3:
+        k = np.arange(nb) - 0.5 * (nb - 1)
+        slope = np.einsum("k,bki->bi", k, dev) / float(k @ k)
+        dev = dev - k[None, :, None] * slope[:, None, :]
+    return mean, np.einsum("bki,bkj->bij", dev, dev) / nb
+
+
+def _block_allowances(phi_blocks: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
+                      blocks: slice, information: NDArray[np.float64],
+                      error_variance: NDArray[np.float64]) -> NDArray[np.float64]:
+    """θ-uncertainty allowances (k, 4) of the blocks in ``blocks``: φ̄ᵀPφ̄ of x, y and
+    tr(S·P) of x, y with P = v·A⁻¹ per axis (:meth:`ResidualMonitor._allowance`)."""
+    out = []
+    for a, (mean, scatter) in enumerate(phi_blocks):
+        P = error_variance[a] * np.linalg.inv(information[a])
+        out.append((np.einsum("bi,ij,bj->b", mean[blocks], P, mean[blocks]),
+                    np.einsum("bij,ij->b", scatter[blocks], P)))
+    return np.maximum(np.column_stack([out[0][0], out[1][0], out[0][1], out[1][1]]), 0.0)
+
+
 # --------------------------------------------------------------------------- reference
 @dataclass(frozen=True)
 class NominalPrior:
@@ -390,6 +440,18 @@ class NominalReference:
         Learning segments the reference was fitted on.
     change_segment : int
         First rejected segment (0-based), −1 if none.
+    information : ndarray, shape (2, 5, 5), or None
+        Case rate only: A = ΦᵀΦ of each axis' regression over the accepted learning rows
+        (V², unnormalised). It says how well the learning data pinned each direction of
+        θ0; the residual monitor refines θ0 from it (:class:`ResidualMonitor`). None
+        for the paper's regression (and for a reference restored from an older state).
+    error_variance : ndarray, shape (2,), or None
+        Case rate only: per axis the scale v (V²) of the covariance v·A⁻¹ of θ0. Least
+        squares with a white residual would give v = σ² (the residual variance); the
+        prefiltered residual is coloured and correlated with the regressors, so v is the
+        largest eigenvalue of A⁻¹B, B = Σ_b s_b s_bᵀ over the learning blocks' scores
+        s_b = Φ_bᵀe_b: v·A⁻¹ then covers the batch-means sandwich covariance A⁻¹BA⁻¹ in
+        every direction (measured v/σ² 5.6-8.7, docs/dtg_case_rate.md §8).
     """
 
     theta0: NDArray[np.float64]
@@ -401,6 +463,8 @@ class NominalReference:
     status: int = REFERENCE_STATUS["valid"]
     segments_used: int = 0
     change_segment: int = -1
+    information: NDArray[np.float64] | None = None
+    error_variance: NDArray[np.float64] | None = None
 
     @property
     def valid(self) -> bool:
@@ -424,7 +488,10 @@ class NominalReference:
                 "mean": self.mean.copy(), "block_std": self.block_std.copy(),
                 "var_short": self.var_short.copy(), "var_long": self.var_long.copy(),
                 "status": self.status, "segments_used": self.segments_used,
-                "change_segment": self.change_segment}
+                "change_segment": self.change_segment,
+                "information": None if self.information is None else self.information.copy(),
+                "error_variance": (None if self.error_variance is None
+                                   else self.error_variance.copy())}
 
     @classmethod
     def from_state(cls, s: dict[str, Any]) -> NominalReference:
@@ -437,8 +504,15 @@ class NominalReference:
                for k, n in (("theta0", n_par), ("theta0_eta", n_par),
                             ("mean", N_CHANNELS), ("block_std", N_CHANNELS),
                             ("var_short", N_CHANNELS), ("var_long", N_CHANNELS))}
+        extra = {}
+        for key, shape in (("information", (2, N_THETA, N_THETA)), ("error_variance", (2,))):
+            val = s.get(key)
+            extra[key] = (None if val is None else check_finite_array(
+                f"state[{key!r}]", val, shape=shape).copy())
+        if (extra["information"] is None) != (extra["error_variance"] is None):
+            raise ValueError("state['information'] and state['error_variance'] come together")
         return cls(**arr, status=int(s["status"]), segments_used=int(s["segments_used"]),
-                   change_segment=int(s["change_segment"]))
+                   change_segment=int(s["change_segment"]), **extra)
 
 
 @dataclass(frozen=True)
@@ -579,6 +653,10 @@ class ReferenceLearner:
         # normal equations per block: z = [phi, y], both axes pooled (paper) or one
         # block-diagonal system of the two axes' own θ (case rate: θ0 per axis)
         phx, yx, phy, yy = model.rows(filt)
+        # case rate: per-block regressor moments, for the guard's allowance of the
+        # uncertainty of the segments-before fit (as the residual monitor's)
+        phi_blocks = ([_block_regressor_moments(ph, nblk, nb) for ph in (phx, phy)]
+                      if model.case_rate else None)
         if model.case_rate:
             zero = np.zeros_like(phx)
             phx, phy = np.hstack([phx, zero]), np.hstack([zero, phy])
@@ -617,8 +695,15 @@ class ReferenceLearner:
                                  "segment(s): the signals do not excite all θ (no dither?)")
             means, variances = channel_blocks(th_prev, slice(prev.start, segs[j].stop))
             n_prev = prev.stop - prev.start
+            allow = err_var = None
+            if phi_blocks is not None:
+                start = _refinement_start(M[prev], th_prev)
+                err_var = start["error_variance"]
+                allow = _block_allowances(phi_blocks, segs[j], start["information"],
+                                          err_var)
             if self._segment_fails(means[:n_prev], variances[:n_prev], means[n_prev:],
-                                   variances[n_prev:], th_prev, M_prev, th_seg, M_seg):
+                                   variances[n_prev:], th_prev, M_prev, th_seg, M_seg,
+                                   allow, err_var):
                 change = j
                 break
         used = slice(0, segs[change - 1].stop) if change > 0 else slice(0, nblk)
@@ -648,6 +733,7 @@ class ReferenceLearner:
             status=REFERENCE_STATUS["valid" if change < 0 else "change_in_window"],
             segments_used=len(segs) if change < 0 else change,
             change_segment=change,
+            **(_refinement_start(M[used], ref_theta) if model.case_rate else {}),
         )
         if np.any(ref.theta0_eta == 0.0):
             raise ValueError("the learned nominal θ has a zero entry (no excitation in the "
@@ -692,8 +778,12 @@ class ReferenceLearner:
     def _segment_fails(self, ref_means: NDArray[np.float64], ref_vars: NDArray[np.float64],
                        seg_means: NDArray[np.float64], seg_vars: NDArray[np.float64],
                        th_prev: NDArray[np.float64], M_prev: NDArray[np.float64],
-                       th_seg: NDArray[np.float64] | None, M_seg: NDArray[np.float64]
-                       ) -> bool:
+                       th_seg: NDArray[np.float64] | None, M_seg: NDArray[np.float64],
+                       allow: NDArray[np.float64] | None = None,
+                       err_var: NDArray[np.float64] | None = None) -> bool:
+        """``allow`` (k, 4), ``err_var`` (2,): case rate only, the θ-uncertainty
+        allowances of the segment's blocks and the error variances of the fit before it
+        (:meth:`ResidualMonitor._allowance`, :class:`NominalReference`)."""
         thr = self.thresholds
         k = seg_means.shape[0]
         res = list(RESIDUALS)
@@ -701,8 +791,15 @@ class ReferenceLearner:
         sd = np.maximum(ref_means[:, res].std(axis=0), 1e-300)
         m, v, _ = window_moments(seg_means[:, res], seg_vars[:, res])
         v_ref = _window_reference_variance(ref_means[:, res], ref_vars[:, res], k)
-        z = np.abs(m - mu) / (sd / math.sqrt(k))
-        ratio = v / np.maximum(v_ref, _VAR_FLOOR)
+        if allow is None:
+            z = np.abs(m - mu) / (sd / math.sqrt(k))
+            ratio = v / np.maximum(v_ref, _VAR_FLOOR)
+        else:
+            # the monitor's allowance (its _test): a manoeuvre in the segment excites
+            # directions the segments before did not pin down
+            z = np.abs(m - mu) / np.sqrt(sd * sd / k + np.sqrt(allow[:, :2]).mean(axis=0) ** 2)
+            ratio = v / np.maximum(v_ref + allow[:, 2:].mean(axis=0)
+                                   + allow[:, :2].mean(axis=0), _VAR_FLOOR)
         if np.any(z > thr.level) or np.any(ratio > thr.variance):
             return True
         if th_seg is None:
@@ -716,7 +813,13 @@ class ReferenceLearner:
         sigma2 = rss / max(samples - npar, 1)
         A_prev, A_seg = M_prev[:npar, :npar], M_seg[:npar, :npar]
         try:
-            C = sigma2 * (np.linalg.inv(A_prev) + np.linalg.inv(A_seg))
+            C = np.linalg.inv(A_prev) + np.linalg.inv(A_seg)
+            if err_var is None:
+                C *= sigma2
+            else:
+                # case rate: per axis θ covariance v·A⁻¹ (NominalReference.error_variance)
+                C[:N_THETA] *= err_var[0]
+                C[N_THETA:] *= err_var[1]
             d = th_seg - th_prev
             spread = float(d @ np.linalg.solve(C, d)) / npar
         except np.linalg.LinAlgError:
@@ -845,6 +948,9 @@ class ResidualMonitor:
         self.thresholds = thresholds
         self.clear_blocks = check_int("clear_blocks", clear_blocks, minimum=1)
         self._theta0 = reference.theta0.copy()
+        # case rate: θ0 is refined by the fault-free blocks and the tests allow for its
+        # remaining uncertainty (class docstring)
+        self._refine = model.case_rate and reference.information is not None
         eta0 = reference.theta0_eta
         self._log_theta0_eta = np.log10(np.abs(
             eta0 if eta0.size == 2 * N_THETA else np.tile(eta0, 2)))
@@ -866,6 +972,23 @@ class ResidualMonitor:
         self._other_seen = False   # a test other than the power CUSUM held this alarm
         # z_x, z_y, v_x, v_y, vL_x, vL_y, P_x, P_y (P: power CUSUM / its threshold)
         self.statistics = np.zeros(N_TESTS)
+        # θ0-uncertainty allowances per block (V²): block mean x, y; within-block x, y
+        self._allow = np.zeros((L, 4))
+        if self._refine:
+            info = self.reference.information
+            assert info is not None
+            assert self.reference.error_variance is not None
+            self._info = info.copy()                         # (2, 5, 5) ΦᵀΦ per axis
+            self._err_var = self.reference.error_variance.copy()  # θ0 cov = v·A⁻¹
+            theta = self._theta0.reshape(2, N_THETA)
+            self._rhs = np.einsum("aij,aj->ai", self._info, theta)  # Φᵀy of θ0
+            self._theta_ref = theta.copy()
+
+    @property
+    def theta_reference(self) -> NDArray[np.float64]:
+        """θ the residuals are computed with now: θ0, or with the case rate θ0 refined
+        by the fault-free blocks so far ((10,), x then y axis)."""
+        return self._theta_ref.reshape(-1).copy() if self._refine else self._theta0.copy()
 
     def prefill(self, means: NDArray[np.float64], variances: NDArray[np.float64],
                 theta: NDArray[np.float64]) -> None:
@@ -874,11 +997,12 @@ class ResidualMonitor:
             self._store(m, v, t)
 
     def _store(self, m: NDArray[np.float64], v: NDArray[np.float64],
-               t: NDArray[np.float64]) -> None:
+               t: NDArray[np.float64], allow: NDArray[np.float64] | None = None) -> None:
         p = self._pos
         self._means[p] = m
         self._vars[p] = v
         self._theta[p] = t
+        self._allow[p] = 0.0 if allow is None else allow
         self._pos = (p + 1) % self.long_blocks
         self._count = min(self._count + 1, self.long_blocks)
 
@@ -904,28 +1028,79 @@ class ResidualMonitor:
         valid : ndarray of bool, shape (nb,)
             Samples whose regression rows are sound (False next to a skipped sample).
         """
-        e = regression_residuals(filtered, self._theta0, self.model)
+        allow = None
+        if self._refine:
+            phx, yx, phy, yy = self.model.rows(filtered)
+            th = self._theta_ref
+            e = np.column_stack([yx - phx @ th[0], yy - phy @ th[1]])
+            use = np.asarray(valid, dtype=bool)
+            allow = self._allowance((phx, phy), use)
+        else:
+            e = regression_residuals(filtered, self._theta0, self.model)
         m, v = block_moments(raw)
         res = _residual_moments(e, valid)
         fresh = res is not None
         if res is None:  # no usable row (a skipped sample): repeat the last block's
             prev = (self._pos - 1) % self.long_blocks
             res = (self._means[prev, 4:].copy(), self._vars[prev, 4:].copy())
+            allow = None if allow is None else self._allow[prev].copy()
         m = np.concatenate([m, res[0]])
         v = np.concatenate([v, res[1]])
-        self._store(m, v, theta.mean(axis=0))
+        self._store(m, v, theta.mean(axis=0), allow)
         self._block_index += 1
         if fresh:  # a repeated block is no new evidence
-            self._update_power(res[0])
-        return self._test()
+            self._update_power(res[0], None if allow is None else allow[:2])
+        alarm = self._test()
+        if self._refine and not alarm:
+            # a block the tests accept as fault-free refines θ0 (no forgetting: the rotor
+            # is constant; in alarm the block is left out, so a fault is not learned)
+            for a, (ph, y) in enumerate(((phx, yx), (phy, yy))):
+                ph, y = ph[use], y[use]
+                self._info[a] += ph.T @ ph
+                self._rhs[a] += ph.T @ y
+                sol = _ls(self._info[a], self._rhs[a])
+                if sol is not None:
+                    self._theta_ref[a] = sol
+        return alarm
 
-    def _update_power(self, residual_means: NDArray[np.float64]) -> None:
+    def _allowance(self, phis: tuple[NDArray[np.float64], NDArray[np.float64]],
+                   use: NDArray[np.bool_]) -> NDArray[np.float64]:
+        """θ0-uncertainty variances of this block (V²): of its residual mean, φ̄ᵀPφ̄,
+        and of its residual about the block's line, tr(S·P), per axis; P the covariance
+        of the current θ0 (v·A⁻¹, :class:`NominalReference`, A grown by the accepted
+        blocks) and S the detrended scatter of the block's regressors (as
+        :func:`block_moments` detrends the residual)."""
+        out = np.zeros(4)
+        if np.count_nonzero(use) < 3:
+            return out
+        for a, ph in enumerate(phis):
+            ph = ph[use]
+            try:
+                Ai = np.linalg.inv(self._info[a])
+            except np.linalg.LinAlgError:
+                continue
+            P = self._err_var[a] * Ai
+            mean = ph.mean(axis=0)
+            dev = ph - mean
+            k = np.flatnonzero(use).astype(float)
+            k -= k.mean()
+            slope = (k @ dev) / float(k @ k)
+            dev = dev - np.outer(k, slope)
+            out[a] = max(float(mean @ P @ mean), 0.0)
+            out[2 + a] = max(float(np.einsum("ki,ij,kj->", dev, P, dev)) / ph.shape[0], 0.0)
+        return out
+
+    def _update_power(self, residual_means: NDArray[np.float64],
+                      allowance: NDArray[np.float64] | None) -> None:
         h = self.thresholds.power
         if h <= 0.0:
             return
         ref = self.reference
         res = list(RESIDUALS)
-        q = ((residual_means - ref.mean[res]) / ref.block_std[res]) ** 2
+        var = ref.block_std[res] ** 2
+        if allowance is not None:  # case rate: the block mean's θ0-uncertainty part
+            var = var + allowance
+        q = (residual_means - ref.mean[res]) ** 2 / var
         self._power = np.clip(self._power + np.minimum(q, POWER_Q_CAP) - POWER_KAPPA, 0.0, h)
 
     def _test(self) -> bool:
@@ -935,12 +1110,25 @@ class ResidualMonitor:
         means, variances, _ = self._last(self.short_blocks)
         k = means.shape[0]
         m, v, _ = window_moments(means[:, res], variances[:, res])
-        z = np.abs(m - ref.mean[res]) / (ref.block_std[res] / math.sqrt(k))
-        vs = v / ref.variance_at(k, self.short_blocks, self.long_blocks)[res]
         lm, lv = self._last(self.long_blocks)[:2]
         kl = lm.shape[0]
         _, vl, _ = window_moments(lm[:, res], lv[:, res])
-        vL = vl / ref.variance_at(kl, self.short_blocks, self.long_blocks)[res]
+        var_s = ref.variance_at(k, self.short_blocks, self.long_blocks)[res]
+        var_l = ref.variance_at(kl, self.short_blocks, self.long_blocks)[res]
+        if self._refine:
+            # the window mean's θ0 part: the blocks' errors share one θ0 error, so their
+            # standard deviations add (fully correlated); the window variance's: the
+            # within-block parts plus the spread of the block means
+            a_s, a_l = self._last_allowances(k), self._last_allowances(kl)
+            level_var = (ref.block_std[res] / math.sqrt(k)) ** 2 + np.sqrt(
+                a_s[:, :2]).mean(axis=0) ** 2
+            z = np.abs(m - ref.mean[res]) / np.sqrt(level_var)
+            vs = v / (var_s + a_s[:, 2:].mean(axis=0) + a_s[:, :2].mean(axis=0))
+            vL = vl / (var_l + a_l[:, 2:].mean(axis=0) + a_l[:, :2].mean(axis=0))
+        else:
+            z = np.abs(m - ref.mean[res]) / (ref.block_std[res] / math.sqrt(k))
+            vs = v / var_s
+            vL = vl / var_l
         power = self._power / thr.power if thr.power > 0.0 else np.zeros(2)
         self.statistics = np.concatenate([z, vs, vL, power])
         hz, hv, hl = thr.hold
@@ -962,6 +1150,11 @@ class ResidualMonitor:
             self.alarm = False
             self._alarm_block = -1
         return self.alarm
+
+    def _last_allowances(self, k: int) -> NDArray[np.float64]:
+        """θ0-uncertainty allowances of the newest k blocks, (k, 4)."""
+        k = min(k, self._count)
+        return self._allow[(self._pos - k + np.arange(k)) % self.long_blocks]
 
     @property
     def power_only(self) -> bool:
@@ -1021,7 +1214,10 @@ class ResidualMonitor:
                 "block_index": self._block_index, "alarm": self.alarm,
                 "alarm_block": self._alarm_block, "last_hold_block": self._last_hold_block,
                 "power": self._power.copy(), "other_seen": self._other_seen,
-                "statistics": self.statistics.copy()}
+                "statistics": self.statistics.copy(),
+                "refinement": None if not self._refine else {
+                    "allow": self._allow.copy(), "info": self._info.copy(),
+                    "rhs": self._rhs.copy(), "theta_ref": self._theta_ref.copy()}}
 
     def set_state(self, s: dict[str, Any]) -> None:
         """Restore :meth:`get_state` output of an identically configured monitor."""
@@ -1041,4 +1237,17 @@ class ResidualMonitor:
         self._power = check_finite_array("state['power']", s["power"], shape=(2,)).copy()
         self._other_seen = bool(s["other_seen"])
         self.statistics = np.asarray(s["statistics"], dtype=float).reshape(N_TESTS).copy()
+        ref = s.get("refinement")
+        if (ref is None) != (not self._refine):
+            raise ValueError("state['refinement'] does not match this monitor (the case "
+                             "rate's refined reference is kept only with the case rate)")
+        if ref is not None:
+            self._allow = check_finite_array("state['refinement']['allow']", ref["allow"],
+                                             shape=(L, 4)).copy()
+            self._info = check_finite_array("state['refinement']['info']", ref["info"],
+                                            shape=(2, N_THETA, N_THETA)).copy()
+            self._rhs = check_finite_array("state['refinement']['rhs']", ref["rhs"],
+                                           shape=(2, N_THETA)).copy()
+            self._theta_ref = check_finite_array("state['refinement']['theta_ref']",
+                                                 ref["theta_ref"], shape=(2, N_THETA)).copy()
 

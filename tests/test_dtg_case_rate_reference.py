@@ -1,0 +1,178 @@
+"""The case-rate reference of the pattern classifier refines θ0 with the fault-free blocks
+and allows for θ0's remaining uncertainty (gyrodiag.dtg_reference, docs/dtg_case_rate.md
+§8): known answers on the central-scheme difference equation and on constructed normal
+matrices."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from _dtg_sim import STABLE_ROTOR
+
+from gyrodiag.dtg import N_THETA
+from gyrodiag.dtg_case_rate import dtg_case_rate_regression, theta_central_from_physical
+from gyrodiag.dtg_reference import (
+    NominalReference,
+    ReferenceLearner,
+    RegressionModel,
+    ResidualMonitor,
+    ResidualThresholds,
+    _refinement_start,
+)
+
+T = 1e-3
+NB = 25
+SHORT, LONG = 20, 80
+KT = STABLE_ROTOR.KT
+MODEL = RegressionModel("central", T, KT)
+P = STABLE_ROTOR
+THETA = theta_central_from_physical(P.J, P.c, P.k, P.L, P.lam, P.Ku, P.KT, T)
+LEARN = 4000
+
+
+def _record(n: int, seed: int, amplitude: float, dither: float = 1.0,
+            noise: float = 1e-4) -> np.ndarray:
+    """(Utx, Uty, Ux, Uy, ωx, ωy) generated exactly by the central scheme (θ of both axes
+    = THETA) with white torquer voltages of std ``dither`` and, after the learning part, a
+    square-wave pitch rate of ``amplitude`` rad/s (period 1 s); pick-off noise added
+    afterwards."""
+    rng = np.random.default_rng(seed)
+    ux, uy = dither * rng.standard_normal(n), dither * rng.standard_normal(n)
+    wx = np.zeros(n)
+    k = np.arange(n)
+    wy = np.where(k < LEARN, 0.0, amplitude * np.where((k - LEARN) % 1000 < 500, 1.0, -1.0))
+    t1, t2, tl, tlam, t5 = THETA
+    s = T / KT
+    tx, ty = np.zeros(n), np.zeros(n)
+    # the two lines share Utx(k), Uty(k) through θL: solve the 2×2 system per sample
+    lhs = np.array([[1.0, tl], [-tl, 1.0]])
+    for i in range(2, n):
+        hx, hy = 0.5 * s * (wx[i] - wx[i - 1]), 0.5 * s * (wy[i] - wy[i - 1])
+        rx = (-hx + t1 * tx[i - 1] - t2 * (tx[i - 2] + hx)
+              - tl * (-ty[i - 2] + s * (wy[i] + wy[i - 1])) - tlam * ty[i - 1]
+              + t5 * 0.5 * (ux[i] + ux[i - 1]))
+        ry = (-hy + t1 * ty[i - 1] - t2 * (ty[i - 2] + hy)
+              + tl * (-tx[i - 2] + s * (wx[i] + wx[i - 1])) + tlam * tx[i - 1]
+              + t5 * 0.5 * (uy[i] + uy[i - 1]))
+        tx[i], ty[i] = np.linalg.solve(lhs, [rx, ry])
+    return np.column_stack([tx + noise * rng.standard_normal(n),
+                            ty + noise * rng.standard_normal(n), ux, uy, wx, wy])
+
+
+def _learn(rec: np.ndarray) -> tuple[ReferenceLearner, NominalReference]:
+    learner = ReferenceLearner(NB, SHORT, LONG, ResidualThresholds(), NB * T, MODEL)
+    learner.set_history(np.zeros((2, 6)))
+    theta = np.tile(THETA, (NB, 2))
+    for b in range(LEARN // NB):
+        blk = rec[b * NB:(b + 1) * NB]
+        learner.push_block(blk[:, :4], blk, theta, np.ones(NB, dtype=bool))
+    return learner, learner.finish()
+
+
+def _monitor(learner: ReferenceLearner, ref: NominalReference) -> ResidualMonitor:
+    mon = ResidualMonitor(ref, NB, NB * T, SHORT, LONG, ResidualThresholds(), 20, MODEL)
+    mon.prefill(*learner.reference_blocks(ref, LONG))
+    return mon
+
+
+def _feed(mon: ResidualMonitor, rec: np.ndarray, start: int, stop: int) -> np.ndarray:
+    theta = np.tile(THETA, (NB, 2))
+    alarms = []
+    for b0 in range(start, stop, NB):
+        blk = rec[b0:b0 + NB]
+        alarms.append(mon.push_block(blk[:, :4], rec[b0 - 2:b0 + NB], theta,
+                                     np.ones(NB, dtype=bool)))
+    return np.array(alarms)
+
+
+@pytest.fixture(scope="module")
+def record() -> np.ndarray:
+    # a weak torquer dither: the rest leaves directions of θ0 that a 2 rad/s square wave
+    # excites poorly determined
+    return _record(LEARN + 6000, seed=21, amplitude=2.0, dither=0.1)
+
+
+def _frozen(learner: ReferenceLearner, ref: NominalReference) -> ResidualMonitor:
+    """The monitor as before the refinement: a reference without its information."""
+    old = ref.get_state()
+    old.pop("information")
+    old.pop("error_variance")
+    mon = ResidualMonitor(NominalReference.from_state(old), NB, NB * T, SHORT, LONG,
+                          ResidualThresholds(), 20, MODEL)
+    mon.prefill(*learner.reference_blocks(ref, LONG))
+    return mon
+
+
+def test_refined_reference_is_the_least_squares_fit_of_all_accepted_data(record) -> None:
+    """θ0 refined block by block (information form, no forgetting) equals the batch least
+    squares over the learning rows and every accepted runtime row, per axis. On this
+    exact plant the θ0 learned at rest alarms through the manoeuvre (level z ~9); refined
+    (with the allowance for its uncertainty) the monitor is silent."""
+    learner, ref = _learn(record)
+    assert ref.information is not None and ref.error_variance is not None
+    frozen = _frozen(learner, ref)
+    assert _feed(frozen, record, LEARN, record.shape[0]).sum() > 200
+    mon = _monitor(learner, ref)
+    assert not _feed(mon, record, LEARN, record.shape[0]).any()
+    phx, yx, phy, yy = dtg_case_rate_regression(*record.T, T, KT)
+    # the learner's first two rows use its zero history: add them by hand
+    hist = np.vstack([np.zeros((2, 6)), record[:2]])
+    h = dtg_case_rate_regression(*hist.T, T, KT)
+    refined = mon.theta_reference.reshape(2, N_THETA)
+    for a, (ph, y, ph0, y0) in enumerate(((phx, yx, h[0], h[1]), (phy, yy, h[2], h[3]))):
+        batch = np.linalg.lstsq(np.vstack([ph0, ph]), np.concatenate([y0, y]), rcond=None)[0]
+        np.testing.assert_allclose(refined[a], batch, rtol=1e-6)
+        # and it explains the manoeuvre as well as the rotor's own θ does
+        run = slice(LEARN, None)
+        e_ref = y[run] - ph[run] @ refined[a]
+        e_true = y[run] - ph[run] @ THETA
+        e_0 = y[run] - ph[run] @ ref.theta0[a * N_THETA:(a + 1) * N_THETA]
+        assert e_ref.var() < 1.05 * e_true.var() < e_0.var()
+
+
+def test_error_variance_is_the_residual_variance_when_white_and_grows_with_colour() -> None:
+    """v = λmax(A⁻¹B): ≈ σ² for a white residual (E[B] = σ²A); with a block-constant part
+    of variance τ² and a constant regressor, the constant direction's score variance is
+    nb·σ² + nb²·τ² per block, so v ≈ σ² + nb·τ²."""
+    rng = np.random.default_rng(3)
+    nblk, sigma, tau = 800, 1.0, 0.2
+    n = nblk * NB
+    phi = np.column_stack([np.ones(n), rng.standard_normal((n, N_THETA - 1))])
+    theta = np.arange(1.0, 2 * N_THETA + 1)
+
+    def normal_matrices(e: np.ndarray) -> np.ndarray:
+        zero = np.zeros_like(phi)
+        zx = np.column_stack([phi, zero, phi @ theta[:N_THETA] + e])
+        zy = np.column_stack([zero, phi, phi @ theta[N_THETA:] + e])
+        zx, zy = zx.reshape(nblk, NB, -1), zy.reshape(nblk, NB, -1)
+        return np.einsum("bki,bkj->bij", zx, zx) + np.einsum("bki,bkj->bij", zy, zy)
+
+    white = sigma * rng.standard_normal(n)
+    v_white = _refinement_start(normal_matrices(white), theta)["error_variance"]
+    # λmax of 5 sample eigenvalues around σ², 800 blocks: a few % above
+    np.testing.assert_allclose(v_white, sigma**2, rtol=0.2)
+    coloured = white + np.repeat(tau * rng.standard_normal(nblk), NB)
+    out = _refinement_start(normal_matrices(coloured), theta)
+    np.testing.assert_allclose(out["error_variance"], sigma**2 + NB * tau**2, rtol=0.2)
+    np.testing.assert_allclose(out["information"][0], phi.T @ phi)
+
+
+def test_refinement_state_round_trip_and_mismatch(record) -> None:
+    learner, ref = _learn(record)
+    mon = _monitor(learner, ref)
+    _feed(mon, record, LEARN, LEARN + 2500)
+    state = mon.get_state()
+    a = _feed(mon, record, LEARN + 2500, LEARN + 5000)
+    other = ResidualMonitor(NominalReference.from_state(ref.get_state()), NB, NB * T, SHORT,
+                            LONG, ResidualThresholds(), 20, MODEL)
+    other.set_state(state)
+    b = _feed(other, record, LEARN + 2500, LEARN + 5000)
+    np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(mon.statistics, other.statistics)
+    np.testing.assert_array_equal(mon.theta_reference, other.theta_reference)
+    # a reference without the refinement data (an older state): θ0 stays frozen
+    frozen = _frozen(learner, ref)
+    with pytest.raises(ValueError, match="refinement"):
+        frozen.set_state(state)
+    _feed(frozen, record, LEARN, LEARN + 500)
+    np.testing.assert_array_equal(frozen.theta_reference, ref.theta0)
