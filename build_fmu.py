@@ -36,6 +36,14 @@ the building Python (CPython stable ABI: any CPython >= 3.11 on the platform) as
 ``resources/gyrodiag/_ckernels.abi3.so``; extension modules and caches the builder copied
 from the source tree are dropped. Without a compiler the FMU runs the plain-Python kernels.
 
+Generated resources (:data:`GENERATED_RESOURCES`): data files an FMU ships that are
+computed from another model's source, written by that model's own command line in a
+fresh process at build time (never committed).  The Diagnoser carries the paper DTG's
+rate read-out dynamics (``models/dtg/gd_dtg_readout.py``) as
+``resources/sensor_dynamics/dtg_paper_y_q3_1ms.json``, which a system scenario names with
+``df.sensor_dynamics_file = "sensor_dynamics/dtg_paper_y_q3_1ms.json"`` (relative to the
+resources).
+
 Finally every FMU is checked with ``fmpy.validation.validate_fmu``; any problem makes
 the command exit non-zero.  An FMU whose source folder does not exist yet is skipped with
 a message (it is not an error).
@@ -68,6 +76,18 @@ REGISTRY: list[tuple[str, str, str]] = [
     ("DTG", "models/dtg", "gd_dtg_fmu.py"),
     ("Diagnoser", "fmu_src", "gd_diagnoser_fmu.py"),
 ]
+
+#: Resources generated at build time: FMU name -> [(archive name under resources/, the
+#: command's script relative to the repository root, its arguments; the builder appends
+#: ``--out FILE``)].  The script's folder is added to the FMU's sources (staleness).
+GENERATED_RESOURCES: dict[str, list[tuple[str, str, tuple[str, ...]]]] = {
+    "Diagnoser": [
+        # the paper DTG (set 1) as the pitch gyro: its y-axis read-out is the filter's
+        # sensor 3 (q), at the 1 kHz of the system scenarios (docs/readout_dynamics.md)
+        ("sensor_dynamics/dtg_paper_y_q3_1ms.json", "models/dtg/gd_dtg_readout.py",
+         ("--set", "1", "--axis", "y", "--sensor", "3", "--step", "0.001")),
+    ],
+}
 
 DEFAULT_REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10"]
 SHIM_SOURCE = ROOT / "fmu_src" / "shim" / "fmi2_status_shim.c"
@@ -142,6 +162,8 @@ def project_files(entry: tuple[str, str, str]) -> list[Path]:
 def source_files(entry: tuple[str, str, str]) -> list[Path]:
     """Every file whose change makes the FMU stale (script, project files, this builder)."""
     out = [script_path(entry), Path(__file__).resolve(), SHIM_SOURCE]
+    for _, script, _ in GENERATED_RESOURCES.get(entry[0], []):
+        out.extend(sorted((ROOT / script).parent.glob("*.py")))
     for p in project_files(entry):
         out.extend(sorted([*p.rglob("*.py"), *p.rglob("*.c")]) if p.is_dir() else [p])
     return out
@@ -453,8 +475,9 @@ def rewrite_fmu(
 ) -> None:
     """Replace modelDescription.xml, add resources/requirements.txt and the
     documentation, wrap the Linux binary with the status shim, and put the compiled
-    kernels ``kernels`` (archive name → file) in place of any extension modules the
-    builder copied from the source tree (those are for whichever Python built them)."""
+    kernels and generated resources ``kernels`` (archive name → file) in place of any
+    extension modules the builder copied from the source tree (those are for whichever
+    Python built them)."""
     linux_binary = f"binaries/linux64/{model_identifier}.so"
     kernels = kernels or {}
     buffer = io.BytesIO()
@@ -487,6 +510,32 @@ def rewrite_fmu(
             dst.writestr(f"binaries/linux64/{SHIM_INNER_NAME}", src.read(linux_binary))
             dst.writestr(linux_binary, shim.read_bytes())
     fmu.write_bytes(buffer.getvalue())
+
+
+def generate_resources(name: str, work_dir: Path) -> dict[str, Path]:
+    """Write the :data:`GENERATED_RESOURCES` of FMU ``name`` into ``work_dir``.
+
+    Returns
+    -------
+    dict
+        Archive name (``resources/...``) -> generated file.
+
+    Raises
+    ------
+    RuntimeError
+        Naming the resource and the command when a generator fails.
+    """
+    out: dict[str, Path] = {}
+    for archive, script, args in GENERATED_RESOURCES.get(name, []):
+        target = work_dir / archive
+        target.parent.mkdir(parents=True, exist_ok=True)
+        cmd = [sys.executable, str(ROOT / script), *args, "--out", str(target)]
+        proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+        if proc.returncode != 0 or not target.is_file():
+            raise RuntimeError(f"{name}: generating resources/{archive} failed "
+                               f"({' '.join(cmd)}): {proc.stderr.strip()}")
+        out[f"resources/{archive}"] = target
+    return out
 
 
 def build_one(name: str, out_dir: Path) -> Path:
@@ -530,6 +579,8 @@ def build_one(name: str, out_dir: Path) -> Path:
                                    out_dir / ".kernels" / name / package)
         if compiled is not None:
             kernels[f"resources/{package}/_ckernels.abi3.so"] = compiled
+    # generated data files travel with the kernels (archive name -> file)
+    kernels.update(generate_resources(name, out_dir / ".resources" / name))
     rewrite_fmu(built, fixed, list(getattr(module, "REQUIREMENTS", DEFAULT_REQUIREMENTS)),
                 model_name, shim, documentation_html(fixed, module.__doc__ or ""), kernels)
     final = out_dir / f"{name}.fmu"

@@ -132,3 +132,31 @@ def test_every_python_file_ships_with_its_checked_bytecode(fmu_dir, name):
             flags = int.from_bytes(data[4:8], "little")
             assert flags == 0b11, (pyc, flags)  # hash-based, checked
             assert data[8:16] == importlib.util.source_hash(zf.read(source)), source
+
+
+def test_diagnoser_ships_the_generated_dtg_readout(fmu_dir):
+    """resources/sensor_dynamics/dtg_paper_y_q3_1ms.json is the paper DTG's y read-out at
+    1 kHz as models/dtg/gd_dtg_readout.py computes it (sensor 3, DC gain 1), and the DTG
+    model's sources make the Diagnoser stale."""
+    import json
+
+    import numpy as np
+
+    sys.path.insert(0, str(ROOT / "models" / "dtg"))
+    import gd_dtg_readout as readout
+    import gd_dtg_sets as sets
+
+    with zipfile.ZipFile(fmu_dir / "Diagnoser.fmu") as zf:
+        shipped = json.loads(zf.read("resources/sensor_dynamics/dtg_paper_y_q3_1ms.json"))
+    expected = readout.readout_dict(sets.paper_set(), "y", 3, 1e-3)
+    assert shipped["sensor"] == 3
+    d = shipped["discrete"]
+    assert d["sample_period_s"] == 1e-3
+    for key in ("A", "B", "C"):
+        np.testing.assert_allclose(d[key], expected["discrete"][key], rtol=1e-15, atol=0)
+    A, B, C = (np.asarray(d[k]) for k in ("A", "B", "C"))
+    dc = C @ np.linalg.solve(np.eye(A.shape[0]) - A, B) + d["D"]
+    assert dc == pytest.approx(1.0, abs=1e-9)
+    entry = next(e for e in builder.REGISTRY if e[0] == "Diagnoser")
+    assert ROOT / "models" / "dtg" / "gd_dtg_readout.py" in builder.source_files(entry)
+    assert ROOT / "models" / "dtg" / "gd_dtg_core.py" in builder.source_files(entry)

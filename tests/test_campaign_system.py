@@ -98,6 +98,9 @@ def test_condition_and_fault_reach_the_scenario() -> None:
     assert s.physical_faults[0].set == "dtg.spin_fraction" and s.physical_faults[0].value == 0.9
     level = build_scenario(next(r for r in runs if r.condition == "level"))
     assert level.manoeuvres == []  # the base scenario's manoeuvre is replaced
+    # ... and its controller flies trim, not the PitchController's default square wave
+    assert level.fmus["controller"].parameters["command_source"] == 0
+    assert "command_source" not in s.fmus["controller"].parameters
 
 
 def test_invalid_entries_are_named() -> None:

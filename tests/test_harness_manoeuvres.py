@@ -298,6 +298,15 @@ def test_witnesses_agree_on_one_root_cause(two_witnesses: RunResult) -> None:
                                                                    "fine.dtg.alarm"],
                           "fault": "spin"}, two_witnesses)
     assert not missed.passed and "quiet.alarm: missed" in missed.message
+    # a false alarm that is still on at the onset does not witness the fault
+    early = RunResult(scenario="e", time=two_witnesses.time,
+                      signals={"x.alarm": (two_witnesses.time >= 15.0).astype(float),
+                               "fine.dtg.alarm": two_witnesses.signals["fine.dtg.alarm"]},
+                      fault_windows=two_witnesses.fault_windows, step_s=0.01)
+    r = ex.evaluate({"kind": "witnesses_agree", "witnesses": ["x.alarm", "fine.dtg.alarm"],
+                     "fault": "spin", "max_delay_s": 5.0}, early)
+    assert not r.passed and "x.alarm: alarm at 15 s, before the fault" in r.message
+    assert "the witnesses disagree" in r.message
     clean = RunResult(scenario="c", time=two_witnesses.time,
                       signals={"x.alarm": np.zeros(3201), "y.alarm": np.zeros(3201)},
                       step_s=0.01)

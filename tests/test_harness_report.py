@@ -486,3 +486,32 @@ def test_plots_drawn_in_worker_processes_give_the_page_drawn_here(
 
     assert body(here) == body(pool)
     assert body(pool).count("data:image/png;base64,") >= 2
+
+
+def test_report_names_both_witnesses_verdicts_on_one_root_cause(tmp_path: Path) -> None:
+    """The report's "One root cause, independent witnesses" section: one row per
+    witnesses_agree expectation, with the verdict and each witness's delay."""
+    t = np.arange(3001) * 0.01
+    run = RunResult("sys", t, {"diag.dtg.alarm": (t >= 20.05).astype(float),
+                               "diag.df.detected": (t >= 20.3).astype(float),
+                               "diag.df.isolated_sensor": np.where(t >= 20.3, 3.0, 0.0)},
+                    [FaultWindow("spin", "dtg.spin_fraction", "physical", 20.0)], 0.01)
+    scenario = {"name": "sys", "expect": [
+        {"kind": "witnesses_agree", "name": "one root cause",
+         "witnesses": ["diag.dtg.alarm", "diag.df.detected"], "fault": "spin",
+         "max_delay_s": 1.0, "details": ["diag.df.isolated_sensor"]},
+        {"kind": "witnesses_agree", "name": "too slow",
+         "witnesses": ["diag.dtg.alarm", "diag.df.detected"], "fault": "spin",
+         "max_delay_s": 0.2}]}
+    verdicts = verify_results([run], [scenario])
+    text = report.write_html(verdicts, [run], tmp_path / "r.html", [scenario],
+                             workers=1).read_text(encoding="utf-8")
+    section = text.split("One root cause, independent witnesses", 1)[1].split("<h2 id=", 1)[0]
+    rows = re.findall(r"<tr>(.*?)</tr>", section, flags=re.S)[1:]
+    assert len(rows) == 2
+    assert "AGREE" in rows[0] and "DISAGREE" not in rows[0]
+    assert "diag.dtg.alarm: detected after 0.05 s" in rows[0]
+    assert "diag.df.detected: detected after 0.3 s" in rows[0]
+    assert "diag.df.isolated_sensor = 3 at the end" in rows[0]
+    assert "DISAGREE" in rows[1] and "the witnesses disagree" in rows[1]
+    assert report.witness_table(verify_results([run], [{"name": "sys", "expect": []}])) == ""

@@ -189,7 +189,9 @@ class Condition(_Strict):
     """A flight condition: manoeuvres and parameter overrides applied to a run.
 
     ``manoeuvres`` are ``[[manoeuvres]]`` entries of the scenario format (they replace
-    the base scenario's); ``parameters`` override instance parameters, e.g.
+    the base scenario's; a command generator that flew one in the base scenario and is
+    given none flies trim, ``command_source = 0``, not its own default manoeuvre);
+    ``parameters`` override instance parameters, e.g.
     ``{ aircraft = { turbulence_sigma_w = 1.5 } }``; ``group`` is what the summary
     compares (e.g. "level" against "manoeuvre").
     """
@@ -522,6 +524,16 @@ def build_scenario(run: RunSpec) -> Any:
     data["duration_s"] = run.duration_s
     data["faults"] = ([run.fault, *run.also] if run.fault is not None else [])
     if run.manoeuvres is not None:
+        # A PitchController with no manoeuvre flies its built-in default (a 0.25 rad
+        # square wave): one whose base manoeuvre is replaced by none is set to trim.
+        from harness.cosim.scenario import MANOEUVRE_COMMAND_CODES
+
+        def commanded(entries: list[dict[str, Any]]) -> set[str]:
+            return {m["instance"] for m in entries if m.get("kind") in MANOEUVRE_COMMAND_CODES}
+
+        for inst in commanded(data.get("manoeuvres", [])) - commanded(run.manoeuvres):
+            params = data["fmus"][inst].setdefault("parameters", {})
+            params.setdefault("command_source", 0)
         data["manoeuvres"] = run.manoeuvres
     data["expect"] = []
     data["record"] = {"variables": _signals(run)}

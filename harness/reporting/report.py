@@ -416,6 +416,28 @@ def _render_sections(jobs: list[tuple[ScenarioVerdict, RunResult | None, Any]],
     return [_section_job(job) for job in jobs]
 
 
+def witness_table(verdicts: Sequence[ScenarioVerdict]) -> str:
+    """The report section "One root cause, independent witnesses": one row per
+    ``witnesses_agree`` expectation of any scenario (fault-free runs too), saying whether
+    the witnesses agree and what each one did (the expectation's message: each witness's
+    delay, "missed", "quiet" or its alarm time, and the quoted details); "" when no
+    scenario has one.  Every witness's alarm is drawn on one timeline in the scenario's
+    section (:func:`harness.reporting.plots.plot_witnesses`)."""
+    rows = []
+    for v in verdicts:
+        for e in v.expectations:
+            if e.kind != "witnesses_agree" or not e.evaluated:
+                continue
+            rows.append([f'<a href="#{_anchor(v.scenario)}">{_esc(v.scenario)}</a>',
+                         _esc(e.name), ('<span class="pass">AGREE</span>' if e.passed
+                          else '<span class="fail">DISAGREE</span>'),
+                         _esc(e.message)])
+    if not rows:
+        return ""
+    return ("\n<h2>One root cause, independent witnesses</h2>\n"
+            + _table(["scenario", "expectation", "verdict", "what each witness did"], rows))
+
+
 def write_html(
     verdicts: Sequence[ScenarioVerdict],
     results: Sequence[RunResult],
@@ -454,6 +476,7 @@ def write_html(
          f"{runs[v.scenario].wall_time_s:.2f}" if v.scenario in runs else "",
          _esc((v.error or "").strip().splitlines()[0] if (v.error or "").strip() else "")]
         for v in verdicts])
+    summary += witness_table(verdicts)
     stamp = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
     sections = _render_sections(
         [(v, runs.get(v.scenario), specs.get(v.scenario)) for v in verdicts],

@@ -219,7 +219,8 @@ class NoAlarmDuringManoeuvres(_Base):
 
 class WitnessesAgree(_Base):
     """Independent alarms (``witnesses``) agree: all detect ``fault`` within
-    ``max_delay_s`` (s) of its start, or — without ``fault`` — all stay at or below
+    ``max_delay_s`` (s) of its start and none was on before it (an alarm already on
+    does not witness the fault), or — without ``fault`` — all stay at or below
     ``level`` for the whole run.  ``details`` (recorded signals, e.g. a class code, an
     isolated sensor, an estimated gain) are quoted with their values at the end."""
 
@@ -520,11 +521,11 @@ def _eval_witnesses(exp: WitnessesAgree, result: RunResult) -> _Outcome:
             delays.append(math.inf if on.size else 0.0)
             continue
         delay = metrics.detection_delay_s(t, x, start, exp.level)
-        before = on.size and t[on[0]] < start - metrics.TIME_TOL_S
-        delays.append(delay)
-        parts.append(f"{name}: " + ("missed" if math.isnan(delay) else
-                                    f"detected after {delay:.4g} s")
-                     + (" (already on before the fault)" if before else ""))
+        before = bool(on.size) and t[on[0]] < start - metrics.TIME_TOL_S
+        delays.append(math.nan if before else delay)
+        parts.append(f"{name}: " + (f"alarm at {t[on[0]]:g} s, before the fault" if before
+                                    else "missed" if math.isnan(delay) else
+                                    f"detected after {delay:.4g} s"))
     for name in exp.details:
         x = np.asarray(result.signal(name), dtype=float)
         parts.append(f"{name} = {x[-1]:.6g} at the end" if x.size else f"{name}: no samples")
