@@ -858,6 +858,12 @@ def add_witness_copies(data: dict[str, Any], diagnoser: str,
         if name in fmus:
             raise ValueError(f"witness_copies: {source} has an instance {name!r} already")
         inst = json.loads(json.dumps(fmus[diagnoser]))
+        # a setting of the copy replaces the original's, parameter or file alike (a
+        # parameter "dtg.signature_file" = "" drops the original's library file)
+        for key in copy.parameters:
+            inst.get("files", {}).pop(key, None)
+        for key in copy.files:
+            inst.get("parameters", {}).pop(key, None)
         inst.setdefault("parameters", {}).update(copy.parameters)
         if copy.files:
             inst.setdefault("files", {}).update(copy.files)

@@ -133,7 +133,10 @@ def split_grey(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
                 or (ch != "grey" and not r["run"].get("witnesses"))):
             out.append(r)
             continue
-        rest = {k: v for k, v in r.items() if k != "witnesses"}
+        # the top level repeats the first witness's fields: none of them may leak into
+        # another witness's record (e.g. "typed" of the sequential rule)
+        judged = {k for fields in r["witnesses"].values() for k in fields}
+        rest = {k: v for k, v in r.items() if k != "witnesses" and k not in judged}
         for w, fields in r["witnesses"].items():
             run = {**r["run"], "cls": f"{r['run']['cls']}/{w}", "channel": f"{ch}/{w}"}
             if "thresholds" in fields:
