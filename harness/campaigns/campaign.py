@@ -73,6 +73,32 @@ and parameter overrides (e.g. turbulence), each with a ``group`` ("level",
 "manoeuvre") that the summary compares.  A run is flown with the same seed under every
 condition (a paired comparison) unless its class says ``condition_seeds = "disjoint"``.
 
+Side by side, df and dtg (issue 16): a class may list ``witnesses``, Diagnoser instances
+judged in the same run, each with its own rule, e.g. ``diag`` (the project's rule) and
+``paper`` (the paper's).  ``witness_copies`` adds a witness to the base scenario as a copy
+of ``diagnoser`` (same FMU, parameters and files, a copy of every connection into it, so
+both see the same signals) with its own ``parameters``/``files`` (a setting replaces the
+original's, in either table) and its own sweep grid ``thresholds`` in its rule's units.
+The campaign adds the copy rather than shipping two-Diagnoser base scenarios: one base
+scenario stays the single source of the chain (and of the seed scenarios' checks), the
+two rules cannot drift apart in their connections, and the paper's settings are read in
+the campaign file.  Each witness is judged exactly as a single Diagnoser of its rule
+would be (:func:`judge_diagnoser`): DF paper rule (``df.decision = 0``): any main-residual
+alarm, isolated sensor, sweep on the k-of-n statistic in sigma; DF sequential:
+``df.detected`` episodes, isolated sensor, type, size, sweep on the CUSUM; DTG paper
+(``dtg.classifier = "paper"``): the ratio band, the nearest decade signature's name, sweep
+on ``|eta - 1|``; DTG pattern: class and axis, sweep on the residual tests.  The record
+keeps each under ``witnesses`` (with its grid), the top level is the first witness's, and
+the summary splits it into one record per witness (class ``<class>/<witness>``, channel
+``df/<witness>``, ``dtg/<witness>``), so every table (detection, isolation/class right,
+false alarms, delays, confusion matrix, threshold sweep) has a row per rule.  The seed
+does not depend on the witnesses (the same noise with or without the copy, which does
+not change the first Diagnoser's record); the run id does, so records of a single-rule
+campaign are never mixed with two-rule ones.  A paper DTG witness needs the decade
+signatures and the pattern witness its library: ``libraries`` names further files
+learned first, like ``signatures_training`` (e.g. ``{ "dtg_signatures.json" =
+"../scenarios/training" }`` next to ``dtg_patterns.json``).
+
 Grey-prediction runs (``channel = "grey"``, the HRG): the class's ``witnesses`` are
 Diagnoser instances that watch the same faulty signal with different decision rules
 (e.g. the paper's fixed threshold and the project's calibrated detector), each judged
