@@ -127,6 +127,26 @@ def test_df_the_copy_leaves_the_projects_rule_as_it_was(df_campaign, tmp_path):
         assert small[key] == solo[key], key
 
 
+def test_df_paper_sweep_is_exact_under_jacobi_coupling(tmp_path):
+    """Jacobi: the channel aligns y one step after u, so the recorded calibration
+    residuals are not the ones it calibrated on; the sweep uses its own statistic."""
+    jacobi = ROOT / "scenarios" / "aircraft_dual_bias_jacobi.toml"
+    spec = df_spec(magnitudes=(0.005,)).model_dump(by_alias=True)
+    spec["classes"]["air"]["scenario"] = str(jacobi)
+    outcome = run_campaign(CampaignSpec.model_validate(spec), ROOT, tmp_path, workers=1,
+                           progress=False)
+    assert not outcome.failed, outcome.records[0].get("error")
+    (record,) = outcome.records
+    paper, diag = record["witnesses"]["paper"], record["witnesses"]["diag"]
+    assert diag["input_delay"] == 1                      # the alignment Jacobi needs
+    assert paper["detected"] and paper["diagnosed"] == "alpha"
+    assert paper["sweep_mismatch"] == 0.0
+    det = paper["sweep"]["detected"]
+    assert det[:2] == [True, True]           # 3 sigma and its own 6 sigma
+    assert det[2] == (paper["peak_after"] > 9.0)
+    assert paper["peak_after"] > 6.0 > paper["peak_before"]
+
+
 def test_df_summary_has_a_row_per_rule_in_every_table(df_campaign):
     records = df_campaign
     s = summarize(records)

@@ -45,8 +45,10 @@ alarm ``diag.df.alarm[i]``, k-of-n, unlatched; with the sequential rule (the def
   recorded outputs, so that ``A_T(t) = s(t) > T`` reproduces the alarm at any threshold
   ``T``, and detection, delay and false alarms are evaluated on the class's threshold
   grid.  DF: ``s(t) = max_i kth_largest(|r_i - mu_i| / sigma_i over the last n
-  samples)`` with ``mu_i``, ``sigma_i`` (ddof 1) re-estimated from the recorded main
-  residuals over the calibration window after the burn-in, exactly as the channel does;
+  samples)``, ``|r_i - mu_i| / sigma_i`` being ``k_sigma`` times the channel's own
+  ``df.statistic[i]`` (its ``mu_i``, ``sigma_i`` and the alignment it chose; without that
+  output ``mu_i``, ``sigma_i`` (ddof 1) are re-estimated from the recorded main residuals
+  over the calibration window after the burn-in, exact with Gauss-Seidel coupling only);
   ``T`` is in standard deviations (the FMU uses ``df.k_sigma``); sequential DF: the
   recorded ``diag.df.statistic[i]`` (CUSUM over its threshold, capped at 1), so only
   ``T <= 1`` is meaningful and the alarm ``df.detected`` (episode logic) differs from
@@ -660,12 +662,18 @@ def alarm_statistic(run: RunSpec, scenario: Any, t: np.ndarray,
         n_cal, n_burn = round(cal_s / period), round(burn_s / period)
         n_burn = min(n_burn, n_cal - 2)
         # row j (j >= 1) is the channel's j-th sample; rows 1..n_cal calibrate
-        res = np.column_stack([sig[f"{d}.df.residual[{i}]"] for i in range(1, 7)])
-        used = res[1 + n_burn:n_cal + 1]
-        mu, sd = used.mean(axis=0), used.std(axis=0, ddof=1)
-        sd = np.maximum(sd, 1e-12 / k_sigma)
-        after = res[n_cal + 1:]
-        z = np.abs(after - mu) / sd
+        if f"{d}.df.statistic[1]" in sig:
+            # the channel's own |r - mu| / (k sigma) per sample: its mu, sigma and the
+            # alignment it chose (with Jacobi coupling the recorded residuals of the
+            # calibration window are not those it calibrated on)
+            z = k_sigma * np.column_stack([sig[f"{d}.df.statistic[{i}]"]
+                                           for i in range(1, 7)])[n_cal + 1:]
+        else:
+            res = np.column_stack([sig[f"{d}.df.residual[{i}]"] for i in range(1, 7)])
+            used = res[1 + n_burn:n_cal + 1]
+            mu, sd = used.mean(axis=0), used.std(axis=0, ddof=1)
+            sd = np.maximum(sd, 1e-12 / k_sigma)
+            z = np.abs(res[n_cal + 1:] - mu) / sd
         s_after = np.max(np.column_stack([_kth_largest_window(z[:, i], pk, pn)
                                           for i in range(z.shape[1])]), axis=1)
         s = np.concatenate([np.zeros(n_cal + 1), s_after])
