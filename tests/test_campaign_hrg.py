@@ -82,9 +82,11 @@ def test_shipped_hrg_campaign_covers_issue_16() -> None:
     assert all(r.witnesses == ["paper", "calibrated"] for r in runs)
 
 
-def test_witnesses_only_for_the_grey_channel() -> None:
-    with pytest.raises(ValidationError, match="only the grey channel"):
-        spec(classes={"hrg": {"scenario": str(BASE), "channel": "df",
+def test_witnesses_only_for_the_grey_df_and_dtg_channels() -> None:
+    # df and dtg judge witnesses too (tests/test_campaign_sidebyside.py); system runs
+    # have their own two witnesses in one Diagnoser
+    with pytest.raises(ValidationError, match="only the grey, df, dtg channels"):
+        spec(classes={"hrg": {"scenario": str(BASE), "channel": "system",
                               "witnesses": ["paper"]}})
     with pytest.raises(ValidationError, match="names an instance twice"):
         spec(classes={"hrg": {"scenario": str(BASE), "channel": "grey",

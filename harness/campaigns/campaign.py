@@ -45,8 +45,10 @@ alarm ``diag.df.alarm[i]``, k-of-n, unlatched; with the sequential rule (the def
   recorded outputs, so that ``A_T(t) = s(t) > T`` reproduces the alarm at any threshold
   ``T``, and detection, delay and false alarms are evaluated on the class's threshold
   grid.  DF: ``s(t) = max_i kth_largest(|r_i - mu_i| / sigma_i over the last n
-  samples)`` with ``mu_i``, ``sigma_i`` (ddof 1) re-estimated from the recorded main
-  residuals over the calibration window after the burn-in, exactly as the channel does;
+  samples)``, ``|r_i - mu_i| / sigma_i`` being ``k_sigma`` times the channel's own
+  ``df.statistic[i]`` (its ``mu_i``, ``sigma_i`` and the alignment it chose; without that
+  output ``mu_i``, ``sigma_i`` (ddof 1) are re-estimated from the recorded main residuals
+  over the calibration window after the burn-in, exact with Gauss-Seidel coupling only);
   ``T`` is in standard deviations (the FMU uses ``df.k_sigma``); sequential DF: the
   recorded ``diag.df.statistic[i]`` (CUSUM over its threshold, capped at 1), so only
   ``T <= 1`` is meaningful and the alarm ``df.detected`` (episode logic) differs from
@@ -72,6 +74,32 @@ vary the flight of any class: manoeuvres (the scenario's ``[[manoeuvres]]`` entr
 and parameter overrides (e.g. turbulence), each with a ``group`` ("level",
 "manoeuvre") that the summary compares.  A run is flown with the same seed under every
 condition (a paired comparison) unless its class says ``condition_seeds = "disjoint"``.
+
+Side by side, df and dtg (issue 16): a class may list ``witnesses``, Diagnoser instances
+judged in the same run, each with its own rule, e.g. ``diag`` (the project's rule) and
+``paper`` (the paper's).  ``witness_copies`` adds a witness to the base scenario as a copy
+of ``diagnoser`` (same FMU, parameters and files, a copy of every connection into it, so
+both see the same signals) with its own ``parameters``/``files`` (a setting replaces the
+original's, in either table) and its own sweep grid ``thresholds`` in its rule's units.
+The campaign adds the copy rather than shipping two-Diagnoser base scenarios: one base
+scenario stays the single source of the chain (and of the seed scenarios' checks), the
+two rules cannot drift apart in their connections, and the paper's settings are read in
+the campaign file.  Each witness is judged exactly as a single Diagnoser of its rule
+would be (:func:`judge_diagnoser`): DF paper rule (``df.decision = 0``): any main-residual
+alarm, isolated sensor, sweep on the k-of-n statistic in sigma; DF sequential:
+``df.detected`` episodes, isolated sensor, type, size, sweep on the CUSUM; DTG paper
+(``dtg.classifier = "paper"``): the ratio band, the nearest decade signature's name, sweep
+on ``|eta - 1|``; DTG pattern: class and axis, sweep on the residual tests.  The record
+keeps each under ``witnesses`` (with its grid), the top level is the first witness's, and
+the summary splits it into one record per witness (class ``<class>/<witness>``, channel
+``df/<witness>``, ``dtg/<witness>``), so every table (detection, isolation/class right,
+false alarms, delays, confusion matrix, threshold sweep) has a row per rule.  The seed
+does not depend on the witnesses (the same noise with or without the copy, which does
+not change the first Diagnoser's record); the run id does, so records of a single-rule
+campaign are never mixed with two-rule ones.  A paper DTG witness needs the decade
+signatures and the pattern witness its library: ``libraries`` names further files
+learned first, like ``signatures_training`` (e.g. ``{ "dtg_signatures.json" =
+"../scenarios/training" }`` next to ``dtg_patterns.json``).
 
 Grey-prediction runs (``channel = "grey"``, the HRG): the class's ``witnesses`` are
 Diagnoser instances that watch the same faulty signal with different decision rules
@@ -101,6 +129,7 @@ import json
 import logging
 import math
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -151,6 +180,36 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
 
+#: Channels whose classes may judge several Diagnoser instances (``witnesses``).
+WITNESS_CHANNELS = ("grey", "df", "dtg")
+
+
+class WitnessCopy(_Strict):
+    """A witness added as a copy of the class's ``diagnoser`` instance (module docstring,
+    "Side by side"): ``parameters`` and ``files`` override the copy's, e.g. the paper's
+    rule ``{ "df.decision" = 0 }``; ``thresholds`` is its sweep grid (default: the
+    channel's, :data:`DEFAULT_THRESHOLDS`), in its own rule's units."""
+
+    parameters: dict[str, bool | int | float | str] = Field(default_factory=dict)
+    files: dict[str, str] = Field(default_factory=dict)
+    thresholds: list[float] | None = None
+
+
+def _check_witness_copies(c: FaultClass) -> FaultClass:
+    if not c.witness_copies:
+        return c
+    if c.channel not in WITNESS_CHANNELS:
+        raise ValueError(f"witness_copies: only the {', '.join(WITNESS_CHANNELS)} channels "
+                         f"judge several Diagnosers (channel is {c.channel!r})")
+    if c.diagnoser in c.witness_copies:
+        raise ValueError(f"witness_copies: {c.diagnoser!r} is the instance copied")
+    missing = [w for w in c.witness_copies if w not in c.witnesses]
+    if missing:
+        raise ValueError(f"witness_copies: {missing[0]!r} is not among the witnesses "
+                         f"{c.witnesses} (list every judged instance there, in order)")
+    return c
+
+
 class FaultClass(_Strict):
     """A base scenario and how to read its diagnosis.
 
@@ -171,18 +230,22 @@ class FaultClass(_Strict):
     #: Parameter overrides per instance, e.g. ``{ diag = { "df.calibrate_s" = 2.0 } }``.
     parameters: dict[str, dict[str, bool | int | float | str]] = Field(default_factory=dict)
     thresholds: list[float] | None = None
-    #: Grey channel: the Diagnoser instances judged side by side (default: diagnoser).
+    #: Grey, df, dtg: the Diagnoser instances judged side by side (grey default:
+    #: diagnoser; df/dtg default: none, one Diagnoser judged as before).
     witnesses: list[str] = Field(default_factory=list)
+    #: Witnesses the campaign adds to the base scenario as copies of ``diagnoser`` (same
+    #: FMU, parameters, files and input connections) with their own rule's settings.
+    witness_copies: dict[str, WitnessCopy] = Field(default_factory=dict)
     condition_seeds: Literal["paired", "disjoint"] = "paired"
 
     @model_validator(mode="after")
     def _witnesses_for_grey(self) -> FaultClass:
-        if self.witnesses and self.channel != "grey":
-            raise ValueError(f"witnesses: only the grey channel judges several Diagnosers "
-                             f"(channel is {self.channel!r})")
+        if self.witnesses and self.channel not in WITNESS_CHANNELS:
+            raise ValueError(f"witnesses: only the {', '.join(WITNESS_CHANNELS)} channels "
+                             f"judge several Diagnosers (channel is {self.channel!r})")
         if len(set(self.witnesses)) != len(self.witnesses):
             raise ValueError(f"witnesses: {self.witnesses} names an instance twice")
-        return self
+        return _check_witness_copies(self)
 
 
 class Condition(_Strict):
@@ -292,6 +355,10 @@ class CampaignSpec(_Strict):
     #: when that file is missing (a pattern training set gives a pattern library).
     signatures_training: str | None = None
     signatures_file: str = Field(default="dtg_signatures.json", pattern=r"^[\w.-]+\.json$")
+    #: Further learned files, file name -> training set (relative to the spec), learned
+    #: into ``<results_dir>/<name>`` like ``signatures_training`` when missing: e.g. the
+    #: paper's decade signatures next to the pattern library, for a paper witness.
+    libraries: dict[str, str] = Field(default_factory=dict)
     classes: dict[str, FaultClass] = Field(min_length=1)
     conditions: dict[str, Condition] = Field(default_factory=dict)
     sweeps: list[Sweep] = Field(default_factory=list)
@@ -299,6 +366,10 @@ class CampaignSpec(_Strict):
 
     @model_validator(mode="after")
     def _classes_exist(self) -> CampaignSpec:
+        for name in self.libraries:
+            if not re.fullmatch(r"[\w.-]+\.json", name) or name == self.signatures_file:
+                raise ValueError(f"libraries: {name!r} must be a .json file name other "
+                                 f"than signatures_file")
         for i, s in enumerate([*self.sweeps, *self.nominal]):
             if s.cls not in self.classes:
                 raise ValueError(f"entry {i}: unknown class {s.cls!r} "
@@ -361,7 +432,8 @@ class RunSpec(_Strict):
     accepted: list[str] = Field(default_factory=list)  # also right (merged classes)
     also: list[dict[str, Any]] = Field(default_factory=list)  # further simultaneous faults
     thresholds: list[float]
-    witnesses: list[str] = Field(default_factory=list)  # grey: Diagnosers judged
+    witnesses: list[str] = Field(default_factory=list)  # grey, df, dtg: Diagnosers judged
+    witness_copies: dict[str, WitnessCopy] = Field(default_factory=dict)  # added ones
     fmu_dir: str | None = None
     results_dir: str | None = None
 
@@ -417,9 +489,12 @@ def expand_runs(spec: CampaignSpec, base_dir: Path, out_dir: Path | None = None)
         thresholds = list(c.thresholds or DEFAULT_THRESHOLDS[c.channel])
         ident.update(seed_parameters=c.seed_parameters, thresholds=thresholds,
                      diagnoser=c.diagnoser, parameters=c.parameters)
-        witnesses = list(c.witnesses or [c.diagnoser]) if c.channel == "grey" else []
+        witnesses = (list(c.witnesses or [c.diagnoser]) if c.channel == "grey"
+                     else list(c.witnesses))
         if witnesses:  # only then: the ids of the other channels' runs stay as they were
             ident["witnesses"] = witnesses
+        if c.witness_copies:  # the seed (above) stays: same noise with or without them
+            ident["witness_copies"] = {w: v.model_dump() for w, v in c.witness_copies.items()}
         tag = f"{meta.get('fault_type') or 'nominal'}" + (f"-{condition}" if condition else "")
         return RunSpec(run_id=f"{cls_name}-{tag}-{_run_id(ident)}",
                        campaign=spec.name, cls=cls_name, channel=c.channel, kind=kind,
@@ -427,6 +502,7 @@ def expand_runs(spec: CampaignSpec, base_dir: Path, out_dir: Path | None = None)
                        seed_parameters=c.seed_parameters, parameters=parameters,
                        diagnoser=c.diagnoser,
                        fault=fault, thresholds=thresholds, witnesses=witnesses,
+                       witness_copies=dict(c.witness_copies),
                        fmu_dir=fmu_dir,
                        results_dir=results_dir, condition=condition, group=group,
                        manoeuvres=manoeuvres, **meta)
@@ -492,6 +568,8 @@ GREY_SIGNALS = ("grey.alarm", "grey.statistic", "grey.calibrating", "grey.predic
 
 def _signals(run: RunSpec) -> list[str]:
     d = run.diagnoser
+    if run.witnesses and run.channel in ("df", "dtg"):
+        return _witness_signals(run)
     if run.channel == "grey":
         return [f"{w}.{name}" for w in run.witnesses for name in GREY_SIGNALS]
     if run.channel == "system":
@@ -538,13 +616,18 @@ def build_scenario(run: RunSpec) -> Any:
     data["expect"] = []
     data["record"] = {"variables": _signals(run)}
     data.pop("training", None)
+    for inst, values in run.parameters.items():
+        if inst not in data.get("fmus", {}) and inst not in run.witness_copies:
+            raise ValueError(f"parameters: no instance {inst!r} in {path}")
+        if inst in data.get("fmus", {}):
+            data["fmus"][inst].setdefault("parameters", {}).update(values)
+    add_witness_copies(data, run.diagnoser, run.witness_copies, str(path))
+    for inst, values in run.parameters.items():
+        if inst in run.witness_copies:  # overrides of an added witness itself
+            data["fmus"][inst].setdefault("parameters", {}).update(values)
     for w in run.witnesses:
         if w not in data.get("fmus", {}):
             raise ValueError(f"witnesses: no instance {w!r} in {path}")
-    for inst, values in run.parameters.items():
-        if inst not in data.get("fmus", {}):
-            raise ValueError(f"parameters: no instance {inst!r} in {path}")
-        data["fmus"][inst].setdefault("parameters", {}).update(values)
     for j, qualified in enumerate(run.seed_parameters):
         inst, _, par = qualified.partition(".")
         if inst not in data.get("fmus", {}):
@@ -591,12 +674,18 @@ def alarm_statistic(run: RunSpec, scenario: Any, t: np.ndarray,
         n_cal, n_burn = round(cal_s / period), round(burn_s / period)
         n_burn = min(n_burn, n_cal - 2)
         # row j (j >= 1) is the channel's j-th sample; rows 1..n_cal calibrate
-        res = np.column_stack([sig[f"{d}.df.residual[{i}]"] for i in range(1, 7)])
-        used = res[1 + n_burn:n_cal + 1]
-        mu, sd = used.mean(axis=0), used.std(axis=0, ddof=1)
-        sd = np.maximum(sd, 1e-12 / k_sigma)
-        after = res[n_cal + 1:]
-        z = np.abs(after - mu) / sd
+        if f"{d}.df.statistic[1]" in sig:
+            # the channel's own |r - mu| / (k sigma) per sample: its mu, sigma and the
+            # alignment it chose (with Jacobi coupling the recorded residuals of the
+            # calibration window are not those it calibrated on)
+            z = k_sigma * np.column_stack([sig[f"{d}.df.statistic[{i}]"]
+                                           for i in range(1, 7)])[n_cal + 1:]
+        else:
+            res = np.column_stack([sig[f"{d}.df.residual[{i}]"] for i in range(1, 7)])
+            used = res[1 + n_burn:n_cal + 1]
+            mu, sd = used.mean(axis=0), used.std(axis=0, ddof=1)
+            sd = np.maximum(sd, 1e-12 / k_sigma)
+            z = np.abs(res[n_cal + 1:] - mu) / sd
         s_after = np.max(np.column_stack([_kth_largest_window(z[:, i], pk, pn)
                                           for i in range(z.shape[1])]), axis=1)
         s = np.concatenate([np.zeros(n_cal + 1), s_after])
@@ -717,17 +806,28 @@ def simulate_run(run_dict: dict[str, Any]) -> dict[str, Any]:
     from harness.cosim.master import run_scenario
 
     run = RunSpec.model_validate(run_dict)
-    extra: dict[str, Any] = {}
     scenario = build_scenario(run)
     result = run_scenario(scenario, fmu_dir=run.fmu_dir, progress=False,
                           results_dir=run.results_dir)
     if result.error is not None:
         raise RuntimeError(f"co-simulation failed: {result.error}")
-    t, sig, d = result.time, result.signals, run.diagnoser
+    t, sig = result.time, result.signals
     if run.channel == "system":
         return _judge_system(run, t, sig, result.wall_time_s)
     if run.channel == "grey":
         return _judge_grey(run, scenario, t, sig, result.wall_time_s)
+    if run.witnesses:
+        return _judge_witnesses(run, scenario, t, sig, result.wall_time_s)
+    return {**judge_diagnoser(run, scenario, t, sig), "sim_wall_s": result.wall_time_s}
+
+
+def judge_diagnoser(run: RunSpec, scenario: Any, t: np.ndarray,
+                    sig: dict[str, np.ndarray]) -> dict[str, Any]:
+    """The record fields of the ``df`` or ``dtg`` channel of Diagnoser ``run.diagnoser``
+    with its own rule (read from its parameters in ``scenario``): alarm, detection,
+    false alarms, diagnosis and threshold sweep (module docstring; no ``sim_wall_s``)."""
+    d = run.diagnoser
+    extra: dict[str, Any] = {}
     if run.channel == "df":
         sequential = _df_sequential(scenario, d)
         if sequential:
@@ -762,7 +862,9 @@ def simulate_run(run_dict: dict[str, Any]) -> dict[str, Any]:
         diagnosed = (names[code - 1] if 1 <= code <= len(names)
                      else {0: "none", -1: "unknown"}.get(code, f"code {code}"))
         axis = f"{d}.dtg.fault_axis"
-        extra["diagnosed_axis"] = int(np.rint(sig[axis][-1])) if axis in sig else None
+        # only the pattern classifier names an axis (the paper's codes are classes)
+        extra["diagnosed_axis"] = (int(np.rint(sig[axis][-1])) if axis in sig
+                                   and _dtg_classifier(scenario, d) == "pattern" else None)
     stat, t_ready, t_config = alarm_statistic(run, scenario, t, sig)
     detected, delay, n_false, free = judge(t, alarm, t_ready, run.onset_s)
     judged = t >= t_ready
@@ -781,9 +883,65 @@ def simulate_run(run_dict: dict[str, Any]) -> dict[str, Any]:
         "fault_free_s": free, "t_ready_s": t_ready, "diagnosed": diagnosed,
         "threshold_config": t_config, "sweep": sweep, "sweep_mismatch": mismatch,
         "peak_before": float(before.max()) if before.size else None,
-        "peak_after": float(after.max()) if after.size else None,
-        "sim_wall_s": result.wall_time_s, **extra,
+        "peak_after": float(after.max()) if after.size else None, **extra,
     }
+
+
+def _dtg_classifier(scenario: Any, diagnoser: str) -> str:
+    return str(_param(scenario, diagnoser, "dtg.classifier", "pattern"))
+
+
+def add_witness_copies(data: dict[str, Any], diagnoser: str,
+                       copies: dict[str, WitnessCopy], source: str = "scenario") -> None:
+    """Add to scenario ``data`` (TOML as a dict, changed in place) each witness of
+    ``copies`` as a copy of instance ``diagnoser``: same FMU, parameters and files, its
+    own overrides on top, and a copy of every connection into ``diagnoser`` (its inputs;
+    its outputs feed nothing new).  Side by side, both instances see the same signals."""
+    fmus = data.get("fmus", {})
+    if copies and diagnoser not in fmus:
+        raise ValueError(f"witness_copies: no instance {diagnoser!r} to copy in {source}")
+    for name, copy in copies.items():
+        if name in fmus:
+            raise ValueError(f"witness_copies: {source} has an instance {name!r} already")
+        inst = json.loads(json.dumps(fmus[diagnoser]))
+        # a setting of the copy replaces the original's, parameter or file alike (a
+        # parameter "dtg.signature_file" = "" drops the original's library file)
+        for key in copy.parameters:
+            inst.get("files", {}).pop(key, None)
+        for key in copy.files:
+            inst.get("parameters", {}).pop(key, None)
+        inst.setdefault("parameters", {}).update(copy.parameters)
+        if copy.files:
+            inst.setdefault("files", {}).update(copy.files)
+        fmus[name] = inst
+        prefix = f"{diagnoser}."
+        data["connections"] = [*data.get("connections", []), *(
+            {**conn, "to": name + "." + conn["to"][len(prefix):]}
+            for conn in data.get("connections", []) if conn["to"].startswith(prefix))]
+
+
+def _witness_signals(run: RunSpec) -> list[str]:
+    """Recorded outputs of a df/dtg run with witnesses: each witness's channel outputs."""
+    out: list[str] = []
+    for w in run.witnesses:
+        out += _signals(run.model_copy(update={"diagnoser": w, "witnesses": []}))
+    return out
+
+
+def _judge_witnesses(run: RunSpec, scenario: Any, t: np.ndarray, sig: dict[str, np.ndarray],
+                     wall_s: float) -> dict[str, Any]:
+    """Every witness of a df/dtg run judged with its own rule (:func:`judge_diagnoser`
+    on that instance, its own sweep grid in ``thresholds``); the top-level fields are the
+    first witness's (the summary splits the record per witness, module docstring)."""
+    witnesses = {}
+    for w in run.witnesses:
+        copy = run.witness_copies.get(w)
+        grid = (copy.thresholds if copy is not None and copy.thresholds is not None
+                else run.thresholds if copy is None else DEFAULT_THRESHOLDS[run.channel])
+        one = run.model_copy(update={"diagnoser": w, "witnesses": [], "thresholds": grid})
+        witnesses[w] = {**judge_diagnoser(one, scenario, t, sig), "thresholds": list(grid)}
+    first = witnesses[run.witnesses[0]]
+    return {**first, "sim_wall_s": wall_s, "witnesses": witnesses}
 
 
 def _ready_time(t: np.ndarray, not_ready: np.ndarray) -> float:
@@ -1228,14 +1386,21 @@ def _iter_dask(runs: Sequence[RunSpec], runner: str, timeout_s: float, records_d
 
 
 def prepare(spec: CampaignSpec, base_dir: Path, out_dir: Path) -> None:
-    """Learn the DTG signatures first when the spec asks for them and they are missing."""
-    if spec.signatures_training is None:
-        return
+    """Learn the DTG signatures first when the spec asks for them and they are missing
+    (``signatures_training``, then every entry of ``libraries``)."""
+    learned = ([(spec.signatures_file, spec.signatures_training)]
+               if spec.signatures_training is not None else [])
+    for name, training in [*learned, *spec.libraries.items()]:
+        _learn_library(spec, base_dir, out_dir, name, training)
+
+
+def _learn_library(spec: CampaignSpec, base_dir: Path, out_dir: Path, name: str,
+                   training_set: str) -> None:
     results = (base_dir / spec.results_dir).resolve() if spec.results_dir else out_dir
-    target = results / spec.signatures_file
+    target = results / name
     if target.is_file():
         return
-    training = (base_dir / spec.signatures_training).resolve()
+    training = (base_dir / training_set).resolve()
     log.info("learning the DTG signatures from %s -> %s", training, target)
     cmd = [sys.executable, "-m", "harness", "learn-signatures", str(training), "--out",
            str(target)]

@@ -106,27 +106,50 @@ def _axis_right(record: dict[str, Any]) -> bool | None:
     signal's (injector channels 1, 3 feed x; 2, 4 feed y); None when not recorded."""
     run = record["run"]
     axis = record.get("diagnosed_axis")
-    if run.get("channel") != "dtg" or axis is None or run.get("target") is None:
+    if (str(run.get("channel")).split("/")[0] != "dtg" or axis is None
+            or run.get("target") is None):
         return None
     return int(axis) == (1 if int(run["target"]) in (1, 3) else 2)
 
 
+#: Channels whose records are split per witness (rule); system runs keep theirs whole.
+SPLIT_CHANNELS = ("grey", "df", "dtg")
+
+
 def split_grey(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Grey records split into one record per witness (rule); others unchanged.
+    """Records of runs with several witnesses (grey, df, dtg) split into one record per
+    witness (rule); others unchanged.
 
     The witness's record has the run's class ``<class>/<rule>``, channel
-    ``grey/<rule>``, ``rule`` set, and the witness's fields at the top level.
+    ``<channel>/<rule>``, ``rule`` set, the witness's fields at the top level and, when
+    the witness has its own sweep grid, that grid as the run's ``thresholds``.  A grey
+    witness names no fault kind (``diagnosed`` None); a df/dtg witness keeps its own
+    diagnosis, so isolation, class and confusion are per rule too.
     """
     out = []
     for r in records:
-        if r.get("status") != "ok" or r["run"].get("channel") != "grey":
+        ch = r["run"].get("channel")
+        if (r.get("status") != "ok" or ch not in SPLIT_CHANNELS
+                or (ch != "grey" and not r["run"].get("witnesses"))):
             out.append(r)
             continue
+        # the top level repeats the first witness's fields: none of them may leak into
+        # another witness's record (e.g. "typed" of the sequential rule)
+        judged = {k for fields in r["witnesses"].values() for k in fields}
+        rest = {k: v for k, v in r.items() if k != "witnesses" and k not in judged}
         for w, fields in r["witnesses"].items():
-            run = {**r["run"], "cls": f"{r['run']['cls']}/{w}", "channel": f"grey/{w}"}
-            rest = {k: v for k, v in r.items() if k != "witnesses"}
-            out.append({**rest, **fields, "run": run, "rule": w, "diagnosed": None})
+            run = {**r["run"], "cls": f"{r['run']['cls']}/{w}", "channel": f"{ch}/{w}"}
+            if "thresholds" in fields:
+                run["thresholds"] = fields["thresholds"]
+            split = {**rest, **fields, "run": run, "rule": w}
+            if ch == "grey":
+                split["diagnosed"] = None
+            out.append(split)
     return out
+
+
+#: The same split, by the name that says what it does now.
+split_witnesses = split_grey
 
 
 def _natural(key: str) -> tuple[float, str]:
@@ -262,7 +285,7 @@ def _grey_summary(ok: list[dict[str, Any]]) -> dict[str, Any]:
     threshold sweep (detection rate and false alarms per hour at each multiple of the
     rule's threshold).
     """
-    grey = [r for r in ok if "rule" in r]
+    grey = [r for r in ok if "rule" in r and r["run"]["channel"].startswith("grey/")]
     if not grey:
         return {}
     # in the spec's order (the records' witness dicts are sorted by name)
@@ -460,7 +483,7 @@ def _plots(summary: dict[str, Any], records: list[dict[str, Any]], out: Path) ->
         ax.set_ylabel("injected")
         ax.set_title(f"isolation, {ch}")
         fig.tight_layout()
-        paths.append(out / f"confusion_{ch}.png")
+        paths.append(out / f"confusion_{ch.replace('/', '_')}.png")
         fig.savefig(paths[-1], dpi=110)
         plt.close(fig)
 
