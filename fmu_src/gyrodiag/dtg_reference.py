@@ -99,7 +99,7 @@ MIN_SEGMENT_S = 0.25
 POWER_RATIO = 3.0
 POWER_KAPPA = math.log(POWER_RATIO) / (1.0 - 1.0 / POWER_RATIO)
 POWER_Q_CAP = 10.0
-POWER_THRESHOLD = 50.0
+POWER_THRESHOLD = 80.0
 #: Variance floor relative to the channel's scale, so that a silent channel stays finite.
 _VAR_FLOOR = 1e-30
 
