@@ -16,6 +16,7 @@ the DTG chain (1 kHz, 7.5 s runs).
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import pytest
@@ -31,7 +32,8 @@ from harness.campaigns.campaign import (
 from harness.campaigns.campaign_report import markdown_summary, summarize
 
 ROOT = Path(__file__).resolve().parents[1]
-FMUS = ROOT / "build" / "fmus"
+# where the session fixture ``fmu_dir`` builds the FMUs (request it before running them)
+FMUS = Path(os.environ.get("GYRODIAG_FMU_DIR", ROOT / "build" / "fmus")).resolve()
 AIRCRAFT = ROOT / "scenarios" / "aircraft_alpha_small_bias.toml"
 DTG = ROOT / "scenarios" / "dtg_fault_utx_step_s1.toml"
 PAPER_DF_GRID = [3.0, 6.0, 9.0]
@@ -83,9 +85,8 @@ def test_witness_options_are_checked():
 
 
 @pytest.fixture(scope="module")
-def df_campaign(tmp_path_factory):
-    if not (FMUS / "Diagnoser.fmu").is_file():
-        pytest.skip("build the FMUs first: python build_fmu.py")
+def df_campaign(tmp_path_factory, fmu_dir):
+    assert fmu_dir == FMUS  # built (or rebuilt when stale) by the session fixture
     out = tmp_path_factory.mktemp("side_df")
     both = run_campaign(df_spec(), ROOT, out, workers=2, progress=False)
     assert not both.failed, [r.get("error") for r in both.records]
@@ -127,7 +128,7 @@ def test_df_the_copy_leaves_the_projects_rule_as_it_was(df_campaign, tmp_path):
         assert small[key] == solo[key], key
 
 
-def test_df_paper_sweep_is_exact_under_jacobi_coupling(tmp_path):
+def test_df_paper_sweep_is_exact_under_jacobi_coupling(tmp_path, fmu_dir):
     """Jacobi: the channel aligns y one step after u, so the recorded calibration
     residuals are not the ones it calibrated on; the sweep uses its own statistic."""
     jacobi = ROOT / "scenarios" / "aircraft_dual_bias_jacobi.toml"
@@ -176,9 +177,8 @@ DECADES = {"utx_step": [0, 0, -2, -2, 0], "utx_noise": [0, 0, -3, -3, 0],
 
 
 @pytest.fixture(scope="module")
-def dtg_campaign(tmp_path_factory):
-    if not (FMUS / "Diagnoser.fmu").is_file():
-        pytest.skip("build the FMUs first: python build_fmu.py")
+def dtg_campaign(tmp_path_factory, fmu_dir):
+    assert fmu_dir == FMUS  # built (or rebuilt when stale) by the session fixture
     out = tmp_path_factory.mktemp("side_dtg")
     (out / "dtg_signatures.json").write_text(json.dumps({"signatures": DECADES}))
     # the base Diagnoser "diag" has the paper's rule; "pattern" is the project's
