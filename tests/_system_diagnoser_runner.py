@@ -59,20 +59,23 @@ def run(fmu_dir: Path, out: Path, inp: Path) -> None:
         d.init_status = d.initialise(params, strings)
         return d
 
+    def run_saving(d, k_save: int):
+        """Step through the DTG record, serialising the FMU state before sample k_save."""
+        rows, state = [], None
+        for k, x in enumerate(data["dtg"]):
+            if k == k_save:
+                state = d.fmu.serializeFMUstate(d.fmu.getFMUstate())
+            status = d.step(x)
+            if status != 0:
+                raise RuntimeError(f"doStep at k={k} returned {status}: {d.log}")
+            rows.append(d.outputs())
+        d.close()
+        return np.array(rows), state
+
     d = new("dtg", DTG_PARAMS, DTG_IN)
     assert d.init_status == 0, d.log
     res["columns"] = np.array(d.out_names)
-    rows = []
-    state = None
-    for k, x in enumerate(data["dtg"]):
-        if k == K_SAVE:
-            state = d.fmu.serializeFMUstate(d.fmu.getFMUstate())
-        status = d.step(x)
-        if status != 0:
-            raise RuntimeError(f"doStep at k={k} returned {status}: {d.log}")
-        rows.append(d.outputs())
-    res["dtg"] = np.array(rows)
-    d.close()
+    res["dtg"], state = run_saving(d, K_SAVE)
     d = new("dtg_restored", {"sample_period_s": H}, DTG_IN)
     d.fmu.setFMUstate(d.fmu.deSerializeFMUstate(state))
     d.k = K_SAVE
@@ -81,15 +84,7 @@ def run(fmu_dir: Path, out: Path, inp: Path) -> None:
 
     d = new("dtg_pattern", DTG_PATTERN_PARAMS, DTG_IN)
     assert d.init_status == 0, d.log
-    rows = []
-    for k, x in enumerate(data["dtg"]):
-        if k == K_SAVE_PATTERN:
-            state = d.fmu.serializeFMUstate(d.fmu.getFMUstate())
-        if d.step(x) != 0:
-            raise RuntimeError(f"doStep at k={k}: {d.log}")
-        rows.append(d.outputs())
-    res["dtg_pattern"] = np.array(rows)
-    d.close()
+    res["dtg_pattern"], state = run_saving(d, K_SAVE_PATTERN)
     d = new("dtg_pattern_restored", {"sample_period_s": H}, DTG_IN)
     d.fmu.setFMUstate(d.fmu.deSerializeFMUstate(state))
     d.k = K_SAVE_PATTERN
