@@ -871,7 +871,15 @@ class Diagnoser(FacadeBase):
         if v["df.enabled"]:
             df_channel = _import_or_explain("gyrodiag.df_channel", "df.enabled")
             with _channel_context("df"):
-                self._df = df_channel.DFChannel(self._df_config(period))
+                config = self._df_config(period)
+                self._df = df_channel.DFChannel(config)
+            if config.sensor_dynamics is not None and config.decision == "sequential":
+                # measured (docs/notes.md, System): detection holds, isolation does not
+                self.report_warning(
+                    f"{self.instance_name}: df: with df.sensor_dynamics_file the sequential "
+                    "rule (df.decision = 1) detects but does not isolate or type faults "
+                    "reliably (its whitening assumes white sensor noise; the matched "
+                    "filter colours it): set df.decision = 0 (paper rule) to isolate")
         self._applied = {n: v[n] for n in _TUNABLE_NAMES}
 
     def _apply_tunables(self) -> bool:

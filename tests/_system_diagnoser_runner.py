@@ -97,6 +97,12 @@ def run(fmu_dir: Path, out: Path, inp: Path) -> None:
     res["df"] = d.run(data["df"])
     d.close()
 
+    d = new("df_sequential", {**DF_PARAMS, "df.decision": 1}, DF_IN,
+            {"df.sensor_dynamics_file": str(data["readout_path"])})
+    res["sequential_status"] = np.array(d.init_status)
+    res["sequential_log"] = np.array("\n".join(f"[{s}] {m}" for s, m in d.log))
+    d.close()
+
     labels, status, logs = [], [], []
     for label, (params, strings) in INVALID.items():
         d = new(f"bad_{len(labels)}", {**DF_PARAMS, "dtg.enabled": True, **params}, DF_IN,

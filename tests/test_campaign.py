@@ -362,3 +362,38 @@ def test_smoke_campaign_pool_and_dask_give_the_same_figures(tmp_path, fmu_dir, m
     assert (tmp_path / "pool" / "threshold_sweep_df.png").is_file()
     assert os.path.getsize(tmp_path / "pool" / "summary.json") > 100
     assert "| df | 0 in " in (tmp_path / "pool" / "summary.md").read_text(encoding="utf-8")
+
+
+def test_campaign_summary_pools_campaigns_and_counts_each_ones_runs(tmp_path):
+    """`harness campaign-summary`: two campaigns (one stopped half way) as one summary:
+    classes kept apart by campaign, a channel's false alarms pooled, the unfinished one
+    counted as planned but not finished (exit 1); bad folders exit 2 naming them."""
+    from harness.cli.commands import main
+
+    a = fake_spec([0.6, 0.7], nominal_runs=2)
+    b = fake_spec([0.3, 0.8, 0.9], nominal_runs=3).model_copy(update={"name": "other"})
+    run_campaign(a, tmp_path, tmp_path / "a", workers=2, progress=False)
+    run_campaign(b, tmp_path, tmp_path / "b", workers=2, max_runs=4, progress=False)
+    out = tmp_path / "all"
+    assert main(["-q", "campaign-summary", str(tmp_path / "a"), str(tmp_path / "b"),
+                 "--out", str(out)]) == 1  # b: 4 of 6 runs
+    s = json.loads((out / "summary.json").read_text())
+    rows = {c["campaign"]: c for c in s["campaigns"]}
+    assert (rows["fake"]["n_finished"], rows["fake"]["n_planned"]) == (4, 4)
+    assert (rows["other"]["n_finished"], rows["other"]["n_planned"]) == (4, 6)
+    assert rows["fake"]["nominal_hours"] == pytest.approx(2 * 60 / 3600)
+    assert (s["n_finished"], s["n_planned"]) == (8, 10)
+    assert {r["class"] for r in s["detection"]} == {"fake/air", "other/air"}
+    fa = s["false_alarms"]["df"]
+    n_nominal = rows["fake"]["n_nominal_runs"] + rows["other"]["n_nominal_runs"]
+    assert fa["count"] == n_nominal  # the fake runner: one false alarm per nominal run
+    assert fa["hours"] == pytest.approx(8 * 60 / 3600)
+    md = (out / "summary.md").read_text()
+    assert "| other | 4 / 6 |" in md and (out / "report.html").is_file()
+
+    assert main(["-q", "campaign-summary", str(tmp_path / "a"), str(tmp_path / "nowhere"),
+                 "--out", str(tmp_path / "x")]) == 2
+    assert main(["-q", "campaign-summary", str(tmp_path / "a"), "--out",
+                 str(tmp_path / "a")]) == 2  # would overwrite a's own summary
+    assert main(["-q", "campaign-summary", str(tmp_path / "a"), str(tmp_path / "a"),
+                 "--out", str(out)]) == 2  # the same campaign twice

@@ -369,6 +369,15 @@ def test_fmu_df_readout_dynamics_equals_library(fmu, runs) -> None:
     assert not _col(fmu, "df", "df.detected").any()
 
 
+def test_fmu_warns_that_the_sequential_rule_does_not_isolate_with_the_readout(fmu) -> None:
+    log = str(fmu["sequential_log"])
+    # a warning (status 1; fmpy does not raise on it), and the instance initialised
+    assert int(fmu["sequential_status"]) == 0, log
+    warnings = [line for line in log.splitlines() if line.startswith("[1] ")]
+    assert len(warnings) == 1, log
+    assert "df.decision = 0" in warnings[0] and "df.sensor_dynamics_file" in warnings[0], log
+
+
 @pytest.mark.parametrize("label", ["dtg.case_rate", "dtg.pickoff_scale",
                                    "df.sensor_dynamics_file"])
 def test_fmu_bad_new_parameters_are_fmi2error_naming_them(fmu, label) -> None:

@@ -1313,6 +1313,39 @@ def load_records(records_dir: Path) -> dict[str, dict[str, Any]]:
     return out
 
 
+@dataclass
+class CampaignOutput:
+    """One campaign's output folder as :func:`load_campaign_output` reads it."""
+
+    name: str
+    out_dir: Path
+    n_planned: int
+    fraction: float
+    records: list[dict[str, Any]]
+
+
+def load_campaign_output(out_dir: Path | str) -> CampaignOutput:
+    """The records of the runs a campaign output folder planned (its ``campaign.json``),
+    for summarising several campaigns as one (``python -m harness campaign-summary``).
+
+    Raises ValueError naming the folder when it holds no readable ``campaign.json``.
+    """
+    out_dir = Path(out_dir)
+    path = out_dir / "campaign.json"
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        name, ids = str(data["spec"]["name"]), list(data["run_ids"])
+        fraction = float(data.get("fraction", 1.0))
+    except FileNotFoundError:
+        raise ValueError(f"{out_dir}: not a campaign output folder (no campaign.json; "
+                         "run `python -m harness campaign SPEC --out DIR` first)") from None
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"{path}: unreadable campaign record ({exc})") from None
+    done = load_records(out_dir / "runs")
+    return CampaignOutput(name=name, out_dir=out_dir, n_planned=len(ids), fraction=fraction,
+                          records=[done[rid] for rid in ids if rid in done])
+
+
 def _iter_pool(runs: Sequence[RunSpec], runner: str, timeout_s: float, records_dir: Path,
                workers: int) -> Iterator[dict[str, Any]]:
     import multiprocessing

@@ -36,6 +36,7 @@ import html
 import json
 import math
 from collections import defaultdict
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -274,6 +275,37 @@ def summarize(records: list[dict[str, Any]], n_planned: int | None = None) -> di
         "witnesses": _witness_summary(ok),
         "grey": _grey_summary(ok),
     }
+
+
+def summarize_campaigns(outputs: Sequence[Any]) -> dict[str, Any]:
+    """One summary of several campaigns' records (e.g. every family of issue 16).
+
+    ``outputs`` are :class:`harness.campaigns.campaign.CampaignOutput` (name, planned run
+    count, records).  Classes are renamed ``<campaign>/<class>`` so that families with
+    the same class name stay apart; channels are kept, so the false-alarm and isolation
+    tables pool a channel over the campaigns that judge it.  ``campaigns`` adds one row
+    per campaign: runs finished / planned / failed, nominal hours judged, false alarms.
+    """
+    names = [o.name for o in outputs]
+    if len(set(names)) != len(names):
+        raise ValueError(f"campaigns: the same campaign given twice ({sorted(names)})")
+    records, rows = [], []
+    for o in outputs:
+        for r in o.records:
+            records.append({**r, "run": {**r["run"], "cls": f"{o.name}/{r['run']['cls']}"}})
+        ok = [r for r in o.records if r.get("status") == "ok"]
+        nominal = [r for r in ok if r["run"]["kind"] == "nominal"]
+        rows.append({"campaign": o.name, "folder": str(o.out_dir), "fraction": o.fraction,
+                     "n_planned": o.n_planned, "n_finished": len(o.records),
+                     "n_failed": len(o.records) - len(ok),
+                     "n_fault_runs": sum(r["run"]["kind"] == "fault" for r in ok),
+                     "n_nominal_runs": len(nominal),
+                     "nominal_hours": sum(float(r["fault_free_s"]) for r in nominal)
+                     / SECONDS_PER_HOUR,
+                     "channels": sorted({r["run"]["channel"] for r in ok})})
+    summary = summarize(records, n_planned=sum(o.n_planned for o in outputs))
+    summary["campaigns"] = rows
+    return summary
 
 
 def _grey_summary(ok: list[dict[str, Any]]) -> dict[str, Any]:
@@ -586,6 +618,14 @@ def markdown_summary(summary: dict[str, Any], title: str = "campaign") -> str:
              f"{summary['n_finished']} of {summary['n_planned']} runs finished: "
              f"{summary['n_fault_runs']} fault runs, {summary['n_nominal_runs']} nominal, "
              f"{summary['n_failed']} failed.", ""]
+    if summary.get("campaigns"):
+        lines += _md_table(["campaign", "runs finished / planned", "failed", "fault runs",
+                            "nominal runs", "nominal h judged", "channels"],
+                           [[c["campaign"], f"{c['n_finished']} / {c['n_planned']}"
+                             + (f" (fraction {c['fraction']:g})" if c["fraction"] < 1 else ""),
+                             c["n_failed"], c["n_fault_runs"], c["n_nominal_runs"],
+                             f"{c['nominal_hours']:.2f}", ", ".join(c["channels"])]
+                            for c in summary["campaigns"]])
     rows = []
     for ch, fa in summary["false_alarms"].items():
         d = summary["delay"].get(f"all {ch}", {})
@@ -721,7 +761,14 @@ def write_report(summary: dict[str, Any], records: list[dict[str, Any]], out_dir
     parts = [f"<h1>Campaign {html.escape(title)}</h1>",
              f"<p>{summary['n_finished']} of {summary['n_planned']} runs finished: "
              f"{summary['n_fault_runs']} fault runs, {summary['n_nominal_runs']} nominal, "
-             f"{summary['n_failed']} failed.</p>", "<h2>False alarms</h2>",
+             f"{summary['n_failed']} failed.</p>",
+             *([_table(["campaign", "finished", "planned", "failed", "fault runs",
+                        "nominal runs", "nominal h judged", "channels"],
+                       [[c["campaign"], c["n_finished"], c["n_planned"], c["n_failed"],
+                         c["n_fault_runs"], c["n_nominal_runs"], c["nominal_hours"],
+                         ", ".join(c["channels"])] for c in summary["campaigns"]])]
+               if summary.get("campaigns") else []),
+             "<h2>False alarms</h2>",
              _table(["channel", "count", "fault-free h", "nominal h", "rate /h",
                      "95 % low", "95 % high"],
                     [[ch, f["count"], f["hours"], f["nominal_hours"], f["rate_per_h"],

@@ -16,11 +16,12 @@ from harness.campaigns.campaign import (
     CampaignInterrupted,
     expand_runs,
     load_campaign,
+    load_campaign_output,
     load_records,
     run_campaign,
     select,
 )
-from harness.campaigns.campaign_report import summarize, write_report
+from harness.campaigns.campaign_report import summarize, summarize_campaigns, write_report
 
 log = logging.getLogger("harness.cli")
 
@@ -47,6 +48,41 @@ def add_parser(sub: Any) -> None:
                    help="summarise the records already written, run nothing")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_campaign)
+
+
+def add_summary_parser(sub: Any) -> None:
+    """Register ``campaign-summary`` on the CLI's sub-parsers."""
+    p = sub.add_parser("campaign-summary",
+                       help="one summary (summary.md/.json, report.html) of several "
+                            "campaigns' output folders")
+    p.add_argument("folders", type=Path, nargs="+",
+                   help="campaign output folders (each with campaign.json and runs/)")
+    p.add_argument("--out", type=Path, required=True, help="folder for the summary")
+    p.add_argument("--title", default="all families", help="the summary's title")
+    p.set_defaults(func=cmd_campaign_summary)
+
+
+def cmd_campaign_summary(args: argparse.Namespace) -> int:
+    """Exit 0 when every planned run of every campaign finished without failing."""
+    try:
+        outputs = [load_campaign_output(folder) for folder in args.folders]
+        if Path(args.out).resolve() in {Path(o.out_dir).resolve() for o in outputs}:
+            raise ValueError(f"--out {args.out}: one of the campaign folders (its own "
+                             "summary would be overwritten); give another folder")
+        summary = summarize_campaigns(outputs)
+    except ValueError as exc:
+        log.error("%s", exc)
+        return 2
+    records = [r for o in outputs for r in o.records]
+    paths = write_report(summary, records, Path(args.out), title=args.title)
+    for c in summary["campaigns"]:
+        log.info("%s: %d of %d runs finished, %d failed, %.2f nominal h judged",
+                 c["campaign"], c["n_finished"], c["n_planned"], c["n_failed"],
+                 c["nominal_hours"])
+    log.info("%s", summary_text(summary))
+    log.info("summary: %s, %s; report: %s", paths["json"], paths["markdown"], paths["html"])
+    return 0 if summary["n_finished"] == summary["n_planned"] and not summary["n_failed"] \
+        else 1
 
 
 def cmd_campaign(args: argparse.Namespace) -> int:

@@ -12,6 +12,7 @@
                           [--workers N] [--exact-signals]
     python -m harness campaign SPEC.toml [--out DIR] [--workers N] [--dask local|ADDRESS]
                                [--timeout S] [--fraction F] [--report-only]
+    python -m harness campaign-summary DIR... --out DIR [--title TEXT]
     python -m harness isolability [--out FILE] [--format text|json|html]
     python -m harness learn-signatures SCENARIO... [--out FILE.json] [--runs-out DIR]
                                        [--window-s S] [--saved] [--fmu-dir DIR]
@@ -193,6 +194,7 @@ def _parser() -> argparse.ArgumentParser:
     learn_signatures.add_parser(sub)
     pipeline.add_parser(sub)
     campaign.add_parser(sub)
+    campaign.add_summary_parser(sub)
     ssp.add_parser(sub)
     for p in sub.choices.values():
         add_verbosity(p)
