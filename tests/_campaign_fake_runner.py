@@ -4,7 +4,8 @@
 its process (abort), anything else returns a synthetic record: detected when the
 magnitude is >= 0.5, delay = 0.1 / magnitude s, one false alarm per nominal run, 60 s of
 fault-free time, diagnosed = the injected label.  When ``GD_FAKE_LOG`` names a folder,
-every execution leaves a file ``<run_id>.<pid>`` there (to count executions).
+every execution leaves a file ``<run_id>.<pid>`` there (to count executions) holding
+its ``/proc/self/autogroup`` line (where there is one).
 """
 
 from __future__ import annotations
@@ -18,7 +19,9 @@ from typing import Any
 def fake(run: dict[str, Any]) -> dict[str, Any]:
     log = os.environ.get("GD_FAKE_LOG")
     if log:
-        Path(log, f"{run['run_id']}.{os.getpid()}").touch()
+        group = Path("/proc/self/autogroup")
+        Path(log, f"{run['run_id']}.{os.getpid()}").write_text(
+            group.read_text() if group.exists() else "", encoding="utf-8")
     mag = run.get("magnitude")
     if mag == 1.0:
         raise ValueError("fake runner: magnitude 1 raises")

@@ -397,3 +397,24 @@ def test_campaign_summary_pools_campaigns_and_counts_each_ones_runs(tmp_path):
                  str(tmp_path / "a")]) == 2  # would overwrite a's own summary
     assert main(["-q", "campaign-summary", str(tmp_path / "a"), str(tmp_path / "a"),
                  "--out", str(out)]) == 2  # the same campaign twice
+
+
+@pytest.mark.skipif(not Path("/proc/self/autogroup").is_file(),
+                    reason="needs Linux scheduler autogroups")
+def test_run_processes_keep_the_campaigns_niceness_in_their_own_session(tmp_path):
+    """A campaign started with `nice -n 7`: each run process (a session, so an autogroup,
+    of its own) gives its autogroup nice 7, else `nice` would not lower its CPU share."""
+    log = tmp_path / "log"
+    log.mkdir()
+    script = DRIVER.format(tests=str(Path(__file__).parent),
+                           spec=json.dumps(fake_spec([0.6, 0.7]).model_dump(by_alias=True)),
+                           tmp=str(tmp_path), out=str(tmp_path / "out"), dask=None)
+    env = {**os.environ, "GD_FAKE_LOG": str(log)}
+    done = subprocess.run(["nice", "-n", "7", sys.executable, "-c", script], env=env,
+                          cwd=str(ROOT), capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    groups = [p.read_text().split() for p in log.iterdir()]
+    assert len(groups) == 2
+    assert all(g[-2:] == ["nice", "7"] for g in groups), groups
+    mine = Path("/proc/self/autogroup").read_text().split()[0]
+    assert all(g[0] != mine for g in groups)  # their own groups, not this session's

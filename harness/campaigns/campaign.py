@@ -1269,6 +1269,9 @@ def _load_runner(runner: str) -> Callable[[dict[str, Any]], dict[str, Any]]:
 
 
 def _child_main(runner: str, inp: str, out: str) -> int:
+    from harness.cosim.niceness import keep_niceness
+
+    keep_niceness()  # its own session is its own autogroup (harness.cosim.niceness)
     parent = int(os.environ.get(PARENT_PID_ENV, os.getppid()))
     threading.Thread(target=_exit_when_orphaned, args=(parent,), daemon=True,
                      name="orphan-watch").start()

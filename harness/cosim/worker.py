@@ -35,6 +35,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from harness.cosim.interrupt import RunInterrupted, request_stop, stop_on_signals
+from harness.cosim.niceness import keep_niceness
 
 log = logging.getLogger(__name__)
 
@@ -117,6 +118,7 @@ def main(argv: list[str]) -> int:
     with open(argv[0], "rb") as fh:
         job: Job = pickle.load(fh)  # written by this package's batch, never by a user
     logging.basicConfig(level=job.log_level, format="%(message)s", stream=sys.stderr)
+    keep_niceness()  # a session of its own is an autogroup of its own (see there)
     threading.Thread(target=_watch_parent, args=(job.parent_pid,), daemon=True).start()
     with stop_on_signals():  # from here on a signal never interrupts mid-call
         run_job(job)
