@@ -171,7 +171,8 @@ class DTGChannelConfig:
         docs/dtg_case_rate.md): they go through the prefilter with the voltages, θ0 and
         the reference are per axis (``theta0`` of shape (5,) is used for both axes, or
         give (2, 5)), ``physical`` inverts the central scheme's θ with ``"central"``.
-        A pattern library with a nominal prior learned without the case rate is refused.
+        A pattern library's classes apply, its nominal prior does not (it is the paper
+        regression's θ0, one for both axes): the learning guard then runs without it.
     pickoff_scale : float
         Nominal pick-off scale KT of the gyro, rad/V (datasheet value; case rate only):
         the case rate enters the regressors as ω·T/KT, in V.
@@ -299,11 +300,6 @@ class DTGChannelConfig:
                 if not isinstance(self.patterns, PatternLibrary):
                     raise TypeError("patterns must be a PatternLibrary, got "
                                     f"{type(self.patterns).__name__}")
-                if self.case_rate is not None and self.patterns.prior is not None:
-                    raise ValueError(
-                        "patterns: the library's nominal prior was learned with the "
-                        "paper's regression (one θ0 for both axes); with case_rate the "
-                        "reference is per axis: use a library without a prior")
                 block_s = self.block_samples * self.sample_period_s
                 for name, mine, theirs in (
                         ("sample_period_s", self.sample_period_s,
@@ -462,8 +458,11 @@ class DTGChannel:
                                  self._theta0_shape()).copy())
         self._pattern = (PatternClassifier(config.patterns)
                          if config.patterns is not None else None)
+        # the prior is the paper regression's θ0 (one for both axes); with the case rate
+        # the reference is per axis and differs (θ5 in particular)
         self._prior: NominalPrior | None = (
-            config.patterns.prior if config.patterns is not None else None)
+            config.patterns.prior
+            if config.patterns is not None and config.case_rate is None else None)
         self.reset()
 
     # -- construction helpers -------------------------------------------------
