@@ -168,6 +168,14 @@ def test_summary_compares_groups_and_counts_false_alarms_per_witness() -> None:
     assert comp["dtg"]["points"] == pytest.approx(-50.0)
     assert comp["df"]["points"] == pytest.approx(50.0)
     assert comp["both"]["level"] == 0.5 and comp["both"]["group"] == 0.5
+    assert comp["either"]["points"] == pytest.approx(0.0)  # any witness: 2 of 2 in each
+    # a second fault type in the manoeuvre, missed by both: the pooled row counts it
+    more = [*records, {**_record("square", "manoeuvre", "fault", False, False),
+                       "run": {**_record("square", "manoeuvre", "fault", False, False)["run"],
+                               "run_id": "torquer-miss", "fault_type": "torquer_scale"}}]
+    pooled = [r for r in summarize(more)["witnesses"]["detection"] if r["fault_type"] == "all"]
+    assert [(r["group"], r["n"], r["either"]["detected"], r["dtg"]["detected"])
+            for r in pooled] == [("level", 2, 2, 2), ("manoeuvre", 3, 2, 1)]
     fa = w["false_alarms"]["dtg/manoeuvre"]
     assert fa["count"] == 1 and fa["hours"] == pytest.approx(3.0)
     assert fa["nominal_hours"] == pytest.approx(1.0)
@@ -175,4 +183,4 @@ def test_summary_compares_groups_and_counts_false_alarms_per_witness() -> None:
     assert s["threshold_sweep"] == {}
     md = markdown_summary(s, "sys")
     assert "Detection rate in each group against level flight" in md
-    assert "1.00 → 0.50 (-50.0)" in md
+    assert "1.00 → 0.50 (-50.0)" in md and "either: level → group" in md

@@ -409,6 +409,27 @@ def _witness_summary(ok: list[dict[str, Any]]) -> dict[str, Any]:
                       "delay": _delay_stats(delays)}
         both = sum(all(r["witnesses"][w]["detected"] for w in names) for r in rs)
         row["both"] = {"detected": both, "rate": both / len(rs)}
+        either = sum(bool(r["detected"]) for r in rs)  # the run's top level: any witness
+        row["either"] = {"detected": either, "rate": either / len(rs)}
+        detection.append(row)
+    # every fault of a class pooled per group: the one figure "as in level flight?"
+    pooled: dict[tuple[str, str], list[dict]] = defaultdict(list)
+    for (cls, _, _, group), rs in groups.items():
+        pooled[(cls, group)] += rs
+    for (cls, group), rs in sorted(pooled.items()):
+        row = {"class": cls, "fault_type": "all", "magnitude": None, "group": group,
+               "n": len(rs), "conditions": sorted({r["run"].get("condition") or "base"
+                                                   for r in rs})}
+        for w in names:
+            k = sum(bool(r["witnesses"][w]["detected"]) for r in rs)
+            lo, hi = clopper_pearson(k, len(rs))
+            row[w] = {"detected": k, "rate": k / len(rs), "ci_low": lo, "ci_high": hi,
+                      "delay": _delay_stats([r["witnesses"][w]["delay_s"] for r in rs
+                                             if r["witnesses"][w]["detected"]])}
+        k = sum(all(r["witnesses"][w]["detected"] for w in names) for r in rs)
+        row["both"] = {"detected": k, "rate": k / len(rs)}
+        k = sum(bool(r["detected"]) for r in rs)
+        row["either"] = {"detected": k, "rate": k / len(rs)}
         detection.append(row)
     comparison = []
     for row in detection:
@@ -423,7 +444,7 @@ def _witness_summary(ok: list[dict[str, Any]]) -> dict[str, Any]:
                            "magnitude": row["magnitude"], "group": row["group"],
                            **{w: {"level": ref[w]["rate"], "group": row[w]["rate"],
                                   "points": 100.0 * (row[w]["rate"] - ref[w]["rate"])}
-                              for w in [*names, "both"]}})
+                              for w in [*names, "both", "either"]}})
     false_alarms: dict[str, dict[str, Any]] = {}
     for w in names:
         for group in sorted({r["run"].get("group") or "base" for r in system}):
@@ -672,18 +693,22 @@ def _witness_markdown(w: dict[str, Any]) -> list[str]:
                          f"{fa['hours']:.2f} ({fa['nominal_hours']:.2f})",
                          fa["runs_with_false_alarm"]] for fa in w["false_alarms"].values()])
     lines += ["System runs: detection per witness (delay median, s):", ""]
-    lines += _md_table(["fault", "magnitude", "group", "n", *names, "both"],
-                       [[r["fault_type"], r["magnitude"], r["group"], r["n"],
+    lines += _md_table(["class", "fault", "magnitude", "group", "n", *names, "both",
+                        "either"],
+                       [[r["class"], r["fault_type"], r["magnitude"], r["group"], r["n"],
                          *(f"{r[n]['detected']} ({html.unescape(_fmt(r[n]['delay']['median_s']))})"
-                           for n in names), r["both"]["detected"]]
+                           for n in names), r["both"]["detected"],
+                         r.get("either", {}).get("detected", "–")]
                         for r in w["detection"]])
     if w["comparison"]:
         lines += ["Detection rate in each group against level flight (points):", ""]
-        lines += _md_table(["fault", "magnitude", "group",
-                            *(f"{n}: level → group (points)" for n in [*names, "both"])],
-                           [[c["fault_type"], c["magnitude"], c["group"],
+        cols = [n for n in [*names, "both", "either"]
+                if all(n in c for c in w["comparison"])]
+        lines += _md_table(["class", "fault", "magnitude", "group",
+                            *(f"{n}: level → group (points)" for n in cols)],
+                           [[c["class"], c["fault_type"], c["magnitude"], c["group"],
                              *(f"{c[n]['level']:.2f} → {c[n]['group']:.2f} "
-                               f"({c[n]['points']:+.1f})" for n in [*names, "both"])]
+                               f"({c[n]['points']:+.1f})" for n in cols)]
                             for c in w["comparison"]])
     return lines
 
