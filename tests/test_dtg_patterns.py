@@ -116,6 +116,25 @@ def test_statistics_unlike_every_class_are_unknown():
     assert res.code == UNKNOWN_CODE and res.name == "unknown" and res.distance > 3.6
 
 
+@pytest.mark.parametrize("name", ["utx_step", "uty_step", "ux_step", "uy_step"])
+def test_without_raw_signals_the_residuals_alone_classify_a_step(name):
+    """A case-rate channel in a manoeuvre: the four voltages' levels and variances carry
+    the manoeuvre (here: the torquer voltages moved by 300 block spreads, the pick-offs
+    noisier). With ``raw_signals`` False they weigh nothing and the residuals' levels
+    name the step; with them, the same statistics are unknown."""
+    rng = np.random.default_rng(11)
+    s = _stats(name, 0.3, rng)
+    moved = ClassificationStatistics(
+        s.level + np.array([5.0, -5.0, 300.0, -300.0, 0, 0]),
+        s.log_variance + np.array([1.0, 1.0, 2.0, 2.0, 0, 0]),
+        s.slope, 0.0, s.log_eta, s.window_blocks, s.window_s)
+    assert CLF.classify_signal_fault(moved).name == "unknown"
+    masked = CLF.classify_signal_fault(
+        ClassificationStatistics(**{**moved.__dict__, "raw_signals": False}))
+    assert masked.name == name
+    assert masked.size == pytest.approx(0.3, rel=0.2)
+
+
 def _broken(path: str, value):
     d = copy.deepcopy(learned_library_dict())
     keys = path.split(".")

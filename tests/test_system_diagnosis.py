@@ -174,19 +174,22 @@ def test_case_rate_pattern_classifier_detects_faults_in_a_manoeuvre(runs, signal
     assert delays["level"] <= bound, delays
 
 
+@pytest.mark.parametrize("flight", ["level", "square", "doublet"])
 @pytest.mark.parametrize(("signal", "t0", "size", "name"), [
     ("Utx", 14.05, 0.1, "utx_step"), ("Ux", 12.0, 0.3, "ux_step")])
 def test_case_rate_channel_classifies_with_a_level_library_and_ignores_its_prior(
-        runs, signal, t0, size, name) -> None:
+        runs, flight, signal, t0, size, name) -> None:
     """The level-flight library (18 learned classes) classifies pick-off and torquer steps
-    of the case-rate channel in level flight; the library's nominal prior (the paper
-    regression's one-axis θ0) is accepted but not used: the same outputs without it.
-    (In a square wave the same faults come out "unknown" or physical: docs/notes.md.)"""
+    of the case-rate channel in level flight and in manoeuvres (there from the residuals
+    alone: the voltages carry the manoeuvre; before, 8 of 24 signal faults were right in
+    the square wave and doublets, all as physical classes); the library's nominal prior
+    (the paper regression's one-axis θ0) is accepted but not used: the same outputs
+    without it. Measured: the right class in 65-93 % of the alarm samples."""
     from _dtg_patterns import learned_library_dict, pattern_library_dict
 
     lib = learned_library_dict()
     with_prior = {**lib, "nominal": pattern_library_dict(T, prior=True)["nominal"]}
-    o = _with_fault(runs["level"], signal, size, t0)
+    o = _with_fault(runs[flight], signal, size, t0)
     out = {}
     for key, d in (("plain", lib), ("prior", with_prior)):
         _, outs = _run_dtg(o, "central", classifier="pattern",
@@ -196,7 +199,7 @@ def test_case_rate_channel_classifies_with_a_level_library_and_ignores_its_prior
     assert not any(x.alarm for x in out["plain"][:k0])
     assert out["plain"][-1].alarm and out["plain"][-1].diagnosis.class_name == name
     classes = [x.diagnosis.class_name for x in out["plain"][k0:] if x.alarm]
-    assert classes.count(name) > 0.8 * len(classes)  # measured 0.91-0.93
+    assert classes.count(name) > 0.6 * len(classes)
     for a, b in zip(out["plain"], out["prior"], strict=True):
         assert a.alarm == b.alarm and a.diagnosis.class_name == b.diagnosis.class_name
         np.testing.assert_array_equal(a.eta, b.eta)

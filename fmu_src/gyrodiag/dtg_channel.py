@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -56,6 +56,7 @@ from .dtg_reference import (
     N_TESTS,
     POWER_THRESHOLD,
     REFERENCE_STATUS,
+    ClassificationStatistics,
     NominalPrior,
     NominalReference,
     ReferenceLearner,
@@ -87,6 +88,18 @@ STATUS_NOT_CHECKED = 4
 #: Reference status when learning ended without any usable reference (no excitation in
 #: the window, e.g. a host's default zero inputs): the channel never alarms.
 STATUS_FAILED = 5
+#: Case rate: a block whose filtered ω lies more than this many learning-window spreads
+#: from the learning mean is a manoeuvre block; a classification window holding one
+#: compares only the residuals with the library (ClassificationStatistics.raw_signals).
+OMEGA_EXCITATION_Z = 6.0
+#: Case rate in a manoeuvre: a signal-fault fit to the residuals alone worse than this
+#: (distance per library component) leaves a band alarm to the physical classes. In a
+#: manoeuvre the physical fits are poor for every fault (distance 13-18 measured, spin
+#: included), while a signal fault's residual fit is 0.04-0.08 and a spin's ~4.
+MASKED_SIGNAL_FIT = 1.0
+#: Smallest spread of the learning blocks' ω used for that test, rad/s (a noise-free
+#: case rate would make every rounding a manoeuvre).
+OMEGA_SPREAD_FLOOR = 1e-6
 
 
 @dataclass
@@ -528,6 +541,11 @@ class DTGChannel:
         self._blk_valid: list[bool] = []
         self._hist_filtered: list[tuple[float, ...]] = [(0.0,) * self._width] * 2
         self._gap = 0
+        # case rate: block means of the filtered ω during learning, their mean and spread,
+        # and each runtime block's largest deviation from it in those spreads
+        self._omega_learn: list[tuple[float, float]] = []
+        self._omega_ref: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+        self._omega_dev: deque[float] = deque(maxlen=self._long_blocks)
         # pattern classifier: when the residual tests clear, the fast estimators are
         # rolled back to their state half a test window before the alarm rose (a fault's
         # data would take them seconds to forget: a 0.3 V noise burst on a pick-off
@@ -699,6 +717,8 @@ class DTGChannel:
             return DTGDiagnosis(reference_status=status, block=block)
         result: PatternResult | None = None
         stats = mon.classification_statistics() if mon.alarm else None
+        if stats is not None:
+            stats = self._raw_signals_checked(stats)
         if mon.alarm:
             if stats is not None and self._pattern is not None:
                 result = self._pattern.classify_signal_fault(stats)
@@ -713,10 +733,12 @@ class DTGChannel:
                     # (physical fault) explains both, a read-out noise not the band
                     if physical.fault_type > 0 and (
                             result.fault_type < 0 or physical.distance < result.distance
-                            or (band_alarm and mon.power_only)):
+                            or (band_alarm and mon.power_only)
+                            or (band_alarm and not stats.raw_signals
+                                and result.distance > MASKED_SIGNAL_FIT)):
                         result = physical
         elif band_alarm:
-            stats = mon.window_statistics(self._long_blocks)
+            stats = self._raw_signals_checked(mon.window_statistics(self._long_blocks))
             if self._pattern is not None:
                 result = self._pattern.classify_physical(stats)
         if stats is None:
@@ -767,6 +789,8 @@ class DTGChannel:
         if len(self._blk_raw) < self._nb:
             return False
         done = False
+        if self._case_rate:
+            self._omega_block(self._n_start <= n < self._n_end)
         if self._n_start <= n < self._n_end:
             if self._learner is not None:
                 self._learner.push_block(np.array(self._blk_raw), np.array(self._blk_filtered),
@@ -799,6 +823,36 @@ class DTGChannel:
             self._snapshots.clear()
         self._snapshots.append((self._estimators[0].get_state(),
                                 self._estimators[1].get_state(), self._theta_now))
+
+    def _omega_block(self, learning: bool) -> None:
+        """Case rate: the block mean of the filtered ω (the voltages' filter, so aligned
+        with their block statistics), learned or compared with what was learned."""
+        w = np.mean(np.array(self._blk_filtered)[:, 4:6], axis=0)
+        if learning:
+            self._omega_learn.append((float(w[0]), float(w[1])))
+            return
+        if self._omega_ref is None:
+            if not self._omega_learn:
+                return
+            blocks = np.array(self._omega_learn)
+            self._omega_ref = (blocks.mean(axis=0), blocks.std(axis=0))
+            self._omega_learn = []
+        mean, spread = self._omega_ref
+        dev = np.abs(w - mean) / np.maximum(spread, OMEGA_SPREAD_FLOOR)
+        self._omega_dev.append(float(dev.max()))
+
+    def _raw_signals_checked(self, stats: ClassificationStatistics
+                             ) -> ClassificationStatistics:
+        """The statistics with ``raw_signals`` False when the case rate moved in their
+        window: the measured voltages then carry the manoeuvre (the torquer voltages
+        rebalance H·ω), and their levels and variances, compared with a reference
+        learned in other flight, would read as a fault of their own."""
+        if not self._case_rate or not self._omega_dev:
+            return stats
+        window = list(self._omega_dev)[-max(1, stats.window_blocks):]
+        if max(window) > OMEGA_EXCITATION_Z:
+            return replace(stats, raw_signals=False)
+        return stats
 
     def _clear_block(self) -> None:
         self._blk_raw = []
@@ -891,6 +945,10 @@ class DTGChannel:
                         "valid": np.array(self._blk_valid, dtype=bool),
                         "history": np.array(self._hist_filtered, dtype=float),
                         "gap": self._gap},
+            "omega": {"learn": np.array(self._omega_learn, dtype=float).reshape(-1, 2),
+                      "ref": None if self._omega_ref is None
+                      else np.vstack(self._omega_ref),
+                      "deviation": np.array(self._omega_dev, dtype=float)},
             "rollback": None if self._rollback is None else list(self._rollback),
             "snapshots": [list(snap) for snap in self._snapshots],
             "learner": None if self._learner is None else self._learner.get_state(),
@@ -943,6 +1001,18 @@ class DTGChannel:
         self._hist_filtered = [tuple(r) for r in np.asarray(
             buffers["history"], dtype=float).reshape(2, self._width).tolist()]
         self._gap = int(buffers["gap"])
+        omega = state.get("omega")  # absent in a state saved before 2026-11-25
+        if omega is None:
+            self._omega_learn, self._omega_ref = [], None
+            self._omega_dev = deque(maxlen=self._long_blocks)
+        else:
+            self._omega_learn = [(float(a), float(b)) for a, b in np.asarray(
+                omega["learn"], dtype=float).reshape(-1, 2).tolist()]
+            ref = omega["ref"]
+            self._omega_ref = (None if ref is None else
+                               tuple(np.asarray(ref, dtype=float).reshape(2, 2).copy()))
+            self._omega_dev = deque((float(v) for v in np.asarray(
+                omega["deviation"], dtype=float).reshape(-1)), maxlen=self._long_blocks)
         self._theta_now = tuple(tuple(e.theta.tolist()) for e in self._estimators)
         def snapshot(raw: Any) -> tuple[Any, ...]:
             sx, sy, theta = raw

@@ -76,6 +76,8 @@ N_ETA = 2 * N_THETA
 LOG_VAR_MIN, LOG_VAR_MAX = -4.0, 8.0
 #: Grid of the variance-response amplitude, V² (noise std 1e−6 … 1e4 V).
 _AMPLITUDE_GRID = 10.0 ** np.linspace(-12.0, 8.0, 241)
+#: The channels that are measured voltages (the rest are the regression's residuals).
+_RAW_CHANNELS = np.arange(N_CHANNELS) < len(SIGNALS)
 
 
 @dataclass(frozen=True)
@@ -405,6 +407,13 @@ class PatternClassifier:
         f = lib.noise.scale(stats.window_blocks)
         s_level = lib.noise.level_std * f
         s_lv2 = (lib.noise.log_variance_std * f) ** 2 + lib.log_variance_model_error ** 2
+        if not stats.raw_signals:
+            # the voltages carry the manoeuvre (a case-rate channel): only the residuals'
+            # levels and variances are compared (an infinite spread weighs a channel 0;
+            # the distance stays per library component, so that it compares with the
+            # physical classes' as in level flight: measured, docs/dtg_case_rate.md)
+            s_level = np.where(_RAW_CHANNELS, np.inf, s_level)
+            s_lv2 = np.where(_RAW_CHANNELS, np.inf, s_lv2)
         lv = np.clip(stats.log_variance, LOG_VAR_MIN, LOG_VAR_MAX)
         ratio_obs = 10.0 ** lv
         cap = lib.component_cap

@@ -895,6 +895,10 @@ class ClassificationStatistics:
         Blocks in the window.
     window_s : float
         Window length, s.
+    raw_signals : bool
+        The four measured voltages' levels and variances describe faults, as in the
+        library's training (True), or are moved by case-rate excitation and are left
+        out of the signal-fault fit (False; set by a case-rate channel in a manoeuvre).
     """
 
     level: NDArray[np.float64]
@@ -904,6 +908,7 @@ class ClassificationStatistics:
     log_eta: NDArray[np.float64]
     window_blocks: int
     window_s: float
+    raw_signals: bool = True
 
 
 class ResidualMonitor:
