@@ -350,3 +350,31 @@ def test_evaluator_persistence_k_of_n():
         ResidualEvaluator(thr, persistence_k=4, persistence_n=3)
     with pytest.raises(ValueError, match="residual"):
         ev.update([np.nan, 0.0])
+
+
+def test_unchecked_paths_match_checked_ones_bit_for_bit(gain):
+    # The isolator's bank validates a sample once and steps its observers and
+    # evaluators unchecked: the unchecked path must be the same arithmetic.
+    checked = DetectionFilter(A, B, C, gain, 0.01)
+    unchecked = DetectionFilter(A, B, C, gain, 0.01)
+    rng = np.random.default_rng(3)
+    thr = ResidualThresholds(mean=np.full(6, 0.01), std=np.ones(6),
+                             threshold=np.full(6, 0.05), k_sigma=3.0)
+    ev_checked = ResidualEvaluator(thr, persistence_k=2, persistence_n=3)
+    ev_unchecked = ResidualEvaluator(thr, persistence_k=2, persistence_n=3)
+    for _ in range(200):
+        u, y = rng.normal(size=2), rng.normal(scale=0.1, size=6)
+        r1 = checked.update(u, y)
+        r2 = unchecked.advance(u, y)
+        np.testing.assert_array_equal(r1, r2)
+        a1, n1 = ev_checked.update(r1)
+        a2, n2 = ev_unchecked.advance(r2)
+        np.testing.assert_array_equal(a1, a2)
+        np.testing.assert_array_equal(n1, n2)
+    np.testing.assert_array_equal(checked.get_state()["z"], unchecked.get_state()["z"])
+    assert checked.get_state()["n_updates"] == unchecked.get_state()["n_updates"] == 200
+    # the checked path still names a bad sample and leaves the state as it was
+    before = checked.get_state()
+    with pytest.raises(ValueError, match="y must contain only finite"):
+        checked.update(np.zeros(2), [0, 0, np.nan, 0, 0, 0])
+    np.testing.assert_array_equal(checked.get_state()["z"], before["z"])

@@ -360,11 +360,21 @@ class DiscreteObserver:
         """
         u_arr = check_finite_array("u", u, shape=(self.n_inputs,))
         y_arr = check_finite_array("y", y, shape=(self.n_outputs,))
-        residual = y_arr - self._c @ self._z
-        self._z = self._phi @ self._z + self._gamma @ u_arr + self._l @ residual
+        return self.advance(u_arr, y_arr).copy()
+
+    def advance(self, u: _FloatArray, y: _FloatArray) -> _FloatArray:
+        """:meth:`update` without the checks, for callers that validated the sample.
+
+        ``u`` and ``y`` must be finite float64 arrays of shapes (p,) and (m,); the
+        returned residual is the observer's own array (do not modify it).  A bank of
+        observers fed one validated sample pays the checks once instead of per
+        observer (they were a third of a 1 kHz system run's cost).
+        """
+        residual = y - self._c @ self._z
+        self._z = self._phi @ self._z + self._gamma @ u + self._l @ residual
         self._residual = residual
         self._n_updates += 1
-        return residual.copy()
+        return residual
 
     def get_state(self) -> dict[str, Any]:
         """Return a deep copy of the dynamic state."""
@@ -612,11 +622,23 @@ class ResidualEvaluator:
     def update(self, residual: ArrayLike) -> tuple[NDArray[np.bool_], _FloatArray]:
         """Return ``(alarms, normalised residual)`` for one residual sample."""
         normalised = self._thr.normalise(residual)
+        alarms = self._record(normalised)
+        return alarms.copy(), normalised.copy()
+
+    def advance(self, residual: _FloatArray) -> tuple[NDArray[np.bool_], _FloatArray]:
+        """:meth:`update` without the checks, for a residual known finite, shape (m,).
+
+        Returns the evaluator's own arrays (do not modify them).
+        """
+        return self._record((residual - self._thr.mean) / self._thr.threshold), \
+            self._normalised
+
+    def _record(self, normalised: _FloatArray) -> NDArray[np.bool_]:
         self._history[self._pos] = np.abs(normalised) > 1.0
         self._pos = (self._pos + 1) % self._n
         self._alarms = self._history.sum(axis=0) >= self._k
         self._normalised = normalised
-        return self._alarms.copy(), normalised.copy()
+        return self._alarms
 
     @property
     def alarms(self) -> NDArray[np.bool_]:

@@ -561,7 +561,7 @@ class DFChannel:
                    x_start: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
         f = DetectionFilter(self.A, self.B, self.C, self.K, self.T)
         f.reset(self._x0 if x_start is None else x_start)
-        return np.array([f.update(u[j], y[j]) for j in range(u.shape[0])])
+        return np.array([f.advance(u[j], y[j]) for j in range(u.shape[0])])
 
     def _initial_state(self, u: NDArray[np.float64], y: NDArray[np.float64]
                        ) -> NDArray[np.float64]:
@@ -644,10 +644,10 @@ class DFChannel:
                 # The same computation the streaming filters would do: run them over the
                 # window, thresholds from the residuals after the burn-in, then go on.
                 iso.calibrate(u, y, k_sigma=c.k_sigma, burn_in=burn, x0=self._x0)
-                for j in range(u.shape[0]):
-                    iso.main_filter.update(u[j], y[j])
+                for j in range(u.shape[0]):  # the window is finite: checked on entry
+                    iso.main_filter.advance(u[j], y[j])
                     for b in iso.bank:
-                        b.observer.update(u[j], y[j][b.used])
+                        b.observer.advance(u[j], y[j][b.used])
                 self._noise_std = iso.noise_std
             self._thresholds = [iso.main_thresholds.threshold] + [
                 t.threshold for t in iso.bank_thresholds]
