@@ -76,6 +76,21 @@ DF_NOT_ISOLATED, DF_MULTIPLE = -1, -2
 SEED = seed_aircraft()
 #: Detection-filter dimensions: states, inputs, sensors (those of the seed aircraft).
 DF_N, DF_P, DF_M = SEED.A.shape[0], SEED.B.shape[1], SEED.C.shape[0]
+#: df.decision code of the automatic choice (the default).
+DF_DECISION_AUTO = 2
+
+
+def df_decision_rule(code: int, has_sensor_dynamics: bool) -> str:
+    """The detection-filter decision rule that df.decision ``code`` selects.
+
+    0 is the paper rule, 1 the sequential one, 2 (auto) the sequential rule unless a
+    read-out model is given: with one the sequential rule's whitening sees coloured
+    noise and does not isolate (measured, docs/notes.md System), the paper's does.
+    """
+    if code == DF_DECISION_AUTO:
+        return "paper" if has_sensor_dynamics else "sequential"
+    return ("paper", "sequential")[code]
+
 
 PHYSICAL_NAMES = ("c_over_J", "k_over_J", "L_over_J", "lambda_over_J", "Ku_over_KT_J")
 #: Units of the DTG statistics channels (Utx, Uty, Ux, Uy, ex, ey).
@@ -579,11 +594,13 @@ class Diagnoser(FacadeBase):
             p(f"df.x0[{i + 1}]", "Real", "parameter", 0.0,
               f"Initial estimate of state {SEED.state_names[i]}")
             _meta(f"df.x0[{i + 1}]", SEED.state_units[i])
-        p("df.decision", "Integer", "parameter", 1,
+        p("df.decision", "Integer", "parameter", DF_DECISION_AUTO,
           "Decision rule: 0 paper (k-sigma per sample, k-of-n, latched, observer-bank "
           "isolation), 1 sequential (whitened residual, CUSUM for df.false_alarm_rate, "
-          "isolation of one or two sensors, fault typing, episodes)")
-        _meta("df.decision", None, 0, 1)
+          "isolation of one or two sensors, fault typing, episodes), 2 auto: sequential, "
+          "or paper when df.sensor_dynamics_file gives a read-out model (the sequential "
+          "rule does not isolate there)")
+        _meta("df.decision", None, 0, 2)
         p("df.false_alarm_rate", "Real", "parameter", 1e-3,
           "Sequential: design false-alarm rate of the detection (per hour)")
         _meta("df.false_alarm_rate", "1/h", 1e-9, 3600.0)
@@ -753,12 +770,15 @@ class Diagnoser(FacadeBase):
 
         noise = vector("noise_std", DF_M)
         decision = _named_int(v, "df.decision")
-        if decision not in (0, 1):
-            raise ValueError(f"df.decision must be 0 (paper) or 1 (sequential), got {decision}")
+        if decision not in (0, 1, DF_DECISION_AUTO):
+            raise ValueError("df.decision must be 0 (paper), 1 (sequential) or 2 (auto), "
+                             f"got {decision}")
+        sensor_dynamics = self._df_sensor_dynamics(period)
+        rule = df_decision_rule(decision, sensor_dynamics is not None)
         return DFChannelConfig(
             A=matrix("A", DF_N, DF_N), B=matrix("B", DF_N, DF_P), C=matrix("C", DF_M, DF_N),
             eigenvalues=vector("eigenvalue", DF_N), sample_period_s=period,
-            decision=("paper", "sequential")[decision],
+            decision=rule,
             calibrate_s=float(v["df.calibrate_s"]), burn_in_s=float(v["df.burn_in_s"]),
             k_sigma=float(v["df.k_sigma"]), main_thresholds=vector("threshold", DF_M),
             bank_thresholds=matrix("bank_threshold", DF_M, DF_M - 1),
@@ -773,7 +793,7 @@ class Diagnoser(FacadeBase):
             input_delay_samples=_named_int(v, "df.input_delay_samples"),
             align_auto=bool(v["df.align_auto"]), align_max=_named_int(v, "df.align_max"),
             x0=vector("x0", DF_N),
-            sensor_dynamics=self._df_sensor_dynamics(period),
+            sensor_dynamics=sensor_dynamics,
         )
 
     def _copy_df(self, out: DFChannelOutput) -> None:
@@ -874,6 +894,7 @@ class Diagnoser(FacadeBase):
                 config = self._df_config(period)
                 self._df = df_channel.DFChannel(config)
             if config.sensor_dynamics is not None and config.decision == "sequential":
+                # only when asked for explicitly (df.decision = 1): auto picks the paper rule
                 # measured (docs/notes.md, System): detection holds, isolation does not
                 self.report_warning(
                     f"{self.instance_name}: df: with df.sensor_dynamics_file the sequential "

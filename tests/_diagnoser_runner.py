@@ -133,7 +133,7 @@ INVALID: dict[str, tuple[dict[str, Any], dict[str, str]]] = {
     "df.eigenvalue (repeated)": ({"df.eigenvalue[2]": -1.0}, {}),
     "df.persistence_k": ({"df.persistence_k": 6}, {}),
     "df.calibrate_s": ({"df.calibrate_s": 1.0, "df.burn_in_s": 1.0}, {}),
-    "df.decision": ({"df.decision": 2}, {}),
+    "df.decision": ({"df.decision": 3}, {}),
     "df.cusum_k": ({"df.cusum_k": 0.0}, {}),
     "df.false_alarm_rate": ({"df.false_alarm_rate": -1.0}, {}),
     "df.max_faults": ({"df.max_faults": 3}, {}),

@@ -97,6 +97,14 @@ def run(fmu_dir: Path, out: Path, inp: Path) -> None:
     res["df"] = d.run(data["df"])
     d.close()
 
+    # the default df.decision (2, auto) with a read-out model must be the paper rule
+    auto = {k: v for k, v in DF_PARAMS.items() if k != "df.decision"}
+    d = new("df_auto", auto, DF_IN, {"df.sensor_dynamics_file": str(data["readout_path"])})
+    assert d.init_status == 0, d.log
+    res["df_auto"] = d.run(data["df"])
+    res["auto_log"] = np.array("\n".join(f"[{s}] {m}" for s, m in d.log))
+    d.close()
+
     d = new("df_sequential", {**DF_PARAMS, "df.decision": 1}, DF_IN,
             {"df.sensor_dynamics_file": str(data["readout_path"])})
     res["sequential_status"] = np.array(d.init_status)

@@ -409,6 +409,13 @@ def test_fmu_warns_that_the_sequential_rule_does_not_isolate_with_the_readout(fm
     assert "df.decision = 0" in warnings[0] and "df.sensor_dynamics_file" in warnings[0], log
 
 
+def test_fmu_default_decision_with_readout_is_the_paper_rule(fmu) -> None:
+    """df.decision left at its default (2, auto) with a read-out model: the same record
+    as the paper rule (0), sample for sample, and no warning."""
+    np.testing.assert_array_equal(fmu["df_auto"], fmu["df"])
+    assert "[1] " not in str(fmu["auto_log"]), str(fmu["auto_log"])
+
+
 @pytest.mark.parametrize("label", ["dtg.case_rate", "dtg.pickoff_scale",
                                    "df.sensor_dynamics_file"])
 def test_fmu_bad_new_parameters_are_fmi2error_naming_them(fmu, label) -> None:

@@ -740,9 +740,13 @@ def _pattern_statistic(scenario: Any, d: str, t: np.ndarray, sig: dict[str, np.n
     t_ready = float(t[ready[0]]) if ready.size else float(t[-1])
     return s, t_ready, 1.0
 def _df_sequential(scenario: Any, diagnoser: str) -> bool:
-    """The detection-filter channel decides sequentially (``df.decision`` = 1, the
-    default) rather than by the paper's rule (0)."""
-    return int(_param(scenario, diagnoser, "df.decision", 1)) == 1
+    """The detection-filter channel decides sequentially (``df.decision`` = 1, or 2 -
+    auto, the default - without a read-out model) rather than by the paper's rule (0,
+    or auto with ``df.sensor_dynamics_file``), as the Diagnoser chooses."""
+    code = int(_param(scenario, diagnoser, "df.decision", 2))
+    if code == 2:
+        return not str(_param(scenario, diagnoser, "df.sensor_dynamics_file", "")).strip()
+    return code == 1
 
 
 #: Fault type name the detection filter should report, per injector fault type.
