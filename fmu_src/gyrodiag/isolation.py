@@ -551,7 +551,14 @@ class SensorFaultIsolator:
     type_min_samples : int
         Samples after detection before a fault type is estimated.
     gain_tolerance : float
-        |g − 1| below which a fitted gain counts as 1 (bias fault).
+        |g − 1| below which a fitted gain counts as 1 (bias fault); a gain must also
+        differ from 1 by 4 standard errors, and its part of the deviation,
+        (g − 1)²·var(ŷ), must exceed the squared mean deviation (the bias).  Measured
+        on the system chain (1 kHz, DTG read-out modelled, 0.05 rad square wave, ~12 s
+        since detection): fitted g of q bias faults 0.99958 (standard error 2.1e-4),
+        of 3 % and 5 % spin slow-downs 0.9702 and 0.9506; on the 100 Hz aircraft loop a
+        0.1 rad/s q bias fits g = 0.985.  The former rule (tolerance 0.05 alone) typed
+        a 5 % scale error as a bias.
     stuck_noise_ratio : float
         Output std below this fraction of the sensor's fault-free noise std means
         "constant output" (stuck or failed).
@@ -563,7 +570,8 @@ class SensorFaultIsolator:
     sensor with observer ``i``'s fault-free estimate ``ŷ_i``: constant output →
     stuck, or complete failure if it is within 3 noise std of 0; otherwise a least
     squares fit ``y = g ŷ + b``: gain if ``|g − 1|`` exceeds ``gain_tolerance`` and
-    4 standard errors, else bias ``b = mean(y − ŷ)``.
+    4 standard errors and ``(g − 1)² var(ŷ) > mean(y − ŷ)²``, else bias
+    ``b = mean(y − ŷ)``.
     """
 
     def __init__(
@@ -579,7 +587,7 @@ class SensorFaultIsolator:
         persistence_n: int = 5,
         confirm_samples: int = 5,
         type_min_samples: int = 50,
-        gain_tolerance: float = 0.05,
+        gain_tolerance: float = 0.01,
         stuck_noise_ratio: float = 0.1,
     ) -> None:
         self._main = DetectionFilter(A, B, C, K, sample_period_s)
@@ -834,7 +842,12 @@ class SensorFaultIsolator:
             g = cov / var_h
             resid_var = max(var_y - g * cov, 0.0)
             se_g = np.sqrt(resid_var / (n * var_h))
-            if abs(g - 1.0) > max(self._gain_tol, 4.0 * se_g):
+            # A gain must be significant and explain more of the deviation y − ŷ than
+            # its mean does: in a closed loop a bias fault moves the fitted g by ~1.5 %
+            # (the controller answers the biased sensor), and a gain on a signal with
+            # little variation is a bias for every purpose.
+            if (abs(g - 1.0) > max(self._gain_tol, 4.0 * se_g)
+                    and (g - 1.0) ** 2 * var_h > bias**2):
                 return FaultType.GAIN, float(g)
         return FaultType.BIAS, float(bias)
 
