@@ -669,6 +669,11 @@ class Diagnoser(FacadeBase):
         p("df.confirm_samples", "Integer", "parameter", 5,
           "Samples of one isolation pattern before it is latched")
         _meta("df.confirm_samples", None, 1)
+        p("df.isolation_window_s", "Real", "parameter", 4.0,
+          "Paper rule: when the alarm pattern does not isolate, isolate by the observer "
+          "bank's residual energy within this time after detection (0: the pattern "
+          "alone, as the paper's filter; small faults in turbulence need it)")
+        _meta("df.isolation_window_s", "s", 0.0, 3600.0)
         for j in range(DF_P):
             p(f"df.u[{j + 1}]", "Real", "input", 0.0, f"Plant input {SEED.input_names[j]}")
             _meta(f"df.u[{j + 1}]", SEED.input_units[j])
@@ -786,6 +791,7 @@ class Diagnoser(FacadeBase):
             persistence_k=_named_int(v, "df.persistence_k"),
             persistence_n=_named_int(v, "df.persistence_n"),
             confirm_samples=_named_int(v, "df.confirm_samples"),
+            isolation_window_s=float(v["df.isolation_window_s"]),
             false_alarms_per_h=float(v["df.false_alarm_rate"]),
             cusum_k=float(v["df.cusum_k"]), variance_ratio=float(v["df.variance_ratio"]),
             max_faults=_named_int(v, "df.max_faults"),
@@ -1388,6 +1394,7 @@ _PARAMETER_NAMES: dict[str, dict[str, str]] = {
         "main_thresholds": "df.threshold[1..6]", "bank_thresholds": "df.bank_threshold[i,j]",
         "noise_std": "df.noise_std[1..6]", "persistence_k": "df.persistence_k",
         "persistence_n": "df.persistence_n", "confirm_samples": "df.confirm_samples",
+        "isolation_window_s": "df.isolation_window_s",
         "x0": "df.x0[1..5]", "decision": "df.decision",
         "sensor_dynamics": "df.sensor_dynamics_file",
         "false_alarms_per_h": "df.false_alarm_rate", "cusum_k": "df.cusum_k",

@@ -217,7 +217,7 @@ def test_dtg_each_rule_reads_its_own_class(dtg_campaign):
 
 
 def test_shipped_campaigns_carry_the_paper_witness():
-    for name, rule in (("aircraft", {"df.decision": 0}),
+    for name, rule in (("aircraft", {"df.decision": 0, "df.isolation_window_s": 0.0}),
                        ("dtg", {"dtg.classifier": "paper", "dtg.low": 0.5,
                                 "dtg.high": 1.5})):
         spec, _ = load_campaign(ROOT / "campaigns" / f"{name}.toml")

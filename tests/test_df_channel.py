@@ -79,6 +79,8 @@ def test_nan_sample_skipped_and_state_round_trip_exact(config):
     again = _run(fresh, u[920:], y[920:])
     for a, b in zip(ref, again, strict=True):
         np.testing.assert_array_equal(a.residual, b.residual)
+        # the paper rule's statistic normalises by the calibration mean: restored too
+        np.testing.assert_array_equal(a.statistic, b.statistic)
         assert (a.detected, a.isolated_sensor, a.fault_type, a.magnitude, a.episodes) == (
             b.detected, b.isolated_sensor, b.fault_type, b.magnitude, b.episodes)
     assert ref[-1].isolated_sensor == 3

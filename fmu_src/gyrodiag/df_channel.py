@@ -116,6 +116,11 @@ class DFChannelConfig:
         Paper rule: k-of-n persistence of every residual alarm.
     confirm_samples : int
         Paper rule: consecutive samples of one isolation pattern before it is latched.
+    isolation_window_s : float
+        Paper rule: when the alarm pattern does not isolate, isolate by the bank's
+        residual energy within this time after detection, s (0: off, the pattern
+        alone as the paper's filter; :class:`~gyrodiag.isolation.SensorFaultIsolator`
+        ``energy_window_s``).
     false_alarms_per_h : float
         Sequential rule: design false-alarm rate of the detection, 1/h.
     cusum_k : float
@@ -158,6 +163,7 @@ class DFChannelConfig:
     persistence_k: int = 3
     persistence_n: int = 5
     confirm_samples: int = 5
+    isolation_window_s: float = 4.0
     false_alarms_per_h: float = 1e-3
     cusum_k: float = 0.5
     variance_ratio: float = 4.0
@@ -233,6 +239,7 @@ class DFChannelConfig:
         if pk > pn:
             raise ValueError(f"persistence_k must be <= persistence_n ({pn}), got {pk}")
         check_int("confirm_samples", self.confirm_samples, minimum=1)
+        check_in_range("isolation_window_s", self.isolation_window_s, 0.0, 3600.0)
         self.settings().validate()
         limit = check_int("align_max", self.align_max, minimum=0)
         if limit > 50:
@@ -626,11 +633,7 @@ class DFChannel:
         thresholds / noise when there is no window)."""
         c = self.config
         if c.decision == "paper":
-            iso = SensorFaultIsolator(
-                self.A, self.B, self.C, self.K, self.T,
-                persistence_k=c.persistence_k, persistence_n=c.persistence_n,
-                confirm_samples=c.confirm_samples,
-            )
+            iso = self._paper_isolator()
             if u is None or y is None:
                 k = float(c.k_sigma)
                 main = np.asarray(c.main_thresholds, dtype=float)
@@ -697,6 +700,13 @@ class DFChannel:
             "engine": None if engine is None else engine.get_state(),
             "thresholds": None if self._thresholds is None else [
                 t.copy() for t in self._thresholds],
+            # the paper rule's residual statistics (mean, std) beside the thresholds: the
+            # evaluators normalise by the mean, the energy isolation by the std as well
+            "threshold_stats": (
+                [[t.mean.copy(), t.std.copy()] for t in
+                 [engine.main_thresholds, *engine.bank_thresholds]]
+                if isinstance(engine, SensorFaultIsolator) and self._thresholds is not None
+                else None),
             "last": _output_state(self._last),
             "equaliser": None if self._equaliser is None else self._equaliser.get_state(),
         }
@@ -757,16 +767,31 @@ class DFChannel:
         self._monitor.set_state(state["monitor"])
         self._last = _output_from_state(state["last"])
 
+    def _paper_isolator(self) -> SensorFaultIsolator:
+        c = self.config
+        return SensorFaultIsolator(
+            self.A, self.B, self.C, self.K, self.T, persistence_k=c.persistence_k,
+            persistence_n=c.persistence_n, confirm_samples=c.confirm_samples,
+            energy_window_s=c.isolation_window_s)
+
     def _rebuild_paper(self, state: dict[str, Any]) -> None:
         c = self.config
         thresholds = [np.asarray(t, dtype=float) for t in state["thresholds"]]
         noise = np.asarray(state["noise_std"], dtype=float)
-        iso = SensorFaultIsolator(
-            self.A, self.B, self.C, self.K, self.T, persistence_k=c.persistence_k,
-            persistence_n=c.persistence_n, confirm_samples=c.confirm_samples)
+        iso = self._paper_isolator()
         k = float(c.k_sigma)
-        iso.set_thresholds(_thresholds(thresholds[0], k),
-                           [_thresholds(t, k) for t in thresholds[1:]], noise)
+        stats = state.get("threshold_stats")
+        if stats is None:  # a state saved before the statistics were (2026-11-26)
+            rebuilt = [_thresholds(t, k) for t in thresholds]
+        else:
+            if len(stats) != len(thresholds):
+                raise ValueError("state['threshold_stats'] must hold one (mean, std) per "
+                                 "threshold vector")
+            rebuilt = [ResidualThresholds(mean=np.asarray(ms[0], dtype=float),
+                                          std=np.asarray(ms[1], dtype=float),
+                                          threshold=t, k_sigma=k)
+                       for ms, t in zip(stats, thresholds, strict=True)]
+        iso.set_thresholds(rebuilt[0], rebuilt[1:], noise)
         self._engine, self._thresholds, self._noise_std = iso, thresholds, noise
 
 
