@@ -533,7 +533,7 @@ class DFChannel:
         if isinstance(engine, SequentialDiagnoser):
             return self._decide_sequential(engine, np.concatenate((u, y)))
         assert isinstance(engine, SensorFaultIsolator)
-        res = engine.update(u, y)
+        res = engine.advance(u, y)  # the channel checked the sample
         residual = engine.main_filter.residual
         if res.isolated >= 0:
             iso = res.isolated + 1
