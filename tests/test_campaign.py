@@ -418,3 +418,34 @@ def test_run_processes_keep_the_campaigns_niceness_in_their_own_session(tmp_path
     assert all(g[-2:] == ["nice", "7"] for g in groups), groups
     mine = Path("/proc/self/autogroup").read_text().split()[0]
     assert all(g[0] != mine for g in groups)  # their own groups, not this session's
+
+
+def test_every_shipped_campaign_learns_the_libraries_its_scenarios_read():
+    """A base scenario (or witness copy) that reads ``${out}/NAME`` needs the spec to
+    learn NAME first (``signatures_file`` with ``signatures_training``, or
+    ``libraries``): campaigns/system.toml did not, and all 304 runs failed."""
+    from harness.cosim.scenario import load_scenario
+
+    for path in sorted((ROOT / "campaigns").glob("*.toml")):
+        spec, base = load_campaign(path)
+        learned = set(spec.libraries)
+        if spec.signatures_training is not None:
+            learned.add(spec.signatures_file)
+        for name, c in spec.classes.items():
+            sc = load_scenario(base / c.scenario)
+            files = [v for inst in sc.fmus.values() for v in inst.files.values()]
+            files += [v for w in c.witness_copies.values() for v in w.files.values()]
+            for value in files:
+                if str(value).startswith("${out}/"):
+                    assert str(value)[len("${out}/"):] in learned, (path.name, name, value)
+
+
+def test_a_campaign_whose_chain_cannot_start_stops_before_any_run(tmp_path):
+    from harness.cosim.scenario import ScenarioError
+
+    spec, base = load_campaign(ROOT / "campaigns" / "system.toml")
+    spec = spec.model_copy(update={"signatures_training": None})  # the library is missing
+    with pytest.raises(ScenarioError, match=r"dtg\.signature_file: dtg_patterns\.json not "
+                                            r"found"):
+        run_campaign(spec, base, tmp_path, workers=1, progress=False)
+    assert not list((tmp_path / "runs").glob("*.json"))

@@ -1434,6 +1434,27 @@ def prepare(spec: CampaignSpec, base_dir: Path, out_dir: Path) -> None:
         _learn_library(spec, base_dir, out_dir, name, training)
 
 
+def preflight_runs(runs: Sequence[RunSpec]) -> None:
+    """Check one run of every class as a run process would before its first FMU call
+    (``files`` parameters such as a library the spec does not learn, FMU files,
+    variable names), so that a campaign whose chain cannot start stops at once
+    instead of recording every run as failed.
+
+    Raises
+    ------
+    ScenarioError, FileNotFoundError
+        Naming the class's base scenario and what is missing.
+    """
+    from harness.cosim.master import preflight
+
+    seen: set[str] = set()
+    for run in runs:
+        if run.cls in seen:
+            continue
+        seen.add(run.cls)
+        preflight(build_scenario(run), fmu_dir=run.fmu_dir, results_dir=run.results_dir)
+
+
 def _learn_library(spec: CampaignSpec, base_dir: Path, out_dir: Path, name: str,
                    training_set: str) -> None:
     results = (base_dir / spec.results_dir).resolve() if spec.results_dir else out_dir
@@ -1493,6 +1514,9 @@ def run_campaign(spec: CampaignSpec, base_dir: Path, out_dir: Path, *, workers: 
     records_dir.mkdir(parents=True, exist_ok=True)
     runs = select(expand_runs(spec, base_dir, out_dir), fraction)
     prepare(spec, base_dir, out_dir)
+    runner = runner or spec.runner
+    if runner == DEFAULT_RUNNER:  # another runner need not read the scenarios
+        preflight_runs(runs)
     _write_json_atomic(out_dir / "campaign.json", {
         "spec": spec.model_dump(by_alias=True), "base_dir": str(base_dir),
         "fraction": fraction, "run_ids": [r.run_id for r in runs]})
@@ -1506,7 +1530,6 @@ def run_campaign(spec: CampaignSpec, base_dir: Path, out_dir: Path, *, workers: 
     n_skipped = len(runs) - len(pending)
     if max_runs is not None:
         pending = pending[:max(0, max_runs)]
-    runner = runner or spec.runner
     timeout = float(timeout_s if timeout_s is not None else spec.timeout_s)
     new: list[dict[str, Any]] = []
     if pending:
