@@ -76,21 +76,8 @@ DF_NOT_ISOLATED, DF_MULTIPLE = -1, -2
 SEED = seed_aircraft()
 #: Detection-filter dimensions: states, inputs, sensors (those of the seed aircraft).
 DF_N, DF_P, DF_M = SEED.A.shape[0], SEED.B.shape[1], SEED.C.shape[0]
-#: df.decision code of the automatic choice (the default).
+#: df.decision code of the automatic choice (the default; gyrodiag.df_channel's).
 DF_DECISION_AUTO = 2
-
-
-def df_decision_rule(code: int, has_sensor_dynamics: bool) -> str:
-    """The detection-filter decision rule that df.decision ``code`` selects.
-
-    0 is the paper rule, 1 the sequential one, 2 (auto) the sequential rule unless a
-    read-out model is given: with one the sequential rule's whitening sees coloured
-    noise and does not isolate (measured, docs/notes.md System), the paper's does.
-    """
-    if code == DF_DECISION_AUTO:
-        return "paper" if has_sensor_dynamics else "sequential"
-    return ("paper", "sequential")[code]
-
 
 PHYSICAL_NAMES = ("c_over_J", "k_over_J", "L_over_J", "lambda_over_J", "Ku_over_KT_J")
 #: Units of the DTG statistics channels (Utx, Uty, Ux, Uy, ex, ey).
@@ -774,12 +761,14 @@ class Diagnoser(FacadeBase):
             return np.array([float(v[f"df.{name}[{i + 1}]"]) for i in range(size)])
 
         noise = vector("noise_std", DF_M)
+        from gyrodiag.df_channel import decision_rule
+
         decision = _named_int(v, "df.decision")
         if decision not in (0, 1, DF_DECISION_AUTO):
             raise ValueError("df.decision must be 0 (paper), 1 (sequential) or 2 (auto), "
                              f"got {decision}")
         sensor_dynamics = self._df_sensor_dynamics(period)
-        rule = df_decision_rule(decision, sensor_dynamics is not None)
+        rule = decision_rule(decision, sensor_dynamics is not None)
         return DFChannelConfig(
             A=matrix("A", DF_N, DF_N), B=matrix("B", DF_N, DF_P), C=matrix("C", DF_M, DF_N),
             eigenvalues=vector("eigenvalue", DF_N), sample_period_s=period,

@@ -63,10 +63,26 @@ from .residual_model import ResidualModel, estimate_sensor_variances
 from .sensor_dynamics import SensorDynamics, SensorDynamicsEqualiser
 from .sequential_diagnosis import FaultKind, SequentialDiagnoser, SequentialSettings
 
-__all__ = ["DECISIONS", "DFChannel", "DFChannelConfig", "DFChannelOutput"]
+__all__ = ["DECISIONS", "DECISION_AUTO", "DFChannel", "DFChannelConfig", "DFChannelOutput",
+           "decision_rule"]
 
 #: Decision rules, by FMU code (``df.decision``).
 DECISIONS = ("paper", "sequential")
+#: FMU code of the automatic choice (the Diagnoser's default ``df.decision``).
+DECISION_AUTO = 2
+
+
+def decision_rule(code: int, has_sensor_dynamics: bool) -> str:
+    """The rule that FMU code ``code`` selects: 0 paper, 1 sequential, 2 (auto) the
+    sequential rule unless a read-out model is given: with one the sequential rule's
+    whitening sees coloured noise and does not isolate (measured, docs/notes.md
+    System), the paper's does."""
+    if code == DECISION_AUTO:
+        return "paper" if has_sensor_dynamics else "sequential"
+    if code not in (0, 1):
+        raise ValueError(f"decision code must be 0 (paper), 1 (sequential) or "
+                         f"{DECISION_AUTO} (auto), got {code}")
+    return DECISIONS[code]
 #: ``isolated_sensor`` values besides a sensor number (1-based).
 NONE_DETECTED, NOT_ISOLATED, MULTIPLE = 0, -1, -2
 

@@ -743,10 +743,11 @@ def _df_sequential(scenario: Any, diagnoser: str) -> bool:
     """The detection-filter channel decides sequentially (``df.decision`` = 1, or 2 -
     auto, the default - without a read-out model) rather than by the paper's rule (0,
     or auto with ``df.sensor_dynamics_file``), as the Diagnoser chooses."""
-    code = int(_param(scenario, diagnoser, "df.decision", 2))
-    if code == 2:
-        return not str(_param(scenario, diagnoser, "df.sensor_dynamics_file", "")).strip()
-    return code == 1
+    from gyrodiag.df_channel import DECISION_AUTO, decision_rule
+
+    code = int(_param(scenario, diagnoser, "df.decision", DECISION_AUTO))
+    readout = bool(str(_param(scenario, diagnoser, "df.sensor_dynamics_file", "")).strip())
+    return decision_rule(code, readout) == "sequential"
 
 
 #: Fault type name the detection filter should report, per injector fault type.
