@@ -38,9 +38,9 @@ from typing import Any
 
 import numpy as np
 import scipy.linalg
-import scipy.stats
 from numpy.typing import ArrayLike, NDArray
 
+from gyrodiag._distributions import normal_isf
 from gyrodiag._validation import (
     check_finite_array,
     check_in_range,
@@ -676,5 +676,5 @@ def gaussian_k_sigma(false_alarm_rate: float) -> float:
     rate = check_in_range(
         "false_alarm_rate", false_alarm_rate, 0.0, 0.5, low_open=True, high_open=True
     )
-    return float(scipy.stats.norm.isf(rate / 2.0))
+    return normal_isf(rate / 2.0)
 

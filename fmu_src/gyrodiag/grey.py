@@ -47,6 +47,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from . import _accel
+from ._distributions import chi2_ppf
 from ._records import fast_init
 from ._validation import (
     check_finite_array,
@@ -1523,9 +1524,7 @@ class GreyFaultDetector:
         truncated = 1.0 - 2.0 * s * math.exp(-0.5 * s * s) / math.sqrt(2.0 * math.pi) / kept
         n = self._sq_n
         rms = math.sqrt(self._sq_sum / n / truncated)
-        from scipy.stats import chi2
-
-        self._sigma = max(rms * math.sqrt(n / float(chi2.ppf(0.05, n))),
+        self._sigma = max(rms * math.sqrt(n / chi2_ppf(0.05, n)),
                           self.threshold / self.k_sigma)
 
     def _feed_candidates(self, value: float) -> None:
@@ -1822,9 +1821,7 @@ def _calibrated_sigma(errors: NDArray[np.float64]) -> float:
     if robust > 0.0:
         errors = np.clip(errors, centre - 5.0 * robust, centre + 5.0 * robust)
     rms = math.sqrt(float(np.mean((errors - centre) ** 2)))
-    from scipy.stats import chi2
-
-    return rms * math.sqrt(n / float(chi2.ppf(0.05, n)))
+    return rms * math.sqrt(n / chi2_ppf(0.05, n))
 
 
 # ------------------------------------------------------------------ metrics

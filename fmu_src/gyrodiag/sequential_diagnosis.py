@@ -55,9 +55,9 @@ from typing import Any
 
 import numpy as np
 import scipy.linalg
-import scipy.stats
 from numpy.typing import ArrayLike, NDArray
 
+from ._distributions import chi2_ppf
 from ._records import fast_init
 from ._validation import (
     check_finite_array,
@@ -677,7 +677,7 @@ class SequentialDiagnoser:
         z = zs[burn:]
         var = z.var(axis=0, ddof=1)
         lrv = _bartlett_long_run_variance(z)
-        upper = n_used / scipy.stats.chi2.ppf(1.0 - conf, n_used)
+        upper = n_used / chi2_ppf(1.0 - conf, n_used)
         factor = np.sqrt(np.maximum(1.0, np.maximum(var * upper, lrv)))
         scales = [factor[sl] for sl in both.out_slices]
         self.set_scales(scales)
@@ -1441,7 +1441,7 @@ def simulate_fault_free(diagnoser: SequentialDiagnoser, hours: float, *,
     total_h = n_steps * runs * d.T / 3600.0
     return {
         "alarms": alarms, "hours": total_h, "rate_per_h": alarms / total_h,
-        "upper95_per_h": float(scipy.stats.chi2.ppf(0.975, 2 * (alarms + 1)) / 2.0
+        "upper95_per_h": float(chi2_ppf(0.975, 2 * (alarms + 1)) / 2.0
                                / total_h),
         "design_per_h": st.false_alarms_per_h,
     }
