@@ -217,3 +217,14 @@ def test_update_floats_equals_update_through_calibration_faults_and_nan():
             va, vb = getattr(out_a, f.name), getattr(out_b, f.name)
             np.testing.assert_array_equal(va, vb, err_msg=f"sample {k}: {f.name}")
     assert out_a.detected or out_a.episodes > 0
+
+
+@pytest.mark.parametrize("config", [SEQ, CFG], ids=["sequential", "paper"])
+def test_a_window_without_noise_calibrates_and_stays_quiet(config):
+    # all-zero inputs (what `fmpy simulate` feeds an FMU by default): the sequential
+    # rule's calibration failed with "array must not contain infs or NaNs"
+    n = round(12.0 / DT)
+    ch = DFChannel(config)
+    outs = _run(ch, np.zeros((n, ch.p)), np.zeros((n, ch.m)))
+    assert not outs[-1].calibrating
+    assert not any(o.detected for o in outs)

@@ -232,6 +232,19 @@ def test_sensor_variances_are_recovered_from_residuals(main_model):
     np.testing.assert_allclose(got, NOISE_STD, rtol=0.03)
 
 
+def test_sensor_variances_of_a_window_without_noise(main_model):
+    # all-zero inputs (fmpy simulate with defaults) made the weights 1/tiny and the
+    # weighted map inf: nnls failed with "array must not contain infs or NaNs"
+    assert np.array_equal(estimate_sensor_variances(np.zeros((200, main_model.m)),
+                                                    main_model), np.zeros(main_model.m))
+    rng = np.random.default_rng(5)
+    r = _simulate_residual(main_model, NOISE_STD, 20000, rng)[500:]
+    r[:, 0] = 0.0  # one channel noise-free, the others as before
+    got = estimate_sensor_variances(r, main_model)
+    assert np.all(np.isfinite(got)) and np.all(got >= 0.0)
+    assert np.all(got[1:] > 0.0)
+
+
 def test_variance_map_is_linear_and_matches_lyapunov(main_model):
     var = NOISE_STD**2
     direct = np.diag(main_model.residual_covariance(var))

@@ -198,7 +198,12 @@ def estimate_sensor_variances(residuals: ArrayLike, model: ResidualModel) -> _Fl
     if res.shape[0] < 10:
         raise ValueError(f"residuals must have at least 10 samples, got {res.shape[0]}")
     var = res.var(axis=0, ddof=1)
-    weight = 1.0 / np.maximum(var, np.finfo(float).tiny)
+    top = float(var.max())
+    if not top > 0.0:
+        return np.zeros(model.m)  # a window without noise (a constant or ideal input)
+    # A channel 30 decades quieter than the noisiest (or below 1e-250) weighs as if at
+    # that floor: 1/var of a noise-free channel overflowed the weighted map to inf.
+    weight = 1.0 / np.maximum(var, max(top * 1e-30, 1e-250))
     m = model.variance_map()
     sol, _ = scipy.optimize.nnls(m * weight[:, None], var * weight)
     return sol
