@@ -3,12 +3,11 @@
 ``scipy.stats`` would give the same numbers (these are the formulas it evaluates, equal
 to the bit: tests/test_distributions.py) but importing it costs about 1.5 s of CPU
 (measured 2026-11-26), paid again by every process that instantiates the Diagnoser FMU;
-``scipy.special`` costs 0.5 s and the library already needs it.
+``scipy.special`` costs 0.5 s and the library already needs it.  Imported where used:
+the DTG and grey channels run on hosts without SciPy (tests/test_lean_host.py).
 """
 
 from __future__ import annotations
-
-import scipy.special
 
 __all__ = ["chi2_ppf", "normal_isf"]
 
@@ -27,7 +26,9 @@ def chi2_ppf(q: float, dof: float) -> float:
         raise ValueError(f"q must be a probability in [0, 1], got {q!r}")
     if not dof > 0.0:
         raise ValueError(f"dof must be > 0, got {dof!r}")
-    return float(2.0 * scipy.special.gammaincinv(dof / 2.0, q))
+    from scipy.special import gammaincinv
+
+    return float(2.0 * gammaincinv(dof / 2.0, q))
 
 
 def normal_isf(p: float) -> float:
@@ -40,4 +41,6 @@ def normal_isf(p: float) -> float:
     """
     if not 0.0 <= p <= 1.0:
         raise ValueError(f"p must be a probability in [0, 1], got {p!r}")
-    return float(-scipy.special.ndtri(p))
+    from scipy.special import ndtri
+
+    return float(-ndtri(p))
