@@ -148,7 +148,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from harness.cosim.scenario import FAULT_TYPE_PARAMETERS, ScenarioError
+from harness.cosim.scenario import FAULT_TYPE_PARAMETERS, FMU_DIR_ENV, ScenarioError
 
 log = logging.getLogger(__name__)
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -448,15 +448,32 @@ def _run_id(payload: dict[str, Any]) -> str:
     return digest.hexdigest()[:16]
 
 
-def expand_runs(spec: CampaignSpec, base_dir: Path, out_dir: Path | None = None) -> list[RunSpec]:
+def campaign_fmu_dir(spec: CampaignSpec, base_dir: Path,
+                     fmu_dir: Path | str | None = None) -> str | None:
+    """Folder of the FMUs the campaign's runs use: ``fmu_dir`` (the CLI's ``--fmu-dir``),
+    else ``$GYRODIAG_FMU_DIR``, else the spec's ``fmu_dir`` (relative to ``base_dir``),
+    else None (each base scenario's own, :func:`harness.cosim.scenario.resolve_fmu_dir`):
+    the precedence of a scenario run, so one environment variable points every command
+    at a folder of FMUs (a campaign resumed on the build it started with)."""
+    if fmu_dir is not None:
+        return str(Path(fmu_dir).resolve())
+    env = os.environ.get(FMU_DIR_ENV)
+    if env:
+        return str(Path(env).resolve())
+    return str((base_dir / spec.fmu_dir).resolve()) if spec.fmu_dir else None
+
+
+def expand_runs(spec: CampaignSpec, base_dir: Path, out_dir: Path | None = None,
+                fmu_dir: Path | str | None = None) -> list[RunSpec]:
     """Every run of the campaign, in a deterministic order with deterministic ids.
 
     The id hashes what the run computes (base scenario path relative to ``base_dir``,
-    fault, seed, duration, thresholds), not where it is written, so a spec edited by
-    adding sweeps keeps the ids (and records) of the runs it had.
+    fault, seed, duration, thresholds), not where it is written or which folder the
+    FMUs come from (:func:`campaign_fmu_dir`), so a spec edited by adding sweeps keeps
+    the ids (and records) of the runs it had.
     """
     runs: list[RunSpec] = []
-    fmu_dir = str((base_dir / spec.fmu_dir).resolve()) if spec.fmu_dir else None
+    fmu_dir = campaign_fmu_dir(spec, base_dir, fmu_dir)
     if spec.results_dir is not None:
         results_dir: str | None = str((base_dir / spec.results_dir).resolve())
     else:
@@ -1426,13 +1443,16 @@ def _iter_dask(runs: Sequence[RunSpec], runner: str, timeout_s: float, records_d
             cluster.close()
 
 
-def prepare(spec: CampaignSpec, base_dir: Path, out_dir: Path) -> None:
+def prepare(spec: CampaignSpec, base_dir: Path, out_dir: Path,
+            fmu_dir: Path | str | None = None) -> None:
     """Learn the DTG signatures first when the spec asks for them and they are missing
-    (``signatures_training``, then every entry of ``libraries``)."""
+    (``signatures_training``, then every entry of ``libraries``), with the FMUs of
+    :func:`campaign_fmu_dir`."""
     learned = ([(spec.signatures_file, spec.signatures_training)]
                if spec.signatures_training is not None else [])
     for name, training in [*learned, *spec.libraries.items()]:
-        _learn_library(spec, base_dir, out_dir, name, training)
+        _learn_library(spec, base_dir, out_dir, name, training,
+                       campaign_fmu_dir(spec, base_dir, fmu_dir))
 
 
 def preflight_runs(runs: Sequence[RunSpec]) -> None:
@@ -1457,7 +1477,7 @@ def preflight_runs(runs: Sequence[RunSpec]) -> None:
 
 
 def _learn_library(spec: CampaignSpec, base_dir: Path, out_dir: Path, name: str,
-                   training_set: str) -> None:
+                   training_set: str, fmu_dir: str | None) -> None:
     results = (base_dir / spec.results_dir).resolve() if spec.results_dir else out_dir
     target = results / name
     if target.is_file():
@@ -1466,8 +1486,8 @@ def _learn_library(spec: CampaignSpec, base_dir: Path, out_dir: Path, name: str,
     log.info("learning the DTG signatures from %s -> %s", training, target)
     cmd = [sys.executable, "-m", "harness", "learn-signatures", str(training), "--out",
            str(target)]
-    if spec.fmu_dir:
-        cmd += ["--fmu-dir", str((base_dir / spec.fmu_dir).resolve())]
+    if fmu_dir:
+        cmd += ["--fmu-dir", fmu_dir]
     proc = subprocess.run(cmd, env=_child_env(), cwd=str(REPO_ROOT))
     if proc.returncode != 0 or not target.is_file():
         raise RuntimeError(f"learning the DTG signatures failed (exit {proc.returncode})")
@@ -1477,7 +1497,8 @@ def run_campaign(spec: CampaignSpec, base_dir: Path, out_dir: Path, *, workers: 
                  dask: str | None = None, runner: str | None = None,
                  timeout_s: float | None = None, max_runs: int | None = None,
                  retry_failed: bool = False, fraction: float = 1.0,
-                 progress: bool = True) -> CampaignOutcome:
+                 progress: bool = True, fmu_dir: Path | str | None = None
+                 ) -> CampaignOutcome:
     """Run (or resume) a campaign; every finished run is written as it finishes.
 
     Parameters
@@ -1504,6 +1525,9 @@ def run_campaign(spec: CampaignSpec, base_dir: Path, out_dir: Path, *, workers: 
         Run only a deterministic subset (run ids hashed below ``fraction``), in (0, 1].
     progress : bool
         tqdm progress bar with ETA on stderr.
+    fmu_dir : path, optional
+        Folder of the FMUs, before ``$GYRODIAG_FMU_DIR`` and the spec's
+        (:func:`campaign_fmu_dir`); the run ids do not depend on it.
     """
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
@@ -1513,8 +1537,10 @@ def run_campaign(spec: CampaignSpec, base_dir: Path, out_dir: Path, *, workers: 
     out_dir = Path(out_dir).resolve()
     records_dir = out_dir / "runs"
     records_dir.mkdir(parents=True, exist_ok=True)
-    runs = select(expand_runs(spec, base_dir, out_dir), fraction)
-    prepare(spec, base_dir, out_dir)
+    if fmu_dir is not None and not Path(fmu_dir).is_dir():
+        raise FileNotFoundError(f"fmu_dir {str(fmu_dir)!r} is not a folder")
+    runs = select(expand_runs(spec, base_dir, out_dir, fmu_dir), fraction)
+    prepare(spec, base_dir, out_dir, fmu_dir)
     runner = runner or spec.runner
     if runner == DEFAULT_RUNNER:  # another runner need not read the scenarios
         preflight_runs(runs)

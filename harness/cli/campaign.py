@@ -38,6 +38,10 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--dask", default=None, metavar="local|ADDRESS",
                    help="run on dask.distributed: 'local' (a LocalCluster) or a scheduler "
                         "address; default: a local process pool")
+    p.add_argument("--fmu-dir", type=Path, default=None,
+                   help="folder of the .fmu files (default: $GYRODIAG_FMU_DIR, the spec's "
+                        "fmu_dir, or each base scenario's); the run ids do not depend on "
+                        "it, so a campaign resumes with the FMUs it started with")
     p.add_argument("--timeout", type=float, default=None, help="per-run time limit, s")
     p.add_argument("--max-runs", type=int, default=None,
                    help="start at most this many pending runs, then stop")
@@ -98,7 +102,8 @@ def cmd_campaign(args: argparse.Namespace) -> int:
             outcome = run_campaign(spec, base_dir, Path(out), workers=args.workers,
                                    dask=args.dask, timeout_s=args.timeout,
                                    max_runs=args.max_runs, retry_failed=args.retry_failed,
-                                   fraction=args.fraction, progress=not args.no_progress)
+                                   fraction=args.fraction, progress=not args.no_progress,
+                                   fmu_dir=args.fmu_dir)
         except CampaignInterrupted as exc:
             log.warning("%s", exc)
             return 130
