@@ -483,3 +483,28 @@ def test_campaign_command_names_a_missing_fmu_folder(tmp_path, capsys):
     assert str(missing) in capsys.readouterr().err
     assert not (tmp_path / "out" / "runs").exists() or not list(
         (tmp_path / "out" / "runs").glob("*.json"))
+
+
+def test_the_judged_rule_reads_a_readout_model_given_as_a_file():
+    """``df.sensor_dynamics_file`` in the instance's ``files`` (a path the harness
+    resolves) makes the auto rule the paper's, as in the Diagnoser."""
+    from harness.campaigns.campaign import _df_sequential
+
+    sc = build_scenario(expand_runs(*load_campaign(ROOT / "campaigns" / "aircraft.toml"))[0])
+    assert _df_sequential(sc, "diag")
+    diag = sc.fmus["diag"]
+    with_file = diag.model_copy(update={"files": {**diag.files,
+                                                  "df.sensor_dynamics_file": "readout.json"}})
+    sc = sc.model_copy(update={"fmus": {**sc.fmus, "diag": with_file}})
+    assert not _df_sequential(sc, "diag")
+
+
+def test_a_spec_naming_an_unknown_instance_stops_with_its_class_named(tmp_path):
+    from harness.cosim.scenario import ScenarioError
+
+    spec, base = load_campaign(SMOKE)
+    cls = spec.classes["aircraft"].model_copy(update={"parameters": {"nope": {"x": 1.0}}})
+    spec = spec.model_copy(update={"classes": {"aircraft": cls}})
+    with pytest.raises(ScenarioError, match=r"class aircraft: parameters: no instance 'nope'"):
+        run_campaign(spec, base, tmp_path, workers=1, progress=False)
+    assert not list((tmp_path / "runs").glob("*.json"))

@@ -228,3 +228,29 @@ def test_a_window_without_noise_calibrates_and_stays_quiet(config):
     outs = _run(ch, np.zeros((n, ch.p)), np.zeros((n, ch.m)))
     assert not outs[-1].calibrating
     assert not any(o.detected for o in outs)
+
+
+def test_a_paper_state_from_before_the_energy_isolation_restores():
+    # states saved before 2026-11-26 have neither threshold statistics nor the
+    # isolator's energy sums; the channel's compatibility path must accept them
+    _, u, y = simulate_loop(12.0, seed=24, faults=(F(Q, "bias", 0.01, start_s=9.0),))
+    ch = DFChannel(CFG)
+    _run(ch, u[:950], y[:950])
+    old = ch.get_state()
+    old.pop("threshold_stats", None)
+    engine = {k: v for k, v in old["engine"].items() if k not in ("energy", "energy_n")}
+    old["engine"] = engine
+    fresh = DFChannel(CFG)
+    fresh.set_state(old)
+    out = _run(fresh, u[950:], y[950:])
+    assert out[-1].detected and out[-1].isolated_sensor == 3
+
+
+def test_an_isolation_window_too_short_to_decide_is_refused():
+    cfg = DFChannelConfig(sample_period_s=DT, calibrate_s=8.0, burn_in_s=2.0,
+                          decision="paper", isolation_window_s=0.05)
+    with pytest.raises(ValueError, match=r"isolation_window_s must be 0 \(off\) or at "
+                                         r"least 10 samples"):
+        cfg.validate()
+    DFChannelConfig(sample_period_s=DT, calibrate_s=8.0, burn_in_s=2.0, decision="paper",
+                    isolation_window_s=10 * DT).validate()

@@ -45,11 +45,13 @@ CONTROLLER = _controller_gain()
 PHI, GAMMA, *_ = scipy.signal.cont2discrete((A, B, C, np.zeros((6, 2))), DT, method="zoh")
 
 
-def simulate(duration_s, seed, fault=None, feedback_from_sensors=False):
+def simulate(duration_s, seed, fault=None, feedback_from_sensors=False,
+             command=(0.0, 0.25)):
     """Return t, u, y for ``fault = (sensor, kind, value)`` from ``T_FAULT``.
 
     kind: "bias" y + value, "gain" value·y, "stuck" y frozen at value (None: the
-    sample at onset), "fail" y = 0.
+    sample at onset), "fail" y = 0.  ``command``: the pitch command's (offset,
+    amplitude), rad, a square wave of period 8 s.
     """
     rng = np.random.default_rng(seed)
     n = round(duration_s / DT)
@@ -73,7 +75,7 @@ def simulate(duration_s, seed, fault=None, feedback_from_sensors=False):
                 y[i] = 0.0
         fb = y[[1, 2, 3]] if feedback_from_sensors else x[[1, 2, 3]]
         u = np.array([0.0, -CONTROLLER @ np.append(fb, integ)])
-        cmd = 0.25 if (t[k] % 8.0) < 4.0 else -0.25
+        cmd = command[0] + (command[1] if (t[k] % 8.0) < 4.0 else -command[1])
         integ += DT * ((y[3] if feedback_from_sensors else x[3]) - cmd)
         u_log[k], y_log[k] = u, y
         x = PHI @ x + GAMMA @ u
@@ -258,3 +260,33 @@ def test_uncalibrated_and_bad_construction():
         SensorFaultIsolator(A, B, C, k, -1.0)
     with pytest.raises(ValueError, match="bank_eigenvalues"):
         SensorFaultIsolator(A, B, C, k, DT, bank_eigenvalues=[-1.0, 2.0, -3.0, -4.0, -5.0])
+
+
+@pytest.mark.parametrize("fault, expected_type, size, tol", [
+    ((3, "gain", 1.05), FaultType.GAIN, 1.05, 0.005),
+    ((3, "bias", 0.01), FaultType.BIAS, 0.01, 0.002),
+])
+def test_a_gain_on_a_signal_with_a_mean_is_a_gain(fault, expected_type, size, tol):
+    # pitch flown at 0.2 +- 0.05 rad: a 5 % theta gain moves y - yhat by ~0.007 on
+    # average, more than its variation explains; the former test against the mean
+    # deviation typed it BIAS 0.0073 (g = 1.0488, 39 standard errors from 1)
+    k = design_detection_filter(A, C, np.eye(5), PAPER_EIGENVALUES)
+    iso = SensorFaultIsolator(A, B, C, k, DT)
+    _, u, y = simulate(60.0, seed=100, command=(0.2, 0.05))
+    iso.calibrate(u, y, k_sigma=6.0)
+    t, u, y = simulate(30.0, seed=3, fault=fault, command=(0.2, 0.05))
+    results, *_ = run(iso, t, u, y)
+    last = results[-1]
+    assert last.isolated == 3
+    assert last.fault_type == expected_type
+    assert last.magnitude == pytest.approx(size, abs=tol)
+
+
+def test_an_energy_window_too_short_to_decide_is_refused():
+    k = design_detection_filter(A, C, np.eye(5), PAPER_EIGENVALUES)
+    for window in (0.004, 0.05, 0.09):  # 0, 5, 9 samples at 100 Hz: never decided
+        with pytest.raises(ValueError, match=r"energy_window_s must be 0 \(off\) or at "
+                                             r"least 10 samples \(0\.1 s"):
+            SensorFaultIsolator(A, B, C, k, DT, energy_window_s=window)
+    SensorFaultIsolator(A, B, C, k, DT, energy_window_s=0.1)
+    SensorFaultIsolator(A, B, C, k, DT, energy_window_s=0.0)

@@ -255,7 +255,11 @@ class DFChannelConfig:
         if pk > pn:
             raise ValueError(f"persistence_k must be <= persistence_n ({pn}), got {pk}")
         check_int("confirm_samples", self.confirm_samples, minimum=1)
-        check_in_range("isolation_window_s", self.isolation_window_s, 0.0, 3600.0)
+        window = check_in_range("isolation_window_s", self.isolation_window_s, 0.0, 3600.0)
+        if 0.0 < window and round(window / period) < 10:
+            raise ValueError(f"isolation_window_s must be 0 (off) or at least 10 samples "
+                             f"({10 * period:g} s at sample_period_s={period:g}), got "
+                             f"{window:g}: a shorter window never isolates")
         self.settings().validate()
         limit = check_int("align_max", self.align_max, minimum=0)
         if limit > 50:

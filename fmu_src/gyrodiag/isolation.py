@@ -65,6 +65,8 @@ _FloatArray = NDArray[np.float64]
 
 #: ``isolated`` value when no fault is detected.
 NO_FAULT = -1
+#: Fewest samples the energy isolation averages before it may decide.
+_ENERGY_MIN_SAMPLES = 10
 #: ``isolated`` value when a fault is detected but the alarm pattern names no sensor.
 AMBIGUOUS = -2
 
@@ -654,7 +656,7 @@ class SensorFaultIsolator:
     gain_tolerance : float
         |g − 1| below which a fitted gain counts as 1 (bias fault); a gain must also
         differ from 1 by 4 standard errors, and its part of the deviation,
-        (g − 1)²·var(ŷ), must exceed the squared mean deviation (the bias).  Measured
+        (g − 1)²·var(ŷ), must exceed the fit's squared offset (b of y = g ŷ + b).  Measured
         on the system chain (1 kHz, DTG read-out modelled, 0.05 rad square wave, ~12 s
         since detection): fitted g of q bias faults 0.99958 (standard error 2.1e-4),
         of 3 % and 5 % spin slow-downs 0.9702 and 0.9506; on the 100 Hz aircraft loop a
@@ -689,8 +691,7 @@ class SensorFaultIsolator:
     sensor with observer ``i``'s fault-free estimate ``ŷ_i``: constant output →
     stuck, or complete failure if it is within 3 noise std of 0; otherwise a least
     squares fit ``y = g ŷ + b``: gain if ``|g − 1|`` exceeds ``gain_tolerance`` and
-    4 standard errors and ``(g − 1)² var(ŷ) > mean(y − ŷ)²``, else bias
-    ``b = mean(y − ŷ)``.
+    4 standard errors and ``(g − 1)² var(ŷ) > b²``, else bias ``mean(y − ŷ)``.
     """
 
     def __init__(
@@ -728,7 +729,12 @@ class SensorFaultIsolator:
         window = check_in_range("energy_window_s", energy_window_s, 0.0, 3600.0)
         period = check_positive("sample_period_s", sample_period_s)
         self._energy_window = round(window / period)
-        self._energy_min = max(10, self._energy_window // 4)
+        if 0.0 < window and self._energy_window < _ENERGY_MIN_SAMPLES:
+            raise ValueError(
+                f"energy_window_s must be 0 (off) or at least {_ENERGY_MIN_SAMPLES} samples "
+                f"({_ENERGY_MIN_SAMPLES * period:g} s at sample_period_s={period:g}), got "
+                f"{window:g}: a shorter window never isolates")
+        self._energy_min = max(_ENERGY_MIN_SAMPLES, self._energy_window // 4)
         self._energy_ok = check_positive("energy_ok", energy_ok)
         self._energy_ratio = check_in_range("energy_ratio", energy_ratio, 1.0, 1e6,
                                             low_open=True)
@@ -994,11 +1000,14 @@ class SensorFaultIsolator:
             resid_var = max(var_y - g * cov, 0.0)
             se_g = np.sqrt(resid_var / (n * var_h))
             # A gain must be significant and explain more of the deviation y − ŷ than
-            # its mean does: in a closed loop a bias fault moves the fitted g by ~1.5 %
-            # (the controller answers the biased sensor), and a gain on a signal with
-            # little variation is a bias for every purpose.
+            # the fit's offset does: in a closed loop a bias fault moves the fitted g by
+            # ~1.5 % (the controller answers the biased sensor).  The offset is the
+            # intercept y − g ŷ, not the mean deviation: a pure gain on a signal with a
+            # mean (θ flown at 0.15 rad) has mean deviation (g − 1)·mean(ŷ) and was typed
+            # a bias that way.
+            intercept = mean_y - g * (self._ref[i, 1] + mean_dh)
             if (abs(g - 1.0) > max(self._gain_tol, 4.0 * se_g)
-                    and (g - 1.0) ** 2 * var_h > bias**2):
+                    and (g - 1.0) ** 2 * var_h > intercept**2):
                 return FaultType.GAIN, float(g)
         return FaultType.BIAS, float(bias)
 
@@ -1064,8 +1073,12 @@ class SensorFaultIsolator:
             self._candidate = as_state_int("state['candidate']", state["candidate"], minimum=-1)
             self._candidate_count = as_state_int("state['candidate_count']",
                                               state["candidate_count"])
-            energy = check_finite_array("state['energy']", state["energy"], shape=(self._m,))
-            energy_n = as_state_int("state['energy_n']", state["energy_n"])
+            if "energy" in state or "energy_n" in state:
+                energy = check_finite_array("state['energy']", state["energy"],
+                                            shape=(self._m,))
+                energy_n = as_state_int("state['energy_n']", state["energy_n"])
+            else:  # a state of a version before the energy isolation: nothing summed yet
+                energy, energy_n = np.zeros(self._m), 0
         except KeyError as exc:
             raise ValueError(f"state is missing key {exc}") from None
         self._sums = sums.copy()

@@ -763,8 +763,9 @@ def _df_sequential(scenario: Any, diagnoser: str) -> bool:
     from gyrodiag.df_channel import DECISION_AUTO, decision_rule
 
     code = int(_param(scenario, diagnoser, "df.decision", DECISION_AUTO))
-    readout = bool(str(_param(scenario, diagnoser, "df.sensor_dynamics_file", "")).strip())
-    return decision_rule(code, readout) == "sequential"
+    name = "df.sensor_dynamics_file"  # a parameter, or (a path) in the instance's files
+    given = _param(scenario, diagnoser, name, None) or scenario.fmus[diagnoser].files.get(name)
+    return decision_rule(code, bool(str(given or "").strip())) == "sequential"
 
 
 #: Fault type name the detection filter should report, per injector fault type.
@@ -1473,7 +1474,13 @@ def preflight_runs(runs: Sequence[RunSpec]) -> None:
         if run.cls in seen:
             continue
         seen.add(run.cls)
-        preflight(build_scenario(run), fmu_dir=run.fmu_dir, results_dir=run.results_dir)
+        try:
+            scenario = build_scenario(run)
+        except ScenarioError:
+            raise
+        except (ValueError, tomllib.TOMLDecodeError) as exc:  # the spec's or the base's
+            raise ScenarioError(run.scenario, [(f"class {run.cls}", str(exc))]) from None
+        preflight(scenario, fmu_dir=run.fmu_dir, results_dir=run.results_dir)
 
 
 def _learn_library(spec: CampaignSpec, base_dir: Path, out_dir: Path, name: str,
