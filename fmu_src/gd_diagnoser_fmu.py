@@ -659,7 +659,8 @@ class Diagnoser(FacadeBase):
         p("df.isolation_window_s", "Real", "parameter", 4.0,
           "Paper rule: when the alarm pattern does not isolate, isolate by the observer "
           "bank's residual energy within this time after detection (0: the pattern "
-          "alone, as the paper's filter; small faults in turbulence need it)")
+          "alone, as the paper's filter; else at least 10 sample periods; small faults "
+          "in turbulence need it)")
         _meta("df.isolation_window_s", "s", 0.0, 3600.0)
         for j in range(DF_P):
             p(f"df.u[{j + 1}]", "Real", "input", 0.0, f"Plant input {SEED.input_names[j]}")
