@@ -58,7 +58,7 @@ from ._validation import (
 )
 from .aircraft import seed_aircraft
 from .detection_filter import DetectionFilter, ResidualThresholds, design_detection_filter
-from .isolation import FaultType, SensorFaultIsolator
+from .isolation import ENERGY_MIN_SAMPLES, FaultType, SensorFaultIsolator
 from .residual_model import ResidualModel, estimate_sensor_variances
 from .sensor_dynamics import SensorDynamics, SensorDynamicsEqualiser
 from .sequential_diagnosis import FaultKind, SequentialDiagnoser, SequentialSettings
@@ -256,10 +256,11 @@ class DFChannelConfig:
             raise ValueError(f"persistence_k must be <= persistence_n ({pn}), got {pk}")
         check_int("confirm_samples", self.confirm_samples, minimum=1)
         window = check_in_range("isolation_window_s", self.isolation_window_s, 0.0, 3600.0)
-        if 0.0 < window and round(window / period) < 10:
-            raise ValueError(f"isolation_window_s must be 0 (off) or at least 10 samples "
-                             f"({10 * period:g} s at sample_period_s={period:g}), got "
-                             f"{window:g}: a shorter window never isolates")
+        if 0.0 < window and round(window / period) < ENERGY_MIN_SAMPLES:
+            raise ValueError(f"isolation_window_s must be 0 (off) or at least "
+                             f"{ENERGY_MIN_SAMPLES} samples ({ENERGY_MIN_SAMPLES * period:g} s "
+                             f"at sample_period_s={period:g}), got {window:g}: a shorter "
+                             "window never isolates")
         self.settings().validate()
         limit = check_int("align_max", self.align_max, minimum=0)
         if limit > 50:

@@ -66,7 +66,7 @@ _FloatArray = NDArray[np.float64]
 #: ``isolated`` value when no fault is detected.
 NO_FAULT = -1
 #: Fewest samples the energy isolation averages before it may decide.
-_ENERGY_MIN_SAMPLES = 10
+ENERGY_MIN_SAMPLES = 10
 #: ``isolated`` value when a fault is detected but the alarm pattern names no sensor.
 AMBIGUOUS = -2
 
@@ -729,12 +729,12 @@ class SensorFaultIsolator:
         window = check_in_range("energy_window_s", energy_window_s, 0.0, 3600.0)
         period = check_positive("sample_period_s", sample_period_s)
         self._energy_window = round(window / period)
-        if 0.0 < window and self._energy_window < _ENERGY_MIN_SAMPLES:
+        if 0.0 < window and self._energy_window < ENERGY_MIN_SAMPLES:
             raise ValueError(
-                f"energy_window_s must be 0 (off) or at least {_ENERGY_MIN_SAMPLES} samples "
-                f"({_ENERGY_MIN_SAMPLES * period:g} s at sample_period_s={period:g}), got "
+                f"energy_window_s must be 0 (off) or at least {ENERGY_MIN_SAMPLES} samples "
+                f"({ENERGY_MIN_SAMPLES * period:g} s at sample_period_s={period:g}), got "
                 f"{window:g}: a shorter window never isolates")
-        self._energy_min = max(_ENERGY_MIN_SAMPLES, self._energy_window // 4)
+        self._energy_min = max(ENERGY_MIN_SAMPLES, self._energy_window // 4)
         self._energy_ok = check_positive("energy_ok", energy_ok)
         self._energy_ratio = check_in_range("energy_ratio", energy_ratio, 1.0, 1e6,
                                             low_open=True)
