@@ -42,7 +42,9 @@ fresh process at build time (never committed).  The Diagnoser carries the paper 
 rate read-out dynamics (``models/dtg/gd_dtg_readout.py``) as
 ``resources/sensor_dynamics/dtg_paper_y_q3_1ms.json``, which a system scenario names with
 ``df.sensor_dynamics_file = "sensor_dynamics/dtg_paper_y_q3_1ms.json"`` (relative to the
-resources).
+resources), and the detection filter's default observer designs
+(``resources/gyrodiag/observer_gains.npz``, :mod:`gyrodiag.gain_table`), so that its
+start-up does not import ``scipy.signal``.
 
 Finally every FMU is checked with ``fmpy.validation.validate_fmu``; any problem makes
 the command exit non-zero.  An FMU whose source folder does not exist yet is skipped with
@@ -86,6 +88,9 @@ GENERATED_RESOURCES: dict[str, list[tuple[str, str, tuple[str, ...]]]] = {
         # sensor 3 (q), at the 1 kHz of the system scenarios (docs/readout_dynamics.md)
         ("sensor_dynamics/dtg_paper_y_q3_1ms.json", "models/dtg/gd_dtg_readout.py",
          ("--set", "1", "--axis", "y", "--sensor", "3", "--step", "0.001")),
+        # the detection filter's default observer designs (gyrodiag.gain_table): a
+        # Diagnoser that finds its bank here never imports scipy.signal (0.7-1 s)
+        ("gyrodiag/observer_gains.npz", "fmu_src/tools/observer_gains.py", ()),
     ],
 }
 
@@ -490,6 +495,8 @@ def rewrite_fmu(
                                  "documentation/index.html"):
                 continue
             if shim is not None and info.filename == linux_binary:
+                continue
+            if info.filename in kernels:  # a copy the builder found in the source tree
                 continue
             if info.filename.startswith("resources/") and (
                 info.filename.endswith((".so", ".pyc")) or "__pycache__/" in info.filename

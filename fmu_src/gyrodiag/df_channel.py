@@ -667,11 +667,8 @@ class DFChannel:
             else:
                 # The same computation the streaming filters would do: run them over the
                 # window, thresholds from the residuals after the burn-in, then go on.
-                iso.calibrate(u, y, k_sigma=c.k_sigma, burn_in=burn, x0=self._x0)
-                for j in range(u.shape[0]):  # the window is finite: checked on entry
-                    iso.main_filter.advance(u[j], y[j])
-                    for b in iso.bank:
-                        b.observer.advance(u[j], y[j][b.used])
+                iso.calibrate(u, y, k_sigma=c.k_sigma, burn_in=burn, x0=self._x0,
+                              continue_after=True)
                 self._noise_std = iso.noise_std
             self._thresholds = [iso.main_thresholds.threshold] + [
                 t.threshold for t in iso.bank_thresholds]

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from gyrodiag import gain_table
 from gyrodiag._validation import (
     check_finite_array,
     check_in_range,
@@ -95,27 +96,39 @@ def place_observer_gain(A: ArrayLike, C: ArrayLike, poles: ArrayLike) -> _FloatA
     of the output space reached by ``C`` and mapped back, ``L = L_r P``. Output
     combinations in the left null space of ``C`` (parity relations) get no gain and
     stay visible in the residual.
-    """
-    from scipy.signal import place_poles  # only the design needs it (host start-up time)
 
+    A design already made in this process, or shipped in the Diagnoser's table of
+    default designs, is not computed again (:mod:`gyrodiag.gain_table`: importing
+    ``scipy.signal`` is most of the detection filter's start-up).
+    """
     a = check_finite_array("A", A, ndim=2)
     c = check_finite_array("C", C, shape=(None, a.shape[0]))
     p = np.asarray(poles)
+    key = gain_table.design_key(a, c, p)
+    gain = gain_table.lookup(key)
+    if gain is None:
+        gain = _placed_gain(a, c, p)
+    got = np.sort_complex(np.linalg.eigvals(a - gain @ c))
+    want = np.sort_complex(p.astype(complex))
+    if not np.allclose(got, want, rtol=1e-6, atol=1e-9):
+        raise ValueError(f"poles could not be placed: wanted {want}, got {got}")
+    gain_table.remember(key, gain)
+    return gain
+
+
+def _placed_gain(a: _FloatArray, c: _FloatArray, p: NDArray[Any]) -> _FloatArray:
+    from scipy.signal import place_poles  # only a new design needs it (start-up time)
+
     u, s, _ = np.linalg.svd(c)
     rank = int(np.sum(s > s.max(initial=0.0) * max(c.shape) * np.finfo(float).eps))
     if rank == 0:
         raise ValueError("C must not be zero")
     proj = u[:, :rank].T
     with warnings.catch_warnings():
-        # YT iterations that stop early still place the poles; checked below.
+        # YT iterations that stop early still place the poles; checked by the caller.
         warnings.simplefilter("ignore", UserWarning)
         gain_r = np.asarray(place_poles(a.T, (proj @ c).T, p, method="YT").gain_matrix).T
-    gain = gain_r @ proj
-    got = np.sort_complex(np.linalg.eigvals(a - gain @ c))
-    want = np.sort_complex(p.astype(complex))
-    if not np.allclose(got, want, rtol=1e-6, atol=1e-9):
-        raise ValueError(f"poles could not be placed: wanted {want}, got {got}")
-    return gain
+    return gain_r @ proj
 
 
 @dataclass(frozen=True)
@@ -594,6 +607,31 @@ class _StackedBank:
             e._history = self.history[:, rs]
         return True
 
+    def run(self, u: _FloatArray, y: _FloatArray) -> list[_FloatArray]:
+        """Advance every observer over a checked window (N, p), (N, m) from the states
+        they hold; return each one's residuals (N, m_k), main filter first.
+
+        The window runs as one closed-loop recursion z ← (Φ − L C) z + Γ u + L y of
+        the stacked observer (one product per sample instead of seven observers'
+        four each: a 10 s calibration at 1 kHz took a second); equal to streaming
+        the samples through :meth:`step` to rounding."""
+        obs = self.observers
+        n = u.shape[0]
+        ys = y[:, self.select]
+        closed = self.phi - self.l @ self.c
+        drive = u @ self.gamma.T + ys @ self.l.T
+        states = np.empty((n + 1, self.phi.shape[0]))
+        z = states[0] = np.concatenate([o._z for o in obs])
+        for k in range(n):
+            z = states[k + 1] = closed @ z + drive[k]
+        residuals = ys - states[:n] @ self.c.T
+        for o, zs, rs in zip(obs, self.z_slices, self.r_slices, strict=True):
+            o._z = states[n, zs].copy()
+            if n:
+                o._residual = residuals[n - 1, rs].copy()
+            o._n_updates += n
+        return [residuals[:, rs] for rs in self.r_slices]
+
     def step(self, u: _FloatArray, y: _FloatArray, evaluators: list[ResidualEvaluator],
              k_needed: int) -> tuple[_FloatArray, NDArray[np.bool_], _FloatArray,
                                      NDArray[np.bool_]]:
@@ -823,6 +861,7 @@ class SensorFaultIsolator:
         false_alarm_rate: float | None = None,
         burn_in: int = 0,
         x0: ArrayLike | None = None,
+        continue_after: bool = False,
     ) -> None:
         """Set thresholds from a fault-free run.
 
@@ -838,6 +877,11 @@ class SensorFaultIsolator:
             Samples skipped while the observers converge.
         x0 : array_like, optional
             Initial state estimate of all observers.
+        continue_after : bool
+            False (default): every observer restarts from ``x0``. True: the observers
+            stay where the window left them, as if it had been streamed through them,
+            for a caller that goes on with the samples after the window (decisions
+            and alarm histories start afresh either way).
         """
         u_arr = check_finite_array("u", u, shape=(None, self._main.n_inputs))
         y_arr = check_finite_array("y", y, shape=(u_arr.shape[0], self._m))
@@ -851,21 +895,23 @@ class SensorFaultIsolator:
             )
             for r in residuals[1:]
         ]
+        observers = [self._main] + [b.observer for b in self._bank]
+        ends = [o.get_state() for o in observers] if continue_after else None
         self.set_thresholds(main, bank)
         self.reset(x0)
+        if ends is not None:
+            for o, state in zip(observers, ends, strict=True):
+                o.set_state(state)
 
     def _run_observers(
         self, u: _FloatArray, y: _FloatArray, x0: ArrayLike | None
     ) -> list[_FloatArray]:
-        observers: list[tuple[DiscreteObserver, NDArray[np.int_] | None]] = [
-            (self._main, None)
-        ] + [(b.observer, b.used) for b in self._bank]
-        out = []
-        for obs, used in observers:
-            obs.reset(x0)
-            ys = y if used is None else y[:, used]
-            out.append(np.array([obs.advance(u[k], ys[k]) for k in range(u.shape[0])]))
-        return out
+        """Every observer from ``x0`` over a checked window; its residuals, main first.
+        The observers are left where the window ends."""
+        self._main.reset(x0)
+        for b in self._bank:
+            b.observer.reset(x0)
+        return self._stack.run(u, y)
 
     # -------------------------------------------------------------------- streaming
 

@@ -32,7 +32,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
-import scipy.optimize
 from numpy.typing import ArrayLike, NDArray
 
 from ._validation import check_finite_array, check_in_range
@@ -204,6 +203,10 @@ def estimate_sensor_variances(residuals: ArrayLike, model: ResidualModel) -> _Fl
     # A channel 30 decades quieter than the noisiest (or below 1e-250) weighs as if at
     # that floor: 1/var of a noise-free channel overflowed the weighted map to inf.
     weight = 1.0 / np.maximum(var, max(top * 1e-30, 1e-250))
+    # imported here: the paper rule never fits variances, and scipy.optimize is 0.3 s of
+    # a Diagnoser's start-up
+    from scipy.optimize import nnls
+
     m = model.variance_map()
-    sol, _ = scipy.optimize.nnls(m * weight[:, None], var * weight)
+    sol, _ = nnls(m * weight[:, None], var * weight)
     return sol

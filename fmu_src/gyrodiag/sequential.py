@@ -44,7 +44,6 @@ from functools import lru_cache
 from typing import Any
 
 import numpy as np
-import scipy.special
 from numpy.typing import NDArray
 
 from ._validation import check_finite_array, check_in_range, check_int, check_positive
@@ -118,8 +117,10 @@ def mean_cusum_arl(h: float, k: float, shift: float = 0.0) -> float:
     h = check_positive("h", h)
     k = float(check_in_range("k", k, 0.0, 10.0))
     shift = float(shift)
+    from scipy.special import ndtr  # here: the paper rule's start-up does without it
+
     n_states = min(max(MEAN_ARL_STATES, math.ceil(3.0 * h) + 60), MAX_ARL_STATES)
-    return _extrapolated_arl(h, lambda x: scipy.special.ndtr(x + k - shift), n_states)
+    return _extrapolated_arl(h, lambda x: ndtr(x + k - shift), n_states)
 
 
 def variance_cusum_increment(ratio: float) -> tuple[float, float]:
@@ -131,6 +132,8 @@ def variance_cusum_increment(ratio: float) -> tuple[float, float]:
 def variance_cusum_arl(h: float, ratio: float, true_variance: float = 1.0) -> float:
     """Zero-start ARL (samples) of the variance CUSUM designed for ``ratio``, on
     N(0, true_variance) samples (1: in control)."""
+    from scipy.special import gammainc
+
     h = check_positive("h", h)
     a, c = variance_cusum_increment(ratio)
     var = check_positive("true_variance", true_variance)
@@ -138,7 +141,7 @@ def variance_cusum_arl(h: float, ratio: float, true_variance: float = 1.0) -> fl
                    MAX_ARL_STATES)
     # P(z² ≤ q) for z ~ N(0, 1) is the regularised lower gamma function P(½, q/2)
     return _chain_arl(
-        h, lambda x: scipy.special.gammainc(0.5, np.maximum((x + c) / (a * var), 0.0) / 2.0),
+        h, lambda x: gammainc(0.5, np.maximum((x + c) / (a * var), 0.0) / 2.0),
         n_states,
     )
 

@@ -1,0 +1,153 @@
+"""Observer gains designed once: an in-process memo, and the table a build ships.
+
+Placing an observer's poles (``scipy.signal.place_poles``) takes milliseconds, but
+importing ``scipy.signal`` takes 0.7-1.0 s of CPU (it imports ``scipy.stats``): most of
+a Diagnoser's start-up with the detection filter, and a stall of the step that ends
+its calibration window (the bank is designed there). So
+:func:`gyrodiag.isolation.place_observer_gain` looks a design up here first:
+
+* every gain it computes is remembered for the rest of the process (a process that
+  builds the same bank twice designs it once);
+* ``observer_gains.npz`` beside this module, when present, seeds the memo. build_fmu.py
+  writes it into the Diagnoser FMU (``resources/gyrodiag/observer_gains.npz``) with
+  ``python fmu_src/tools/observer_gains.py --out FILE``: the bank designs of the
+  detection-filter channel with its default model and eigenvalues, both decision
+  rules, at the sample periods of :data:`DEFAULT_PERIODS_S`. It is a build output,
+  never committed; without it every design is computed.
+
+A design is found by the exact bytes of its inputs (the discrete model, the output
+matrix and the poles), so another model, other eigenvalues or a machine whose
+discretisation differs in the last bit simply computes its gain as before. The caller
+checks the poles of a gain it gets from here as it checks a computed one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import sys
+import zipfile
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+#: The table a build ships beside this module (absent in a source checkout).
+TABLE_FILE = Path(__file__).with_name("observer_gains.npz")
+
+#: Sample periods (s) whose default designs the shipped table holds: the seed aircraft
+#: scenarios run the Diagnoser at 10 ms, the system chain at 1 ms.
+DEFAULT_PERIODS_S = (0.001, 0.002, 0.005, 0.01, 0.02)
+
+_memo: dict[str, NDArray[np.float64]] | None = None
+
+
+def design_key(a: NDArray[np.float64], c: NDArray[np.float64], poles: NDArray) -> str:
+    """Key of a pole-placement design: a hash of its inputs' shapes and exact bytes."""
+    h = hashlib.sha256()
+    for arr in (np.asarray(a, dtype=float), np.asarray(c, dtype=float),
+                np.asarray(poles).astype(complex)):
+        h.update(repr(arr.shape).encode())
+        h.update(np.ascontiguousarray(arr).tobytes())
+    return h.hexdigest()
+
+
+def _loaded() -> dict[str, NDArray[np.float64]]:
+    global _memo
+    if _memo is None:
+        _memo = {}
+        if TABLE_FILE.is_file():
+            # a damaged table costs its speed, never a result: designs are computed then
+            try:
+                with np.load(TABLE_FILE, allow_pickle=False) as table:
+                    _memo.update({k: _frozen(table[k]) for k in table.files})
+            except (OSError, ValueError, zipfile.BadZipFile):
+                _memo = {}
+    return _memo
+
+
+def _frozen(gain: NDArray) -> NDArray[np.float64]:
+    out = np.array(gain, dtype=float)
+    out.setflags(write=False)
+    return out
+
+
+def lookup(key: str) -> NDArray[np.float64] | None:
+    """The remembered gain of a design (a copy), or None."""
+    gain = _loaded().get(key)
+    return None if gain is None else gain.copy()
+
+
+def remember(key: str, gain: NDArray[np.float64]) -> None:
+    """Keep a computed gain for the rest of the process."""
+    _loaded()[key] = _frozen(gain)
+
+
+def designs() -> dict[str, NDArray[np.float64]]:
+    """Every design known to this process (the table's and those computed since)."""
+    return {k: v.copy() for k, v in _loaded().items()}
+
+
+def forget() -> None:
+    """Drop the memo; the next lookup reads the table file again."""
+    global _memo
+    _memo = None
+
+
+def default_designs(periods_s: Sequence[float] = DEFAULT_PERIODS_S
+                    ) -> dict[str, NDArray[np.float64]]:
+    """The gains a Diagnoser with the default detection-filter model and eigenvalues
+    designs at each sample period, with either decision rule.
+
+    Each channel is built and calibrated on a short window of synthetic noise, the
+    path a Diagnoser takes, and its designs are collected from the memo.
+    """
+    from gyrodiag.df_channel import DFChannel, DFChannelConfig
+
+    forget()
+    global _memo
+    _memo = {}  # computed here, not read from an existing table
+    rng = np.random.default_rng(0)
+    for period in periods_s:
+        window_s = max(0.5, 50 * period)
+        for rule in ("paper", "sequential"):
+            channel = DFChannel(DFChannelConfig(
+                sample_period_s=period, decision=rule, calibrate_s=window_s,
+                burn_in_s=0.1 * window_s, align_auto=False))
+            n = round(window_s / period) + 1
+            u = rng.normal(0.0, 0.01, (n, channel.p))
+            y = rng.normal(0.0, 1e-3, (n, channel.m))
+            for k in range(n):
+                channel.update(u[k], y[k])
+            if channel.engine is None:
+                raise RuntimeError(f"{rule} channel at {period} s did not calibrate")
+    return designs()
+
+
+def save(path: Path | str, gains: dict[str, NDArray[np.float64]]) -> Path:
+    """Write a table of designs (key -> gain) as .npz."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("wb") as fh:
+        np.savez(fh, **gains)
+    return path
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        description="Write the Diagnoser's table of default observer designs (.npz).")
+    parser.add_argument("--out", type=Path, required=True, help="table file to write")
+    parser.add_argument("--periods", type=float, nargs="+", default=DEFAULT_PERIODS_S,
+                        metavar="S", help="sample periods, s (default: %(default)s)")
+    args = parser.parse_args(argv)
+    if any(not (p > 0.0) for p in args.periods):
+        parser.error(f"--periods must all be > 0, got {args.periods}")
+    gains = default_designs(args.periods)
+    save(args.out, gains)
+    print(f"{len(gains)} observer designs -> {args.out}")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
