@@ -67,11 +67,72 @@ def test_a_design_is_computed_once_and_handed_out_as_a_copy(empty_memo, monkeypa
             place_observer_gain(ac.A, np.zeros((2, 5)), -np.arange(1.0, 6.0))
 
 
+def _bank_inputs(period: float = 0.01):
+    ac = seed_aircraft()
+    bank = design_observer_bank(ac.A, ac.B, ac.C, period)
+    b = bank[2]
+    poles = np.exp(-np.arange(1.0, b.n_observable + 1.0) * period)
+    return b.observer._phi, b.observer._c, poles, b.observer._l
+
+
+def _table_with(tmp_path, entry) -> Path:
+    phi, c, poles, _ = _bank_inputs()
+    return gain_table.save(tmp_path / "t.npz", {gain_table.design_key(phi, c, poles): entry})
+
+
+@pytest.mark.parametrize("damage", ["empty", "npy", "text", "other format",
+                                    "wrong values", "wrong shape", "nan"])
+def test_a_damaged_table_costs_speed_never_a_result(empty_memo, monkeypatch, tmp_path,
+                                                    damage):
+    phi, c, poles, right = _bank_inputs()
+    path = tmp_path / "t.npz"
+    if damage == "empty":
+        path.write_bytes(b"")
+    elif damage == "npy":
+        with path.open("wb") as fh:
+            np.save(fh, right)
+    elif damage == "text":
+        path.write_text("observer gains")
+    elif damage == "other format":
+        with path.open("wb") as fh:
+            np.savez(fh, **{gain_table.FORMAT_KEY: np.array("gyrodiag observer designs 0"),
+                            gain_table.design_key(phi, c, poles): right * 2.0})
+    elif damage == "wrong values":
+        _table_with(tmp_path, right * 2.0)
+    elif damage == "wrong shape":
+        _table_with(tmp_path, right[:, :2])
+    else:
+        _table_with(tmp_path, np.full_like(right, np.nan))
+    monkeypatch.setattr(gain_table, "TABLE_FILE", path)
+    gain_table.forget()  # read the table at the next design
+    calls = _counted(monkeypatch)
+    for _ in range(2):  # the same answer every time, designed once
+        np.testing.assert_array_equal(place_observer_gain(phi, c, poles), right)
+    assert calls[0] == 1
+
+
+def test_a_sound_table_is_used_and_the_memo_is_bounded(empty_memo, monkeypatch, tmp_path):
+    phi, c, poles, right = _bank_inputs()
+    monkeypatch.setattr(gain_table, "TABLE_FILE", _table_with(tmp_path, right))
+    gain_table.forget()
+    calls = _counted(monkeypatch)
+    np.testing.assert_array_equal(place_observer_gain(phi, c, poles), right)
+    assert calls[0] == 0
+    with pytest.raises(ValueError, match="__format__"):
+        gain_table.save(tmp_path / "x.npz", {gain_table.FORMAT_KEY: right})
+    monkeypatch.setattr(gain_table, "MAX_REMEMBERED", 2)
+    for k in range(3):
+        place_observer_gain(phi, c, poles ** (k + 2))
+    assert len(gain_table.designs()) == 2  # the table's and one more
+    place_observer_gain(phi, c, poles ** 4)
+    assert calls[0] == 4  # the third new design was not kept
+
+
 def test_default_designs_hold_the_bank_of_either_rule(empty_memo):
     ac = seed_aircraft()
     table = gain_table.default_designs([0.01])
     assert len(table) == 21  # 6 single-sensor observers and 15 sensor pairs
-    gain_table.forget()
+    assert gain_table.designs() == {}  # the process goes on with its own (no) table
     computed = design_observer_bank(ac.A, ac.B, ac.C, 0.01)
     for b in computed:
         o = b.observer
@@ -139,7 +200,8 @@ def test_generator_command_writes_the_table(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "42 observer designs" in proc.stdout
     with np.load(out) as table:
-        assert len(table.files) == 42
+        assert len(table.files) == 42 + 1  # and the format entry
+        assert str(table[gain_table.FORMAT_KEY]) == gain_table.FORMAT
     bad = subprocess.run([sys.executable, str(ROOT / "fmu_src" / "tools" / "observer_gains.py"),
                           "--out", str(out), "--periods", "0"], capture_output=True, text=True)
     assert bad.returncode == 2 and "--periods must all be > 0" in bad.stderr
@@ -152,7 +214,7 @@ def test_fmu_ships_the_table_once(fmu_dir):
         assert len(names) == len(set(names))
         with zf.open("resources/gyrodiag/observer_gains.npz") as fh:
             table = np.load(fh)
-            assert len(table.files) == 21 * len(gain_table.DEFAULT_PERIODS_S)
+            assert len(table.files) == 21 * len(gain_table.DEFAULT_PERIODS_S) + 1
 
 
 @pytest.mark.parametrize(("rule", "period", "a23_scale", "designed"), [

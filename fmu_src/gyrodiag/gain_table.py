@@ -8,7 +8,8 @@ its calibration window (the bank is designed there). So
 
 * every gain it computes is remembered for the rest of the process (a process that
   builds the same bank twice designs it once);
-* ``observer_gains.npz`` beside this module, when present, seeds the memo. build_fmu.py
+* ``observer_gains.npz`` beside this module, when present and of this
+  :data:`FORMAT`, seeds the memo. build_fmu.py
   writes it into the Diagnoser FMU (``resources/gyrodiag/observer_gains.npz``) with
   ``python fmu_src/tools/observer_gains.py --out FILE``: the bank designs of the
   detection-filter channel with its default model and eigenvalues, both decision
@@ -18,7 +19,9 @@ its calibration window (the bank is designed there). So
 A design is found by the exact bytes of its inputs (the discrete model, the output
 matrix and the poles), so another model, other eigenvalues or a machine whose
 discretisation differs in the last bit simply computes its gain as before. The caller
-checks the poles of a gain it gets from here as it checks a computed one.
+checks the poles of a gain it gets from here as it checks a computed one, and computes
+the design when a remembered gain fails that check: a damaged table costs its speed,
+never a result.
 """
 
 from __future__ import annotations
@@ -26,7 +29,6 @@ from __future__ import annotations
 import argparse
 import hashlib
 import sys
-import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -39,6 +41,15 @@ TABLE_FILE = Path(__file__).with_name("observer_gains.npz")
 #: Sample periods (s) whose default designs the shipped table holds: the seed aircraft
 #: scenarios run the Diagnoser at 10 ms, the system chain at 1 ms.
 DEFAULT_PERIODS_S = (0.001, 0.002, 0.005, 0.01, 0.02)
+
+#: Format entry of a table file; a table of another format (another placement
+#: algorithm) is not read.
+FORMAT_KEY = "__format__"
+FORMAT = "gyrodiag observer designs 1: scipy place_poles YT on the output-space basis"
+
+#: Designs a process remembers at most (a long sweep over models must not grow it
+#: without bound; ~0.5 kB each).
+MAX_REMEMBERED = 4096
 
 _memo: dict[str, NDArray[np.float64]] | None = None
 
@@ -53,17 +64,27 @@ def design_key(a: NDArray[np.float64], c: NDArray[np.float64], poles: NDArray) -
     return h.hexdigest()
 
 
+def read_table(path: Path | str) -> dict[str, NDArray[np.float64]]:
+    """The designs of a table file; empty if it is missing, damaged, of another format,
+    or holds an entry that is not a finite 2-D gain (a table costs its speed, never a
+    result: the designs are computed then)."""
+    try:
+        with np.load(path, allow_pickle=False) as table:
+            files = set(table.files)
+            if FORMAT_KEY not in files or str(table[FORMAT_KEY]) != FORMAT:
+                return {}
+            gains = {k: _frozen(table[k]) for k in files - {FORMAT_KEY}}
+    except Exception:  # any unreadable file (empty, not an npz, truncated): compute
+        return {}
+    if not all(g.ndim == 2 and np.all(np.isfinite(g)) for g in gains.values()):
+        return {}
+    return gains
+
+
 def _loaded() -> dict[str, NDArray[np.float64]]:
     global _memo
     if _memo is None:
-        _memo = {}
-        if TABLE_FILE.is_file():
-            # a damaged table costs its speed, never a result: designs are computed then
-            try:
-                with np.load(TABLE_FILE, allow_pickle=False) as table:
-                    _memo.update({k: _frozen(table[k]) for k in table.files})
-            except (OSError, ValueError, zipfile.BadZipFile):
-                _memo = {}
+        _memo = read_table(TABLE_FILE) if TABLE_FILE.is_file() else {}
     return _memo
 
 
@@ -80,8 +101,16 @@ def lookup(key: str) -> NDArray[np.float64] | None:
 
 
 def remember(key: str, gain: NDArray[np.float64]) -> None:
-    """Keep a computed gain for the rest of the process."""
-    _loaded()[key] = _frozen(gain)
+    """Keep a computed gain for the rest of the process (up to :data:`MAX_REMEMBERED`
+    designs; beyond, new ones are computed each time)."""
+    memo = _loaded()
+    if key in memo or len(memo) < MAX_REMEMBERED:
+        memo[key] = _frozen(gain)
+
+
+def drop(key: str) -> None:
+    """Forget one design (a remembered gain that failed its caller's check)."""
+    _loaded().pop(key, None)
 
 
 def designs() -> dict[str, NDArray[np.float64]]:
@@ -122,15 +151,19 @@ def default_designs(periods_s: Sequence[float] = DEFAULT_PERIODS_S
                 channel.update(u[k], y[k])
             if channel.engine is None:
                 raise RuntimeError(f"{rule} channel at {period} s did not calibrate")
-    return designs()
+    out = designs()
+    forget()  # the process goes on with its table file, if any
+    return out
 
 
 def save(path: Path | str, gains: dict[str, NDArray[np.float64]]) -> Path:
-    """Write a table of designs (key -> gain) as .npz."""
+    """Write a table of designs (key -> gain) as .npz, with its :data:`FORMAT`."""
     path = Path(path)
+    if FORMAT_KEY in gains:
+        raise ValueError(f"gains must not hold the key {FORMAT_KEY!r}")
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("wb") as fh:
-        np.savez(fh, **gains)
+        np.savez(fh, **{FORMAT_KEY: np.array(FORMAT)}, **gains)
     return path
 
 
