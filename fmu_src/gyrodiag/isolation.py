@@ -115,7 +115,7 @@ def place_observer_gain(A: ArrayLike, C: ArrayLike, poles: ArrayLike) -> _FloatA
         if not _places(a, c, gain, want):
             got = np.sort_complex(np.linalg.eigvals(a - gain @ c))
             raise ValueError(f"poles could not be placed: wanted {want}, got {got}")
-    gain_table.remember(key, gain)
+        gain_table.remember(key, gain)  # a hit is remembered already
     return gain
 
 
