@@ -60,7 +60,7 @@ from gyrodiag.dtg_channel import (
     DTGChannelOutput,
 )
 from gyrodiag.dtg_patterns import PatternLibrary
-from gyrodiag.dtg_reference import CHANNELS, N_CHANNELS, POWER_THRESHOLD
+from gyrodiag.dtg_reference import ALLOWANCE_SIGMA, CHANNELS, N_CHANNELS, POWER_THRESHOLD
 from gyrodiag.grey import ClassicGreyPredictor, GreyFaultDetector, ImprovedGreyPredictor
 
 if TYPE_CHECKING:  # imported when the channel is built: it needs SciPy (design time)
@@ -99,7 +99,7 @@ TUNABLE = {
             *(f"dtg.monitored[{i}]" for i in range(1, N_THETA + 1)),
             # the pattern classifier's residual tests (the monitor is rebuilt with them)
             "dtg.level_threshold", "dtg.var_threshold", "dtg.long_var_threshold",
-            "dtg.power_threshold"),
+            "dtg.power_threshold", "dtg.allowance_sigma"),
     "grey": ("grey.threshold", "grey.clear_after_s"),
 }
 _TUNABLE_NAMES = frozenset(n for names in TUNABLE.values() for n in names)
@@ -325,6 +325,12 @@ class Diagnoser(FacadeBase):
           "power (squared 25 ms block means in nominal spreads, tuned to a tripling; the "
           "witness of torquer read-out noise); held down to half of it; 0: off")
         _meta("dtg.power_threshold", "1", 0.0)
+        p("dtg.allowance_sigma", "Real", "parameter", ALLOWANCE_SIGMA,
+          "Pattern classifier with the case rate: the reference's error the variance "
+          "tests and the power CUSUM allow for, in standard deviations of its covariance "
+          "(a manoeuvre edge raises their ratios to that error squared); 1: the first "
+          "rule (2026-11-25)")
+        _meta("dtg.allowance_sigma", "1", 0.0)
         p("dtg.theta_spread_threshold", "Real", "parameter", 30.0,
           "Learning guard: largest spread of a learning segment's theta against the "
           "segments before it, in units of its least-squares covariance")
@@ -1017,6 +1023,7 @@ class Diagnoser(FacadeBase):
             long_var_threshold=float(v["dtg.long_var_threshold"]),
             theta_spread_threshold=float(v["dtg.theta_spread_threshold"]),
             power_threshold=float(v["dtg.power_threshold"]),
+            allowance_sigma=float(v["dtg.allowance_sigma"]),
             clear_after_s=float(v["dtg.clear_after_s"]),
             case_rate=DTG_CASE_RATE_CODES[case_rate],
             pickoff_scale=float(v["dtg.pickoff_scale"]),
@@ -1366,6 +1373,7 @@ _PARAMETER_NAMES: dict[str, dict[str, str]] = {
         "long_var_threshold": "dtg.long_var_threshold",
         "theta_spread_threshold": "dtg.theta_spread_threshold",
         "power_threshold": "dtg.power_threshold",
+        "allowance_sigma": "dtg.allowance_sigma",
         "clear_after_s": "dtg.clear_after_s", "patterns": "dtg.signature_file",
         "case_rate": "dtg.case_rate", "pickoff_scale": "dtg.pickoff_scale",
     },

@@ -176,3 +176,64 @@ def test_refinement_state_round_trip_and_mismatch(record) -> None:
         frozen.set_state(state)
     _feed(frozen, record, LEARN, LEARN + 500)
     np.testing.assert_array_equal(frozen.theta_reference, ref.theta0)
+
+
+
+@pytest.fixture(scope="module")
+def quiet_record() -> np.ndarray:
+    # 10x less pick-off noise: a manoeuvre's θ0-uncertainty part is then comparable to
+    # the residual's own variance, as on the system chain (1 V dither, 0.25 rad edges)
+    return _record(LEARN + 6000, seed=21, amplitude=2.0, dither=0.1, noise=1e-5)
+
+
+def _shifted_reference(ref: NominalReference, record: np.ndarray,
+                       c: float) -> NominalReference:
+    """``ref`` with the y axis's θ0 moved by c standard deviations of its covariance
+    P = v·A⁻¹, in the direction the square wave's first edge block excites most (the top
+    eigenvector of P½·S·P½, S that block's detrended regressor scatter)."""
+    state = ref.get_state()
+    P = state["error_variance"][1] * np.linalg.inv(state["information"][1])
+    w, V = np.linalg.eigh(P)
+    half = V @ np.diag(np.sqrt(np.maximum(w, 0.0))) @ V.T
+    phy = MODEL.rows(record[LEARN - 2:LEARN + NB])[2]
+    dev = phy - phy.mean(axis=0)
+    k = np.arange(NB) - (NB - 1) / 2
+    dev -= np.outer(k, (k @ dev) / (k @ k))
+    u = np.linalg.eigh(half @ dev.T @ dev @ half)[1][:, -1]
+    state["theta0"] = state["theta0"].copy()
+    state["theta0"][N_THETA:] += c * half @ u
+    return NominalReference.from_state(state)
+
+
+@pytest.mark.parametrize(("c", "sigma", "alarm"), [
+    (12.0, 1.0, True),   # the first rule alarms
+    (12.0, 3.0, False),  # the default allows for it
+    (30.0, 3.0, True),   # a gross error (a changed rotor) still alarms
+])
+def test_allowance_sigma_sets_the_theta0_error_the_variance_tests_allow(
+        quiet_record, c: float, sigma: float, alarm: bool) -> None:
+    """The reference's error is one draw per run; a manoeuvre edge exciting a direction
+    where it is c standard deviations off raises the variance-type tests towards c²
+    (ResidualThresholds.allowance_sigma): here the power CUSUM of the squared block
+    means, as the square wave goes on (its edges excite that direction's block means
+    too). The level test allows 6σ of the mean (z ≈ 3.4 at c = 12)."""
+    learner, ref = _learn(quiet_record)
+    shifted = _shifted_reference(ref, quiet_record, c)
+    thresholds = ResidualThresholds(allowance_sigma=sigma)
+    mon = ResidualMonitor(shifted, NB, NB * T, SHORT, LONG, thresholds, 20, MODEL)
+    mon.prefill(*learner.reference_blocks(shifted, LONG))
+    peak = np.zeros(8)
+    alarms = []
+    for b0 in range(LEARN, LEARN + 2000, NB):
+        alarms.append(_feed(mon, quiet_record, b0, b0 + NB)[0])
+        peak = np.maximum(peak, mon.statistics)
+    assert bool(np.any(alarms)) is alarm
+    assert peak[6:].max() >= 1.0 if alarm else peak[6:].max() < 0.5  # the power CUSUM
+    if c < 20.0:
+        assert peak[:2].max() < 0.8 * 6.0  # not the level test
+
+
+def test_allowance_sigma_is_validated() -> None:
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="allowance_sigma"):
+            ResidualThresholds(allowance_sigma=bad).validate()

@@ -52,6 +52,7 @@ from .dtg_case_rate import (
 )
 from .dtg_patterns import PatternClassifier, PatternLibrary, PatternResult
 from .dtg_reference import (
+    ALLOWANCE_SIGMA,
     N_CHANNELS,
     N_TESTS,
     POWER_THRESHOLD,
@@ -173,6 +174,10 @@ class DTGChannelConfig:
     power_threshold : float
         Threshold h of the residuals' low-frequency power CUSUM (:mod:`~gyrodiag.
         dtg_reference`; the torquer read-out noise witness); 0 switches it off.
+    allowance_sigma : float
+        Case rate only: the reference's error the variance-type residual tests allow
+        for, in standard deviations of its covariance (:class:`~gyrodiag.dtg_reference.
+        ResidualThresholds`; 1 was the first rule, 2026-11-25).
     clear_after_s : float
         An alarm of the residual tests clears this long after the last block in which a
         test exceeded its hold threshold.
@@ -221,6 +226,7 @@ class DTGChannelConfig:
     long_var_threshold: float = 2.0
     theta_spread_threshold: float = 30.0
     power_threshold: float = POWER_THRESHOLD
+    allowance_sigma: float = ALLOWANCE_SIGMA
     clear_after_s: float = 0.5
     case_rate: str | None = None
     pickoff_scale: float = 1e-3
@@ -235,7 +241,7 @@ class DTGChannelConfig:
         """The residual-test thresholds."""
         return ResidualThresholds(self.level_threshold, self.var_threshold,
                                   self.long_var_threshold, self.theta_spread_threshold,
-                                  self.power_threshold)
+                                  self.power_threshold, self.allowance_sigma)
 
     @property
     def block_samples(self) -> int:

@@ -63,6 +63,7 @@ from .dtg import N_THETA
 from .dtg_case_rate import CASE_RATE_SCHEMES, dtg_case_rate_regression
 
 __all__ = [
+    "ALLOWANCE_SIGMA",
     "CHANNELS",
     "N_CHANNELS",
     "N_TESTS",
@@ -100,6 +101,10 @@ POWER_RATIO = 3.0
 POWER_KAPPA = math.log(POWER_RATIO) / (1.0 - 1.0 / POWER_RATIO)
 POWER_Q_CAP = 10.0
 POWER_THRESHOLD = 80.0
+#: θ-error allowance of the variance-type tests, in standard deviations of the
+#: reference's covariance (:class:`ResidualThresholds`): 3 alarms, in the limit where
+#: the allowance dominates, at a 4.2σ error (2 s ratio 2) or 6σ (0.5 s ratio 4).
+ALLOWANCE_SIGMA = 3.0
 #: Variance floor relative to the channel's scale, so that a silent channel stays finite.
 _VAR_FLOOR = 1e-30
 
@@ -532,6 +537,16 @@ class ResidualThresholds:
         (Δθᵀ·C⁻¹·Δθ)/5 with C the least-squares covariance from the residual variance.
     power : float
         Threshold h of the low-frequency power CUSUM (hold: h/2); 0 switches it off.
+    allowance_sigma : float
+        Case rate only: the reference's error the variance-type tests (variance ratios,
+        power CUSUM, the learning guard's ratio) allow for, in standard deviations of
+        its covariance P: they add ``allowance_sigma² ·`` (the block's θ-uncertainty
+        variance) to their nominal variance. The error is one draw per run, and a
+        manoeuvre edge that excites a direction where it is c standard deviations off
+        raises those ratios towards c², so 1 (the allowance of 2026-11-25) lets them
+        alarm at c ≈ 1.4 (2 s ratio 2): 16 % of runs per excited direction. The level
+        test allows up to ``level`` standard deviations already (its allowance enters
+        as a standard deviation).
     """
 
     level: float = 6.0
@@ -539,6 +554,7 @@ class ResidualThresholds:
     long_variance: float = 2.0
     theta_spread: float = 30.0
     power: float = POWER_THRESHOLD
+    allowance_sigma: float = ALLOWANCE_SIGMA
 
     def validate(self) -> None:
         """Raise ValueError naming the first bad threshold."""
@@ -551,6 +567,14 @@ class ResidualThresholds:
         if not (math.isfinite(self.power) and self.power >= 0.0):
             raise ValueError(f"power_threshold must be a finite number >= 0 (0: off), got "
                              f"{self.power!r}")
+        if not (math.isfinite(self.allowance_sigma) and self.allowance_sigma >= 0.0):
+            raise ValueError(f"allowance_sigma must be a finite number >= 0, got "
+                             f"{self.allowance_sigma!r}")
+
+    @property
+    def allowance_scale(self) -> float:
+        """Factor of the θ-uncertainty allowance in the variance-type tests."""
+        return self.allowance_sigma ** 2
 
     @property
     def hold(self) -> tuple[float, float, float]:
@@ -798,8 +822,8 @@ class ReferenceLearner:
             # the monitor's allowance (its _test): a manoeuvre in the segment excites
             # directions the segments before did not pin down
             z = np.abs(m - mu) / np.sqrt(sd * sd / k + np.sqrt(allow[:, :2]).mean(axis=0) ** 2)
-            ratio = v / np.maximum(v_ref + allow[:, 2:].mean(axis=0)
-                                   + allow[:, :2].mean(axis=0), _VAR_FLOOR)
+            ratio = v / np.maximum(v_ref + thr.allowance_scale * (
+                allow[:, 2:].mean(axis=0) + allow[:, :2].mean(axis=0)), _VAR_FLOOR)
         if np.any(z > thr.level) or np.any(ratio > thr.variance):
             return True
         if th_seg is None:
@@ -1104,7 +1128,7 @@ class ResidualMonitor:
         res = list(RESIDUALS)
         var = ref.block_std[res] ** 2
         if allowance is not None:  # case rate: the block mean's θ0-uncertainty part
-            var = var + allowance
+            var = var + self.thresholds.allowance_scale * allowance
         q = (residual_means - ref.mean[res]) ** 2 / var
         self._power = np.clip(self._power + np.minimum(q, POWER_Q_CAP) - POWER_KAPPA, 0.0, h)
 
@@ -1128,8 +1152,11 @@ class ResidualMonitor:
             level_var = (ref.block_std[res] / math.sqrt(k)) ** 2 + np.sqrt(
                 a_s[:, :2]).mean(axis=0) ** 2
             z = np.abs(m - ref.mean[res]) / np.sqrt(level_var)
-            vs = v / (var_s + a_s[:, 2:].mean(axis=0) + a_s[:, :2].mean(axis=0))
-            vL = vl / (var_l + a_l[:, 2:].mean(axis=0) + a_l[:, :2].mean(axis=0))
+            # a variance test meets the error squared, so its allowance is scaled to
+            # the confidence wanted (ResidualThresholds.allowance_sigma)
+            g = thr.allowance_scale
+            vs = v / (var_s + g * (a_s[:, 2:].mean(axis=0) + a_s[:, :2].mean(axis=0)))
+            vL = vl / (var_l + g * (a_l[:, 2:].mean(axis=0) + a_l[:, :2].mean(axis=0)))
         else:
             z = np.abs(m - ref.mean[res]) / (ref.block_std[res] / math.sqrt(k))
             vs = v / var_s
