@@ -227,3 +227,23 @@ def test_shipped_campaigns_carry_the_paper_witness():
     spec, _ = load_campaign(ROOT / "campaigns" / "dtg.toml")
     assert spec.libraries == {"dtg_signatures.json": "../scenarios/training"}
     assert spec.signatures_file == "dtg_patterns.json"
+
+
+def test_system_paper_campaign_flies_the_system_campaigns_conditions():
+    """campaigns/system_paper.toml: the paper's DTG rule (band 0.5/1.5, no case rate,
+    decade signatures) beside the project's on the system chain, under every condition of
+    campaigns/system.toml (the same flights), the detection filter off in both."""
+    spec, _ = load_campaign(ROOT / "campaigns" / "system_paper.toml")
+    system, _ = load_campaign(ROOT / "campaigns" / "system.toml")
+    assert spec.conditions == system.conditions
+    assert spec.libraries == {"dtg_signatures.json": "../scenarios/training"}
+    for c in spec.classes.values():
+        assert c.channel == "dtg" and c.witnesses == ["diag", "paper"]
+        assert c.parameters == {"diag": {"df.enabled": False}}
+        paper = c.witness_copies["paper"].parameters
+        assert paper["dtg.classifier"] == "paper" and paper["dtg.case_rate"] == 0
+        assert (paper["dtg.low"], paper["dtg.high"]) == (0.5, 1.5)
+        assert paper["df.enabled"] is False
+    runs = expand_runs(spec, ROOT / "campaigns")
+    assert len(runs) == 98
+    assert {r.condition for r in runs} == set(system.conditions)
