@@ -74,6 +74,7 @@ COUPLED_BOUNDS: dict[str, dict[str, str]] = {
 MUST_BE_TUNABLE: dict[str, set[str]] = {
     "Diagnoser": {"dtg.low", "dtg.high", "dtg.persistence_k", "dtg.latch", "dtg.max_distance",
                   "dtg.level_threshold", "dtg.var_threshold", "dtg.long_var_threshold",
+                  "dtg.power_threshold", "dtg.allowance_sigma",
                   "grey.threshold", "grey.clear_after_s"}
     | {f"dtg.monitored[{i}]" for i in range(1, 6)},
     "FaultInjector": {f"fault_type_{i}" for i in range(1, 9)},
