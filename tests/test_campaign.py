@@ -21,6 +21,7 @@ import pytest
 
 from harness.campaigns.campaign import (
     CampaignSpec,
+    _band_statistic,
     _kth_largest_window,
     build_scenario,
     expand_runs,
@@ -78,6 +79,34 @@ def test_kth_largest_window_matches_brute_force():
     padded = np.concatenate([np.zeros(4), z])
     want = [np.sort(padded[i:i + 5])[-3] for i in range(50)]
     np.testing.assert_array_equal(got, want)
+
+
+def test_band_statistic_follows_the_channels_persistence():
+    """The ratio band's sweep statistic decides as the channel does: per axis, k of the
+    last n samples out of the band (a 6-sample excursion of one axis does not reach
+    T = 1 with 10 of 20; a lasting one does, 10 samples in), in kept rows when the
+    record is decimated; k = n = 1 is the per-sample deviation."""
+    from types import SimpleNamespace
+
+    def scenario(**params):
+        return SimpleNamespace(step_s=1e-3, fmus={"diag": SimpleNamespace(
+            parameters={"sample_period_s": 1e-3, **params})})
+
+    t = np.arange(200) * 1e-3
+    dev = np.full((200, 4), 0.01)          # 2 monitored parameters per axis
+    dev[50:56, 1] = 0.1                    # x axis: 6 samples out
+    dev[120:, 3] = 0.1                     # y axis: out for good from sample 120
+    plain = _band_statistic(scenario(), "diag", t, dev, 2)
+    np.testing.assert_array_equal(plain, dev.max(axis=1))
+    held = _band_statistic(scenario(**{"dtg.persistence_k": 10, "dtg.persistence_n": 20}),
+                           "diag", t, dev, 2)
+    assert held[:120].max() == pytest.approx(0.01)      # the excursion is filtered
+    assert np.flatnonzero(held > 0.05)[0] == 129         # the 10th sample out
+    # kept every 5 samples: k = 2, n = 4 rows (the excursion's 2 kept rows then count as
+    # 10 samples: approximate, as documented)
+    kept = _band_statistic(scenario(**{"dtg.persistence_k": 10, "dtg.persistence_n": 20}),
+                           "diag", t[::5], dev[::5], 2)
+    assert np.flatnonzero(kept[20:] > 0.05)[0] + 20 == 25   # row 25 = sample 125
 
 
 def test_judge_counts_false_alarms_before_onset_and_the_delay_after():

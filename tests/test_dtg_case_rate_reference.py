@@ -12,6 +12,7 @@ from _dtg_sim import STABLE_ROTOR
 from gyrodiag.dtg import N_THETA
 from gyrodiag.dtg_case_rate import dtg_case_rate_regression, theta_central_from_physical
 from gyrodiag.dtg_reference import (
+    POWER_KAPPA,
     NominalReference,
     ReferenceLearner,
     RegressionModel,
@@ -237,3 +238,73 @@ def test_allowance_sigma_is_validated() -> None:
     for bad in (-1.0, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="allowance_sigma"):
             ResidualThresholds(allowance_sigma=bad).validate()
+
+
+def test_allowance_sigma_scales_the_variance_ratios_and_the_power_cusum(record) -> None:
+    """Known answer: with the block allowance fixed at a = (a_mean x, y, a_within x, y),
+    the same blocks give v/(var_ref + k²·(a_within + a_mean)) as the short and long
+    variance ratios and (m − μ)²/(σ_b² + k²·a_mean) per block to the power CUSUM, and
+    the level test its standard-deviation allowance whatever k is."""
+    learner, ref = _learn(record)
+    res = [4, 5]
+    a = np.array([2.0, 3.0, 5.0, 7.0]) * ref.var_long[res].mean()
+    mons = {}
+    for k in (1.0, 3.0):
+        mon = ResidualMonitor(ref, NB, NB * T, SHORT, LONG,
+                              ResidualThresholds(allowance_sigma=k), 20, MODEL)
+        mon.prefill(*learner.reference_blocks(ref, LONG))
+        mon._allowance = lambda phis, use, a=a: a.copy()  # the allowance under test
+        _feed(mon, record, LEARN, LEARN + (LONG + 5) * NB)
+        mons[k] = mon
+    one, three = mons[1.0].statistics, mons[3.0].statistics
+    var_s, var_l = ref.var_short[res], ref.var_long[res]
+    a_sum = a[2:] + a[:2]
+    # the window variance v is the same data in both: v = ratio·(var + k²·a)
+    np.testing.assert_allclose(one[2:4] * (var_s + a_sum), three[2:4] * (var_s + 9 * a_sum),
+                               rtol=1e-12)
+    np.testing.assert_allclose(one[4:6] * (var_l + a_sum), three[4:6] * (var_l + 9 * a_sum),
+                               rtol=1e-12)
+    np.testing.assert_array_equal(one[:2], three[:2])
+    # the power CUSUM's per-block increment: (m − μ)²/(σ_b² + k²·a_mean), capped
+    m = mons[3.0]._last(1)[0][0, res] - ref.mean[res]
+    for k, mon in mons.items():
+        q = np.minimum(m**2 / (ref.block_std[res] ** 2 + k * k * a[:2]), 10.0)
+        before = mon._power.copy()
+        mon._update_power(mons[3.0]._last(1)[0][0, res], a[:2])
+        h = mon.thresholds.power
+        np.testing.assert_allclose(mon._power, np.clip(before + q - POWER_KAPPA, 0.0, h),
+                                   rtol=1e-12)
+
+
+def test_allowance_sigma_scales_the_learning_guards_ratio() -> None:
+    """The learning guard's segment check divides the segment's variance by
+    var_ref + k²·(a_within + a_mean): a segment with ten times the reference variance and
+    an allowance that makes its ratio 6 with k = 1 (over the threshold 4) is 1.4 with
+    k = 3."""
+    rng = np.random.default_rng(4)
+    nref, k_seg = 40, 10
+    ref_means = 1e-3 * rng.standard_normal((nref, 6))
+    ref_vars = np.full((nref, 6), 1e-4)
+    seg_means = np.zeros((k_seg, 6))
+    seg_vars = np.full((k_seg, 6), 1e-3)
+    from gyrodiag.dtg_reference import _window_reference_variance, window_moments
+    res = [4, 5]
+    v_ref = _window_reference_variance(ref_means[:, res], ref_vars[:, res], k_seg)
+    v_seg = window_moments(seg_means[:, res], seg_vars[:, res])[1]
+    # allowance per block such that v_seg/(v_ref + a) = 6 (> 4: fails at k = 1) and
+    # v_seg/(v_ref + 9a) < 4 (passes at k = 3)
+    a_tot = v_seg / 6.0 - v_ref
+    assert np.all(a_tot > 0) and np.all(v_seg / (v_ref + 9 * a_tot) < 4.0)
+    allow = np.zeros((k_seg, 4))
+    allow[:, 2:] = a_tot  # within-block part only: the level test is untouched
+    npar = 2 * N_THETA
+    theta = np.ones(npar)
+    M = np.eye(npar + 1)
+    err_var = np.ones(2)
+    verdict = {}
+    for k in (1.0, 3.0):
+        learner = ReferenceLearner(NB, SHORT, LONG, ResidualThresholds(allowance_sigma=k),
+                                   NB * T, MODEL)
+        verdict[k] = learner._segment_fails(ref_means, ref_vars, seg_means, seg_vars, theta,
+                                            M, theta, M, allow, err_var)
+    assert verdict == {1.0: True, 3.0: False}

@@ -719,12 +719,31 @@ def alarm_statistic(run: RunSpec, scenario: Any, t: np.ndarray,
     if not math.isclose(1.0 - low, high - 1.0, rel_tol=1e-9):
         raise ValueError(f"{d}: dtg.low/dtg.high ({low}, {high}) are not symmetric about 1: "
                          "the threshold sweep needs a symmetric band")
+    band = _band_statistic(scenario, d, t, dev, sum(monitored))
     if str(_param(scenario, d, "dtg.classifier", "pattern")) == "pattern":
-        return _pattern_statistic(scenario, d, t, sig, dev.max(axis=1) / (high - 1.0))
-    s = np.where(learning, 0.0, dev.max(axis=1))
+        return _pattern_statistic(scenario, d, t, sig, band / (high - 1.0))
+    s = np.where(learning, 0.0, band)
     ready = np.flatnonzero(~learning & (t > 0))
     t_ready = float(t[ready[0]]) if ready.size else float(t[-1])
     return s, t_ready, high - 1.0
+
+
+def _band_statistic(scenario: Any, d: str, t: np.ndarray, dev: np.ndarray,
+                    per_axis: int) -> np.ndarray:
+    """|η − 1| of the ratio band as the channel decides it: per axis, the k-th largest
+    of the largest deviation over the last n samples (``dtg.persistence_k``/``_n``; the
+    axes alarm independently). Records kept every few samples count k and n in kept
+    rows (rounded: approximate there)."""
+    pk = int(_param(scenario, d, "dtg.persistence_k", 1))
+    pn = int(_param(scenario, d, "dtg.persistence_n", 1))
+    axes = [dev[:, :per_axis].max(axis=1), dev[:, per_axis:].max(axis=1)]
+    if pn <= 1 or t.size < 2:
+        return np.maximum(*axes)
+    period = float(_param(scenario, d, "sample_period_s", scenario.step_s))
+    rows = max(float(np.median(np.diff(t))) / period, 1.0)
+    k = max(1, math.ceil(pk / rows - 1e-9))
+    n = max(k, round(pn / rows))
+    return np.maximum(*(_kth_largest_window(a, k, n) for a in axes))
 
 
 def _pattern_statistic(scenario: Any, d: str, t: np.ndarray, sig: dict[str, np.ndarray],
