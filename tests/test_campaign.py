@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from harness.campaigns.campaign import (
+    RUN_TMP_PREFIX,
     CampaignSpec,
     _band_statistic,
     _kth_largest_window,
@@ -331,7 +332,9 @@ def test_stopping_a_campaign_kills_its_runs_in_flight_and_keeps_finished_ones(
     hang = spec.model_dump(by_alias=True)
     script = DRIVER.format(tests=str(Path(__file__).parent), spec=json.dumps(hang),
                            tmp=str(tmp_path), out=str(tmp_path / "out"), dask=dask)
-    env = {**os.environ, "GD_FAKE_LOG": str(log)}
+    run_tmp = tmp_path / "run_tmp"  # where the runs' temporary folders go
+    run_tmp.mkdir()
+    env = {**os.environ, "GD_FAKE_LOG": str(log), "TMPDIR": str(run_tmp)}
     proc = subprocess.Popen([sys.executable, "-c", script], env=env, cwd=str(ROOT),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -356,6 +359,9 @@ def test_stopping_a_campaign_kills_its_runs_in_flight_and_keeps_finished_ones(
     records = [json.loads(p.read_text()) for p in (tmp_path / "out" / "runs").glob("*")]
     assert sorted(r["run"]["magnitude"] for r in records) == [0.6, 0.7]
     assert all(r["status"] == "ok" for r in records)
+    # nobody leaves the runs' temporary folders behind, not even a closed Dask cluster
+    assert _wait_for(lambda: not list(run_tmp.glob(f"{RUN_TMP_PREFIX}*")), 10.0), \
+        list(run_tmp.iterdir())
 
 
 def test_smoke_campaign_pool_and_dask_give_the_same_figures(tmp_path, fmu_dir, monkeypatch):

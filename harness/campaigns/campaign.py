@@ -1194,6 +1194,10 @@ def _child_env() -> dict[str, str]:
     return env
 
 
+#: Prefix of the temporary folder of each run (input and output JSON of the run process).
+RUN_TMP_PREFIX = "gd-campaign-"
+
+
 def execute_run(run_dict: dict[str, Any], runner: str, timeout_s: float,
                 records_dir: str) -> dict[str, Any]:
     """Run one campaign run in a fresh process and write its record; never raises.
@@ -1205,7 +1209,7 @@ def execute_run(run_dict: dict[str, Any], runner: str, timeout_s: float,
     """
     t0 = time.perf_counter()
     record: dict[str, Any] = {"run": run_dict, "runner": runner}
-    with tempfile.TemporaryDirectory(prefix="gd-campaign-") as tmp:
+    with tempfile.TemporaryDirectory(prefix=RUN_TMP_PREFIX) as tmp:
         inp, out = Path(tmp) / "run.json", Path(tmp) / "out.json"
         inp.write_text(json.dumps(run_dict), encoding="utf-8")
         cmd = [sys.executable, "-m", "harness.campaigns.campaign", "--child", runner, str(inp),
@@ -1279,8 +1283,16 @@ def _exit_when_orphaned(parent_pid: int) -> None:
     while True:
         if os.getppid() != parent_pid:
             _kill_live_runs()
+            for folder in _ORPHAN_CLEANUP:
+                shutil.rmtree(folder, ignore_errors=True)
             os._exit(3)
         time.sleep(ORPHAN_POLL_S)
+
+
+#: Folders a run process removes when it finds itself orphaned: its own temporary
+#: folder, which the worker that made it can no longer remove when it was killed
+#: outright (SIGKILL, a closed Dask cluster).
+_ORPHAN_CLEANUP: list[str] = []
 
 
 #: Set when this worker is stopping: the runs it kills must not be recorded as failed.
@@ -1315,6 +1327,9 @@ def _child_main(runner: str, inp: str, out: str) -> int:
 
     keep_niceness()  # its own session is its own autogroup (harness.cosim.niceness)
     parent = int(os.environ.get(PARENT_PID_ENV, os.getppid()))
+    folder = Path(inp).parent
+    if folder.name.startswith(RUN_TMP_PREFIX):  # only execute_run's own folders
+        _ORPHAN_CLEANUP.append(str(folder))
     threading.Thread(target=_exit_when_orphaned, args=(parent,), daemon=True,
                      name="orphan-watch").start()
     run_dict = json.loads(Path(inp).read_text(encoding="utf-8"))
