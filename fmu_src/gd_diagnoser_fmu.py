@@ -668,6 +668,12 @@ class Diagnoser(FacadeBase):
           "alone, as the paper's filter; else at least 10 sample periods; small faults "
           "in turbulence need it)")
         _meta("df.isolation_window_s", "s", 0.0, 3600.0)
+        p("df.isolation_baseline_s", "Real", "parameter", 10.0,
+          "Paper rule: time constant of the bank's fault-free energy baseline before "
+          "detection; the energy isolation measures against the larger of it and the "
+          "calibration, so turbulence stronger than during calibration is not taken for "
+          "a faultless observer (0: the calibration alone)")
+        _meta("df.isolation_baseline_s", "s", 0.0, 3600.0)
         for j in range(DF_P):
             p(f"df.u[{j + 1}]", "Real", "input", 0.0, f"Plant input {SEED.input_names[j]}")
             _meta(f"df.u[{j + 1}]", SEED.input_units[j])
@@ -788,6 +794,7 @@ class Diagnoser(FacadeBase):
             persistence_n=_named_int(v, "df.persistence_n"),
             confirm_samples=_named_int(v, "df.confirm_samples"),
             isolation_window_s=float(v["df.isolation_window_s"]),
+            isolation_baseline_s=float(v["df.isolation_baseline_s"]),
             false_alarms_per_h=float(v["df.false_alarm_rate"]),
             cusum_k=float(v["df.cusum_k"]), variance_ratio=float(v["df.variance_ratio"]),
             max_faults=_named_int(v, "df.max_faults"),
@@ -1393,6 +1400,7 @@ _PARAMETER_NAMES: dict[str, dict[str, str]] = {
         "noise_std": "df.noise_std[1..6]", "persistence_k": "df.persistence_k",
         "persistence_n": "df.persistence_n", "confirm_samples": "df.confirm_samples",
         "isolation_window_s": "df.isolation_window_s",
+        "isolation_baseline_s": "df.isolation_baseline_s",
         "x0": "df.x0[1..5]", "decision": "df.decision",
         "sensor_dynamics": "df.sensor_dynamics_file",
         "false_alarms_per_h": "df.false_alarm_rate", "cusum_k": "df.cusum_k",

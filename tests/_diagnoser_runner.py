@@ -138,6 +138,7 @@ INVALID: dict[str, tuple[dict[str, Any], dict[str, str]]] = {
     "df.false_alarm_rate": ({"df.false_alarm_rate": -1.0}, {}),
     "df.max_faults": ({"df.max_faults": 3}, {}),
     "df.isolation_window_s": ({"df.isolation_window_s": 0.005}, {}),  # 5 samples at 1 kHz
+    "df.isolation_baseline_s": ({"df.isolation_baseline_s": -1.0}, {}),
     "df.align_auto (no window)": ({"df.calibrate_s": 0.0, "df.noise_std[1]": 0.05,
                                    "df.noise_std[2]": 1e-3, "df.noise_std[3]": 1e-3,
                                    "df.noise_std[4]": 1e-3, "df.noise_std[5]": 1e-3,

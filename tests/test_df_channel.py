@@ -254,3 +254,11 @@ def test_an_isolation_window_too_short_to_decide_is_refused():
         cfg.validate()
     DFChannelConfig(sample_period_s=DT, calibrate_s=8.0, burn_in_s=2.0, decision="paper",
                     isolation_window_s=10 * DT).validate()
+
+
+@pytest.mark.parametrize("value", [-1.0, float("nan"), 3601.0])
+def test_an_invalid_isolation_baseline_is_refused_naming_it(value):
+    cfg = DFChannelConfig(sample_period_s=DT, calibrate_s=8.0, burn_in_s=2.0,
+                          decision="paper", isolation_baseline_s=value)
+    with pytest.raises(ValueError, match="isolation_baseline_s"):
+        cfg.validate()

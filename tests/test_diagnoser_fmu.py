@@ -548,7 +548,8 @@ def test_valid_defaults_initialise_without_messages(fmu):
     "dtg.signature_file (paper signatures, pattern classifier)",
     "dtg.n_signatures (pattern classifier)",
     "grey.window", "grey.threshold", "df.eigenvalue (unstable)", "df.eigenvalue (repeated)",
-    "df.persistence_k", "df.calibrate_s", "df.isolation_window_s", "sample_period_s (zero)",
+    "df.persistence_k", "df.calibrate_s", "df.isolation_window_s",
+    "df.isolation_baseline_s", "sample_period_s (zero)",
     "sample_period_s (negative)",
 ])
 def test_invalid_parameter_is_fmi2error_naming_it(fmu, label):

@@ -290,3 +290,36 @@ def test_an_energy_window_too_short_to_decide_is_refused():
             SensorFaultIsolator(A, B, C, k, DT, energy_window_s=window)
     SensorFaultIsolator(A, B, C, k, DT, energy_window_s=0.1)
     SensorFaultIsolator(A, B, C, k, DT, energy_window_s=0.0)
+
+
+def test_the_energy_baseline_follows_fault_free_energy_before_detection():
+    """Sensor noise 1.5 times the calibration's: every bank observer's residual is
+    linear in the noise, so its fault-free energy, and with it the baseline, tends to
+    1.5² = 2.25 (no fault: no detection, the baseline keeps following). Off (0 s) it
+    stays the calibration's 1. The baseline is part of the state."""
+    k = design_detection_filter(A, C, np.eye(5), PAPER_EIGENVALUES)
+    _, u_cal, y_cal = simulate(60.0, seed=100)
+    t, u, y = simulate(40.0, seed=7)
+    rng = np.random.default_rng(8)
+    y = y + rng.normal(0.0, 1.0, y.shape) * NOISE_STD * np.sqrt(1.5**2 - 1.0)
+    baselines = {}
+    for tau in (0.0, 5.0):
+        iso = SensorFaultIsolator(A, B, C, k, DT, energy_window_s=4.0,
+                                  energy_baseline_s=tau)
+        iso.calibrate(u_cal, y_cal, k_sigma=8.0, burn_in=200)
+        half = t.size // 2
+        for i in range(half):
+            assert not iso.update(u[i], y[i]).detected
+        copy = SensorFaultIsolator(A, B, C, k, DT, energy_window_s=4.0,
+                                   energy_baseline_s=tau)
+        copy.calibrate(u_cal, y_cal, k_sigma=8.0, burn_in=200)
+        copy.set_state(iso.get_state())
+        for i in range(half, t.size):
+            iso.update(u[i], y[i])
+            copy.update(u[i], y[i])
+        np.testing.assert_array_equal(copy.energy_baseline, iso.energy_baseline)
+        baselines[tau] = iso.energy_baseline
+    np.testing.assert_array_equal(baselines[0.0], np.ones(6))
+    np.testing.assert_allclose(baselines[5.0], 2.25, rtol=0.1)
+    with pytest.raises(ValueError, match="energy_baseline_s"):
+        SensorFaultIsolator(A, B, C, k, DT, energy_baseline_s=-1.0)

@@ -328,7 +328,9 @@ def test_df_paper_rule_isolates_a_small_scale_error_in_turbulence_by_energy() ->
     """3 % spin slow-down during 0.1 rad doublets in moderate turbulence (measured
     2026-11-26): the bank's alarm pattern never isolates it (the gust response of the
     calibration widened the per-sample thresholds); the bank's residual energy isolates
-    q 3.9 s after the detection, at the next doublet pulse, and types the gain."""
+    q and types the gain: 3.9 s after the detection against the calibration alone, 1.0 s
+    against the fault-free baseline (the gusts before the fault raised ¬q's energy most,
+    1.28, so the q fault's share stands out earlier)."""
     o = run_chain(26.3, command=PitchCommand(3, 0.1, start=12.0, period=4.0, pulse=0.5),
                   sigma_w=0.77, spin=(21.3, 0.97), seed=13, dtg_seed=14)
     u, y = _df_inputs(o)
@@ -345,6 +347,33 @@ def test_df_paper_rule_isolates_a_small_scale_error_in_turbulence_by_energy() ->
     out, t_iso = last[4.0]
     assert out.isolated_sensor == 3 and t_iso is not None and t_iso < 21.3 + 4.5
     assert out.fault_type == 2 and out.magnitude == pytest.approx(0.97, abs=0.01)
+
+
+def test_df_energy_isolation_abstains_rather_than_naming_the_least_gusty_observer(
+) -> None:
+    """5 % spin slow-down (a q scale error) during 0.1 rad doublets in turbulence twice
+    as strong as the campaign's (σ_w 1.5 m/s), aircraft/DTG seeds 17/41, measured
+    2026-11-26. Against the calibration alone the energy test isolated ϑ 1.9 s after
+    detection (a wrong sensor, typed a bias): before the fault the gusts had raised the
+    bank's energies to ¬v 1.39, ¬α 1.20, ¬q 1.87, ¬ϑ 1.02, ¬γ 1.19, ¬h 1.41 (10 s
+    baseline), so the least gust-sensitive observer looked faultless. Against the
+    baseline no observer stands out and the channel abstains (detected, not isolated)."""
+    o = run_chain(28.0, command=PitchCommand(3, 0.1, start=12.0, period=5.0, pulse=0.5),
+                  sigma_w=1.5, spin=(23.0, 0.95), seed=17, dtg_seed=41)
+    u, y = _df_inputs(o)
+    last = {}
+    for baseline in (0.0, 10.0):
+        ch = DFChannel(_df_config(sensor_dynamics=_readout(),
+                                  isolation_baseline_s=baseline))
+        for k in range(u.shape[0]):
+            out = ch.update_floats(tuple(u[k]), tuple(y[k]))
+        last[baseline] = (out, ch)
+    assert last[0.0][0].detected and last[0.0][0].isolated_sensor == 4  # ϑ: wrong
+    out, ch = last[10.0]
+    assert out.detected and out.isolated_sensor == -1
+    baseline = ch._engine.energy_baseline
+    assert np.argmax(baseline) == 2 and np.argmin(baseline) == 3  # ¬q most, ¬ϑ least
+    assert baseline[2] > 1.5 and baseline[3] < 1.1
 
 
 def test_df_readout_state_round_trip_and_validation(runs) -> None:

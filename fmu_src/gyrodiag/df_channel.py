@@ -137,6 +137,13 @@ class DFChannelConfig:
         residual energy within this time after detection, s (0: off, the pattern
         alone as the paper's filter; :class:`~gyrodiag.isolation.SensorFaultIsolator`
         ``energy_window_s``).
+    isolation_baseline_s : float
+        Paper rule: time constant of the bank's fault-free energy baseline, s; the
+        energy test measures against the larger of the calibration and the last
+        ~``isolation_baseline_s`` before detection, so turbulence stronger than in the
+        calibration window does not make it isolate the least gust-sensitive observer's
+        sensor (0: off, against the calibration alone; ``energy_baseline_s`` of
+        :class:`~gyrodiag.isolation.SensorFaultIsolator`).
     false_alarms_per_h : float
         Sequential rule: design false-alarm rate of the detection, 1/h.
     cusum_k : float
@@ -180,6 +187,7 @@ class DFChannelConfig:
     persistence_n: int = 5
     confirm_samples: int = 5
     isolation_window_s: float = 4.0
+    isolation_baseline_s: float = 10.0
     false_alarms_per_h: float = 1e-3
     cusum_k: float = 0.5
     variance_ratio: float = 4.0
@@ -261,6 +269,7 @@ class DFChannelConfig:
                              f"{ENERGY_MIN_SAMPLES} samples ({ENERGY_MIN_SAMPLES * period:g} s "
                              f"at sample_period_s={period:g}), got {window:g}: a shorter "
                              "window never isolates")
+        check_in_range("isolation_baseline_s", self.isolation_baseline_s, 0.0, 3600.0)
         self.settings().validate()
         limit = check_int("align_max", self.align_max, minimum=0)
         if limit > 50:
@@ -790,7 +799,8 @@ class DFChannel:
         return SensorFaultIsolator(
             self.A, self.B, self.C, self.K, self.T, persistence_k=c.persistence_k,
             persistence_n=c.persistence_n, confirm_samples=c.confirm_samples,
-            energy_window_s=c.isolation_window_s)
+            energy_window_s=c.isolation_window_s,
+            energy_baseline_s=c.isolation_baseline_s)
 
     def _rebuild_paper(self, state: dict[str, Any]) -> None:
         c = self.config
