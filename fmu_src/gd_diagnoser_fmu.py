@@ -344,6 +344,22 @@ class Diagnoser(FacadeBase):
           "Nominal pick-off scale KT of the gyro (datasheet); the case rate enters the "
           "regressors as rate*T/KT (used when dtg.case_rate > 0)")
         _meta("dtg.pickoff_scale", "rad/V", POSITIVE)
+        p("dtg.case_rate_delay_samples", "Integer", "parameter", 0,
+          "Case rate: the voltages of sample k are paired with the case rate of sample "
+          "k - d (d = 1: Jacobi coupling with the DTG plant between the aircraft and this "
+          "FMU; d < 0: the case rate arrives later, the outputs describe the sample |d| "
+          "earlier); the harness sets it from its coupling plan")
+        _meta("dtg.case_rate_delay_samples", None, -50, 50)
+        p("dtg.case_rate_align_max", "Integer", "parameter", 0,
+          "Case rate: choose the delay in -this..this from the data (0: keep "
+          "dtg.case_rate_delay_samples); for hosts whose timing is unknown "
+          "(docs/dtg_case_rate.md section 9)")
+        _meta("dtg.case_rate_align_max", None, 0, 50)
+        p("dtg.case_rate_lookahead_s", "Real", "parameter", 0.032,
+          "Case-rate alignment: how far the aligner runs ahead of the estimators (used "
+          "when dtg.case_rate_align_max > 0; the outputs describe the sample this much "
+          "earlier)")
+        _meta("dtg.case_rate_lookahead_s", "s", POSITIVE, 1.0)
         p("dtg.clear_after_s", "Real", "parameter", 0.5,
           "Pattern classifier: a residual alarm clears this long after the last block "
           "with a test above its hold threshold")
@@ -386,6 +402,9 @@ class Diagnoser(FacadeBase):
         p("dtg.first_alarm_time", "Real", "output", -1.0,
           "Simulation time of the first DTG alarm (its sample's time), -1 if none")
         _meta("dtg.first_alarm_time", "s")
+        p("dtg.case_rate_delay_in_use", "Integer", "output", 0,
+          "Delay d of the case rate in use (dtg.case_rate_delay_samples, or the aligner's "
+          "choice with dtg.case_rate_align_max > 0)")
         p("dtg.valid", "Boolean", "output", True, "Last DTG sample was finite")
         self._declare_dtg_diagnosis()
         # Grey channel
@@ -622,6 +641,13 @@ class Diagnoser(FacadeBase):
           "d in [-df.align_max, df.align_max]); the master's coupling order needs no setting")
         p("df.align_max", "Integer", "parameter", 2, "Largest |d| tried by df.align_auto")
         _meta("df.align_max", None, 0, 50)
+        for i in range(DF_M):
+            p(f"df.sensor_delay[{i + 1}]", "Integer", "parameter", 0,
+              f"Sensor {i + 1} (df.y[{i + 1}]) arrives this many samples after the others "
+              "of the same instant (routed through one FMU more under Jacobi coupling, "
+              "e.g. the DTG read-out: 1); the other channels are held back to match; the "
+              "harness sets it from its coupling plan")
+            _meta(f"df.sensor_delay[{i + 1}]", None, 0, 50)
         p("df.sensor_dynamics_file", "String", "parameter", "",
           "JSON file of one sensor's read-out dynamics G (e.g. the DTG's rebalance loop on "
           "q, models/dtg/gd_dtg_readout.py; relative paths are in the FMU's resources): "
@@ -801,6 +827,8 @@ class Diagnoser(FacadeBase):
             history_s=float(v["df.history_s"]), memory_s=float(v["df.memory_s"]),
             input_delay_samples=_named_int(v, "df.input_delay_samples"),
             align_auto=bool(v["df.align_auto"]), align_max=_named_int(v, "df.align_max"),
+            sensor_delay_samples=[_named_int(v, f"df.sensor_delay[{i + 1}]")
+                                  for i in range(DF_M)],
             x0=vector("x0", DF_N),
             sensor_dynamics=sensor_dynamics,
         )
@@ -1034,6 +1062,9 @@ class Diagnoser(FacadeBase):
             clear_after_s=float(v["dtg.clear_after_s"]),
             case_rate=DTG_CASE_RATE_CODES[case_rate],
             pickoff_scale=float(v["dtg.pickoff_scale"]),
+            case_rate_delay_samples=_named_int(v, "dtg.case_rate_delay_samples"),
+            case_rate_align_max=_named_int(v, "dtg.case_rate_align_max"),
+            case_rate_lookahead_s=float(v["dtg.case_rate_lookahead_s"]),
         )
 
     def _dtg_library(self, classifier: str, period: float
@@ -1283,6 +1314,7 @@ class Diagnoser(FacadeBase):
         first = self._dtg_first_alarm_time
         v["dtg.first_alarm_time"] = -1.0 if math.isnan(first) else first
         v["dtg.valid"] = bool(out.valid)
+        v["dtg.case_rate_delay_in_use"] = self._dtg.case_rate_delay
         d = out.diagnosis
         if d.block != self._dtg_block_copied:  # block-rate outputs change at block ends
             self._copy_dtg_diagnosis(out)
@@ -1383,6 +1415,9 @@ _PARAMETER_NAMES: dict[str, dict[str, str]] = {
         "allowance_sigma": "dtg.allowance_sigma",
         "clear_after_s": "dtg.clear_after_s", "patterns": "dtg.signature_file",
         "case_rate": "dtg.case_rate", "pickoff_scale": "dtg.pickoff_scale",
+        "case_rate_delay_samples": "dtg.case_rate_delay_samples",
+        "case_rate_align_max": "dtg.case_rate_align_max",
+        "case_rate_lookahead_s": "dtg.case_rate_lookahead_s",
     },
     "grey": {
         "window": "grey.window", "threshold": "grey.threshold", "a_min": "grey.a_min",
@@ -1407,7 +1442,7 @@ _PARAMETER_NAMES: dict[str, dict[str, str]] = {
         "variance_ratio": "df.variance_ratio", "max_faults": "df.max_faults",
         "history_s": "df.history_s", "memory_s": "df.memory_s",
         "input_delay_samples": "df.input_delay_samples", "align_auto": "df.align_auto",
-        "align_max": "df.align_max",
+        "align_max": "df.align_max", "sensor_delay_samples": "df.sensor_delay[1..6]",
     },
 }
 

@@ -41,6 +41,7 @@ variances of the window (:func:`~gyrodiag.residual_model.estimate_sensor_varianc
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -169,6 +170,13 @@ class DFChannelConfig:
         same G before the filter (matched filtering, :mod:`gyrodiag.sensor_dynamics`,
         docs/readout_dynamics.md), so that a manoeuvre seen through the sensor's lag is
         not a fault of it. None (default): every sensor is y = Cx.
+    sensor_delay_samples : sequence of m ints ≥ 0, optional
+        Sensor j's sample arrives this many samples after the others' of the same
+        instant (a master that routes it through one FMU more, e.g. the DTG read-out
+        under Jacobi coupling: 1). Every other channel, inputs included, is held back to
+        match, before anything else (so the outputs describe the sample max(e) earlier).
+        None (default): all zeros. The harness sets it from its coupling plan
+        (:mod:`harness.cosim.timing`).
     """
 
     A: ArrayLike = field(default_factory=_seed_a)
@@ -199,6 +207,7 @@ class DFChannelConfig:
     align_max: int = 2
     x0: ArrayLike | None = None
     sensor_dynamics: SensorDynamics | None = None
+    sensor_delay_samples: Sequence[int] | None = None
 
     def matrices(self) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
         """Validated (A, B, C, eigenvalues, x0) as float arrays."""
@@ -278,6 +287,14 @@ class DFChannelConfig:
         if isinstance(d, bool) or not isinstance(d, (int, np.integer)):
             raise TypeError(f"input_delay_samples must be an integer, got {d!r}")
         check_in_range("input_delay_samples", float(d), -50.0, 50.0)
+        if self.sensor_delay_samples is not None:
+            skew = self.sensor_delay_samples
+            if len(skew) != m:
+                raise ValueError(f"sensor_delay_samples must have {m} entries (one per "
+                                 f"sensor), got {len(skew)}")
+            for i, e in enumerate(skew):
+                if check_int(f"sensor_delay_samples[{i}]", e) > 50:
+                    raise ValueError(f"sensor_delay_samples[{i}] must be <= 50, got {e!r}")
         if self.sensor_dynamics is not None:
             g = self.sensor_dynamics
             if not isinstance(g, SensorDynamics):
@@ -383,6 +400,11 @@ class DFChannel:
         self._monitor = DetectionFilter(A, B, C, self.K, self.T)
         self._equaliser = (None if config.sensor_dynamics is None else
                            SensorDynamicsEqualiser(config.sensor_dynamics, self.p, self.m))
+        # sensor skew: where each channel is read in the line, u first (module notes)
+        skew = (np.zeros(self.m, dtype=int) if config.sensor_delay_samples is None
+                else np.array([int(e) for e in config.sensor_delay_samples]))
+        self._skew_max = int(skew.max()) if skew.size else 0
+        self._skew = skew
         self.reset()
 
     # ------------------------------------------------------------------ set-up
@@ -397,6 +419,8 @@ class DFChannel:
         self._y_line: list[NDArray[np.float64]] = []
         self._cal_u = np.zeros((self._n_cal, p))
         self._cal_y = np.zeros((self._n_cal, m))
+        self._skew_line: deque[tuple[NDArray[np.float64], NDArray[np.float64]]] = deque(
+            maxlen=self._skew_max + 1)
         self._engine: SensorFaultIsolator | SequentialDiagnoser | None = None
         self._thresholds: list[NDArray[np.float64]] | None = None
         self._noise_std: NDArray[np.float64] | None = None
@@ -469,6 +493,14 @@ class DFChannel:
             if not (np.all(np.isfinite(uu)) and np.all(np.isfinite(yy))):
                 self._last = _invalid(self._last)
                 return self._last
+        if self._skew_max:
+            line = self._skew_line
+            line.append((uu, yy))
+            if len(line) <= self._skew_max:
+                return self._last
+            # u and the on-time sensors from max(e) samples back, sensor j from e_j
+            uu = line[0][0]
+            yy = np.array([line[e][1][i] for i, e in enumerate(self._skew)])
         if self._equaliser is not None:
             uu, yy = self._equaliser.update(uu, yy, validate=False)
         k = self._n_samples
@@ -497,7 +529,7 @@ class DFChannel:
         calibrated sequential decision."""
         total = sum(u) + sum(y)
         if not (total - total == 0.0 and self._calibrated and self._delay == 0
-                and self._equaliser is None
+                and self._equaliser is None and not self._skew_max
                 and isinstance(self._engine, SequentialDiagnoser)):
             return self.update(u, y)  # NaN/inf, calibration, a delay line, the paper rule
         self._n_samples += 1
@@ -736,6 +768,8 @@ class DFChannel:
                 else None),
             "last": _output_state(self._last),
             "equaliser": None if self._equaliser is None else self._equaliser.get_state(),
+            "skew_u": np.array([e[0] for e in self._skew_line]).reshape(-1, self.p),
+            "skew_y": np.array([e[1] for e in self._skew_line]).reshape(-1, self.m),
         }
 
     def set_state(self, state: dict[str, Any]) -> None:
@@ -793,6 +827,15 @@ class DFChannel:
         self._cal_u, self._cal_y = cal_u.copy(), cal_y.copy()
         self._monitor.set_state(state["monitor"])
         self._last = _output_from_state(state["last"])
+        # absent in a state saved before 2026-11-26 (no skew then)
+        su = np.asarray(state.get("skew_u", np.zeros((0, self.p))), dtype=float)
+        sy = np.asarray(state.get("skew_y", np.zeros((0, self.m))), dtype=float)
+        if (su.ndim != 2 or su.shape[1:] != (self.p,) or sy.shape != (su.shape[0], self.m)
+                or su.shape[0] > self._skew_max):
+            raise ValueError("state['skew_u'] / state['skew_y'] do not fit this channel's "
+                             "sensor_delay_samples")
+        self._skew_line.clear()
+        self._skew_line.extend((a.copy(), b.copy()) for a, b in zip(su, sy, strict=True))
 
     def _paper_isolator(self) -> SensorFaultIsolator:
         c = self.config

@@ -37,6 +37,7 @@ from ._validation import (
     check_nonnegative,
     check_positive,
 )
+from .case_rate_alignment import CaseRateAligner
 from .decision import (
     UNKNOWN_CODE,
     SignatureClassifier,
@@ -194,6 +195,26 @@ class DTGChannelConfig:
     pickoff_scale : float
         Nominal pick-off scale KT of the gyro, rad/V (datasheet value; case rate only):
         the case rate enters the regressors as ω·T/KT, in V.
+    case_rate_delay_samples : int
+        Case rate only: the voltages of sample k are paired with the case rate of sample
+        k − d, samples (d > 0: a master that delivers the case rate ahead of the
+        voltages, e.g. Jacobi coupling with the DTG plant between the aircraft and the
+        Diagnoser: d = 1; d < 0: the case rate arrives later, and every output describes
+        the sample |d| earlier). The delay in use at the start when
+        ``case_rate_align_max`` > 0. The harness sets it from its coupling plan
+        (:mod:`harness.cosim.timing`).
+    case_rate_align_max : int
+        Case rate only: choose d in −this … this from the data (0, the default: keep
+        ``case_rate_delay_samples``). For hosts whose timing is unknown; measured limits
+        in docs/dtg_case_rate.md §9 (in calm level flight the pairings' fits differ by
+        noise only, and a choice made there can bias θ0). :class:`~gyrodiag.case_rate_alignment.
+        CaseRateAligner`, docs/dtg_case_rate.md §9: the first fast change of the case
+        rate shows which pairing fits.
+    case_rate_lookahead_s : float
+        Case rate with ``case_rate_align_max`` > 0: the aligner runs this far ahead of
+        the estimators and decisions, s, so that a new pairing applies before the edge
+        that revealed it reaches them; every output describes the sample this much
+        earlier.
     """
 
     sample_period_s: float = 1e-3
@@ -230,6 +251,19 @@ class DTGChannelConfig:
     clear_after_s: float = 0.5
     case_rate: str | None = None
     pickoff_scale: float = 1e-3
+    case_rate_delay_samples: int = 0
+    case_rate_align_max: int = 0
+    case_rate_lookahead_s: float = 0.032
+
+    @property
+    def lookahead_samples(self) -> int:
+        """Samples the estimators run behind the newest sample: the aligner's lookahead,
+        or the |d| a negative fixed delay needs (0 otherwise)."""
+        if self.case_rate is None:
+            return 0
+        if self.case_rate_align_max == 0:
+            return max(0, -int(self.case_rate_delay_samples))
+        return max(1, round(self.case_rate_lookahead_s / self.sample_period_s))
 
     @property
     def regression(self) -> RegressionModel:
@@ -272,6 +306,26 @@ class DTGChannelConfig:
                 raise ValueError(f"case_rate must be None or one of {CASE_RATE_SCHEMES}, "
                                  f"got {self.case_rate!r}")
             check_positive("pickoff_scale", self.pickoff_scale)
+            align = check_int("case_rate_align_max", self.case_rate_align_max)
+            if align > 50:
+                raise ValueError(f"case_rate_align_max must be at most 50 samples, "
+                                 f"got {align!r}")
+            delay = check_int("case_rate_delay_samples", self.case_rate_delay_samples,
+                              minimum=-(align or 50))
+            if align and delay > align:
+                raise ValueError(f"case_rate_delay_samples must be in [-case_rate_align_max, "
+                                 f"case_rate_align_max] ([{-align}, {align}]), got {delay!r}")
+            if delay > 50:
+                raise ValueError(f"case_rate_delay_samples must be in [-50, 50] samples, "
+                                 f"got {delay!r}")
+            if align:
+                check_in_range("case_rate_lookahead_s", self.case_rate_lookahead_s,
+                               0.0, 1.0, low_open=True)
+                if self.lookahead_samples < align:
+                    raise ValueError(
+                        f"case_rate_lookahead_s must cover case_rate_align_max ({align} "
+                        f"samples of {self.sample_period_s} s), got "
+                        f"{self.case_rate_lookahead_s!r}")
         if self.theta0 is not None:
             t0 = np.asarray(self.theta0, dtype=float)
             shape = ((N_THETA,) if self.case_rate is None or t0.shape == (N_THETA,)
@@ -566,7 +620,40 @@ class DTGChannel:
         self.reference: NominalReference | None = None
         self._monitor: ResidualMonitor | None = None
         self._diagnosis = DTGDiagnosis()
+        self._reset_alignment()
         self._last = self._initial_output()
+
+    def _reset_alignment(self) -> None:
+        c = self.config
+        # the case-rate pairing (docs/dtg_case_rate.md §9): the aligner sees each sample
+        # `lookahead` samples before the estimators do
+        self._lookahead = c.lookahead_samples
+        self._aligner = (
+            CaseRateAligner(self.T, c.pickoff_scale, scheme=c.case_rate,  # type: ignore[arg-type]
+                            max_delay=c.case_rate_align_max,
+                            delay=c.case_rate_delay_samples)
+            if self._case_rate and c.case_rate_align_max > 0 else None)
+        self._fixed_delay = int(c.case_rate_delay_samples) if self._case_rate else 0
+        self._shifting = self._aligner is not None or self._fixed_delay > 0
+        max_delay = (c.case_rate_align_max if self._aligner is not None
+                     else max(self._fixed_delay, 0))
+        # filtered ω of the newest samples (newest first); voltages waiting in the queue
+        # with their gap marks
+        self._omega_hist: deque[tuple[float, float]] = deque(
+            maxlen=self._lookahead + max_delay + 1)
+        self._queue: deque[tuple[tuple[float, ...], tuple[float, ...], bool]] = deque()
+        self._gap_pending = False
+        self._aligner_holdoff = 0
+
+    @property
+    def case_rate_delay(self) -> int:
+        """Delay of the case rate against the voltages in use, samples."""
+        return self._aligner.delay if self._aligner is not None else self._fixed_delay
+
+    @property
+    def case_rate_switches(self) -> int:
+        """How often the aligner has changed the delay."""
+        return 0 if self._aligner is None else self._aligner.switches
 
     def _initial_output(self) -> DTGChannelOutput:
         return DTGChannelOutput(
@@ -619,16 +706,25 @@ class DTGChannel:
             # the regression rows spanning the gap, and the prefilter's ringing after it,
             # are left out of the reference statistics (a one-sample jump would look
             # like a burst of noise)
-            self._gap = self._gap_samples
+            if self._shifting:
+                self._gap_pending = True
+                self._aligner_holdoff = self._gap_samples
+            else:
+                self._gap = self._gap_samples
             self._last = _replace(self._last, valid=False)
             return self._last
-        n = self._n_samples
-        t = n * self.T
-        self._n_samples += 1
         # raw was checked finite above; the stages downstream need not check again
         signals = raw + w if self._case_rate else raw
         sample = (tuple(self._prefilter.step(signals)) if self._prefilter is not None
                   else signals)
+        if self._shifting:
+            pair = self._pair(raw, sample)
+            if pair is None:
+                return self._last
+            raw, sample = pair
+        n = self._n_samples
+        t = n * self.T
+        self._n_samples += 1
         if self._case_rate:
             rows = self._regressor.update(*sample, validate=False)  # type: ignore[call-arg]
         else:
@@ -688,6 +784,31 @@ class DTGChannel:
             self._first_alarm_time, self._diagnosis,
         )
         return self._last
+
+    def _pair(self, raw: tuple[float, ...], sample: tuple[float, ...]
+              ) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
+        """Queue a prefiltered sample; return the (raw, filtered) sample due for the
+        estimators with the case rate of its pairing, or None while the queue fills."""
+        aligner = self._aligner
+        if aligner is not None:
+            if self._aligner_holdoff:
+                # the regression rows that span a skipped sample, and the prefilter's
+                # ringing after it, say nothing about the pairing
+                self._aligner_holdoff -= 1
+                aligner.restart()
+            else:
+                aligner.update(sample)
+        hist = self._omega_hist
+        hist.appendleft((sample[4], sample[5]))
+        self._queue.append((raw, sample[:4], self._gap_pending))
+        self._gap_pending = False
+        if len(self._queue) <= self._lookahead:
+            return None
+        raw_due, volts, gap = self._queue.popleft()
+        if gap:
+            self._gap = self._gap_samples
+        omega = hist[min(self._lookahead + self.case_rate_delay, len(hist) - 1)]
+        return raw_due, volts + omega
 
     def _pattern_output(self, t: float, theta: NDArray[np.float64],
                         eta: NDArray[np.float64], physical: NDArray[np.float64],
@@ -962,6 +1083,14 @@ class DTGChannel:
             "monitor": None if self._monitor is None else self._monitor.get_state(),
             "diagnosis": _diagnosis_to_dict(self._diagnosis),
             "last": _output_to_dict(self._last),
+            "alignment": {
+                "aligner": None if self._aligner is None else self._aligner.get_state(),
+                "omega": np.array(self._omega_hist, dtype=float).reshape(-1, 2),
+                "raw": np.array([q[0] for q in self._queue], dtype=float).reshape(-1, 4),
+                "voltages": np.array([q[1] for q in self._queue],
+                                     dtype=float).reshape(-1, 4),
+                "gaps": np.array([q[2] for q in self._queue], dtype=bool),
+                "gap_pending": self._gap_pending, "holdoff": self._aligner_holdoff},
         }
 
     def set_state(self, state: dict[str, Any]) -> None:
@@ -1047,6 +1176,29 @@ class DTGChannel:
             self._monitor.set_state(state["monitor"])
         self._diagnosis = _diagnosis_from_dict(state["diagnosis"])
         self._last = _output_from_dict(state["last"], self._diagnosis)
+        self._set_alignment_state(state.get("alignment"))
+
+    def _set_alignment_state(self, state: dict[str, Any] | None) -> None:
+        self._reset_alignment()
+        if state is None:  # a state saved before 2026-11-26: no queue, delay as configured
+            return
+        if (state["aligner"] is None) != (self._aligner is None):
+            raise ValueError("state['alignment'] does not match case_rate_align_max")
+        if self._aligner is not None:
+            self._aligner.set_state(state["aligner"])
+        omega = np.asarray(state["omega"], dtype=float).reshape(-1, 2)
+        raw = np.asarray(state["raw"], dtype=float).reshape(-1, 4)
+        volts = np.asarray(state["voltages"], dtype=float).reshape(-1, 4)
+        gaps = np.asarray(state["gaps"], dtype=bool).reshape(-1)
+        if (omega.shape[0] > (self._omega_hist.maxlen or 0) or raw.shape[0] > self._lookahead
+                or volts.shape != raw.shape or gaps.shape != (raw.shape[0],)):
+            raise ValueError("state['alignment'] does not fit this channel's case-rate "
+                             "lookahead (another case_rate_lookahead_s or sample period?)")
+        self._omega_hist.extend(tuple(r) for r in omega.tolist())
+        self._queue.extend((tuple(r), tuple(v), bool(g)) for r, v, g in
+                           zip(raw.tolist(), volts.tolist(), gaps.tolist(), strict=True))
+        self._gap_pending = bool(state["gap_pending"])
+        self._aligner_holdoff = int(state["holdoff"])
 
     @property
     def last_output(self) -> DTGChannelOutput:

@@ -51,6 +51,7 @@ from harness.cosim.scenario import (
     resolve_fmu_file,
     split_name,
 )
+from harness.cosim.timing import timing_parameters
 
 #: Annotation type understood by libcosim (fixed-step algorithm, step-size hints).
 OSP_ANNOTATION = "com.opensimulationplatform"
@@ -218,6 +219,12 @@ def export_ssp(scenario: Scenario | Path | str, out: Path | str,
     values: dict[str, dict[str, Any]] = {n: dict(i.parameters) for n, i in s.fmus.items()}
     for f in s.injector_faults:
         values[f.injector].update(f.injector_parameters())
+    # SSP tools step every FMU in parallel (libcosim's fixed-step algorithm: Jacobi), so
+    # the Diagnoser's sample alignment is that of a Jacobi plan
+    for inst, hints in timing_parameters(s, s.connections).items():
+        for var, value in hints.items():
+            if var not in values[inst] and var in info[inst].variables:
+                values[inst][var] = value
     packed: dict[Path, dict[str, Path]] = {}  # FMU file -> {name in its resources: file}
     for inst, params in files.items():
         for name, file_path in params.items():
