@@ -41,6 +41,12 @@ INVALID = {
     "dtg.case_rate": ({"dtg.case_rate": 3}, {}),
     "dtg.pickoff_scale": ({"dtg.pickoff_scale": 0.0}, {}),
     "df.sensor_dynamics_file": ({}, {"df.sensor_dynamics_file": "/nonexistent/readout.json"}),
+    "dtg.case_rate_delay_samples": ({"dtg.case_rate": 1, "dtg.case_rate_delay_samples": 3,
+                                     "dtg.case_rate_align_max": 2}, {}),
+    "dtg.case_rate_align_max": ({"dtg.case_rate_align_max": 51}, {}),
+    "dtg.case_rate_lookahead_s": ({"dtg.case_rate": 1, "dtg.case_rate_align_max": 2,
+                                   "dtg.case_rate_lookahead_s": 0.001}, {}),
+    "df.sensor_delay[3]": ({"df.sensor_delay[3]": 51}, {}),
 }
 
 

@@ -489,7 +489,9 @@ def test_fmu_default_decision_with_readout_is_the_paper_rule(fmu) -> None:
 
 
 @pytest.mark.parametrize("label", ["dtg.case_rate", "dtg.pickoff_scale",
-                                   "df.sensor_dynamics_file"])
+                                   "df.sensor_dynamics_file", "dtg.case_rate_delay_samples",
+                                   "dtg.case_rate_align_max", "dtg.case_rate_lookahead_s",
+                                   "df.sensor_delay[3]"])
 def test_fmu_bad_new_parameters_are_fmi2error_naming_them(fmu, label) -> None:
     i = list(fmu["invalid_labels"]).index(label)
     log = str(fmu["invalid_log"][i])

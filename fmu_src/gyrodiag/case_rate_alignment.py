@@ -83,7 +83,7 @@ class CaseRateAligner:
 
     def __init__(self, sample_period_s: float, pickoff_scale: float = 1.0e-3, *,
                  scheme: CaseRateScheme = "central", max_delay: int = 2, delay: int = 0,
-                 window_samples: int = 1000, ratio: float = 0.9, check_every: int = 4,
+                 window_samples: int = 1000, ratio: float = 0.98, check_every: int = 4,
                  hold_samples: int = 500) -> None:
         self.sample_period_s = check_positive("sample_period_s", sample_period_s)
         self.max_delay = check_int("max_delay", max_delay, minimum=1)

@@ -831,7 +831,7 @@ class DFChannel:
         su = np.asarray(state.get("skew_u", np.zeros((0, self.p))), dtype=float)
         sy = np.asarray(state.get("skew_y", np.zeros((0, self.m))), dtype=float)
         if (su.ndim != 2 or su.shape[1:] != (self.p,) or sy.shape != (su.shape[0], self.m)
-                or su.shape[0] > self._skew_max):
+                or su.shape[0] > (self._skew_max + 1 if self._skew_max else 0)):
             raise ValueError("state['skew_u'] / state['skew_y'] do not fit this channel's "
                              "sensor_delay_samples")
         self._skew_line.clear()

@@ -634,7 +634,7 @@ class DTGChannel:
                             delay=c.case_rate_delay_samples)
             if self._case_rate and c.case_rate_align_max > 0 else None)
         self._fixed_delay = int(c.case_rate_delay_samples) if self._case_rate else 0
-        self._shifting = self._aligner is not None or self._fixed_delay > 0
+        self._shifting = self._aligner is not None or self._fixed_delay != 0
         max_delay = (c.case_rate_align_max if self._aligner is not None
                      else max(self._fixed_delay, 0))
         # filtered ω of the newest samples (newest first); voltages waiting in the queue
