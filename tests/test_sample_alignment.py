@@ -232,3 +232,37 @@ def test_one_more_fmu_on_the_gyro_path_adds_one_more_step() -> None:
                              "coupling": "jacobi"})
     assert timing_parameters(s, s.connections) == {
         "diag": {"dtg.case_rate_delay_samples": 2, "df.sensor_delay[3]": 2}}
+
+
+def test_alignment_states_survive_the_fmu_state_encoding(chain) -> None:
+    """fmi2GetFMUstate serialises the channels' states as JSON (gd_fmu_base.encode): the
+    aligner's queue and normal equations and the detection filter's skew line come back
+    and the runs go on bit for bit."""
+    import json
+
+    from gd_fmu_base import decode, encode
+
+    rows = _dtg_rows(chain, 1)
+    k = int(EDGE_S / T) + 100
+    cfg = DTGChannelConfig(**{**DTG, "case_rate_align_max": 2})
+    first = DTGChannel(cfg)
+    for r in rows[:k]:
+        first.update(*r)
+    second = DTGChannel(cfg)
+    second.set_state(decode(json.loads(json.dumps(encode(first.get_state())))))
+    a = [first.update(*r).theta for r in rows[k:k + 2000]]
+    b = [second.update(*r).theta for r in rows[k:k + 2000]]
+    np.testing.assert_array_equal(a, b)
+    assert second.case_rate_delay == 1
+
+    u, y = _df(chain)
+    dcfg = DFChannelConfig(sample_period_s=T, decision="paper", calibrate_s=5.0,
+                           align_auto=False, sensor_delay_samples=[0, 0, 1, 0, 0, 0])
+    c = DFChannel(dcfg)
+    for j in range(6000):
+        c.update(u[j], y[j])
+    d = DFChannel(dcfg)
+    d.set_state(decode(json.loads(json.dumps(encode(c.get_state())))))
+    for j in range(6000, 7000):
+        np.testing.assert_array_equal(c.update(u[j], y[j]).residual,
+                                      d.update(u[j], y[j]).residual)
