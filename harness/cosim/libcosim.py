@@ -46,6 +46,7 @@ from harness.cosim.scenario import (
     resolve_fmu_file,
     split_name,
 )
+from harness.cosim.timing import timing_parameters
 
 #: libcosim counts time in nanoseconds.
 NS = 1_000_000_000
@@ -224,6 +225,12 @@ def run_scenario_libcosim(scenario: Scenario | Path | str, fmu_dir: Path | str |
         params[f.injector].update(f.injector_parameters())
     for n, p in files.items():
         params[n].update(p)
+    # libcosim steps every FMU on the outputs of the step before (Jacobi): the
+    # Diagnoser's sample alignment of that plan, unless the scenario sets it
+    for n, hints in timing_parameters(s, s.connections).items():
+        for name, value in hints.items():
+            if name not in params[n] and name in info[n].variables:
+                params[n][name] = value
     for n, ps in params.items():
         for name, value in ps.items():
             _initial_value(execution, index[n], info[n].variables[name], value)
