@@ -46,7 +46,7 @@ from harness.cosim.scenario import (
     resolve_fmu_file,
     split_name,
 )
-from harness.cosim.timing import timing_parameters
+from harness.cosim.timing import fill_timing_parameters
 
 #: libcosim counts time in nanoseconds.
 NS = 1_000_000_000
@@ -227,10 +227,7 @@ def run_scenario_libcosim(scenario: Scenario | Path | str, fmu_dir: Path | str |
         params[n].update(p)
     # libcosim steps every FMU on the outputs of the step before (Jacobi): the
     # Diagnoser's sample alignment of that plan, unless the scenario sets it
-    for n, hints in timing_parameters(s, s.connections).items():
-        for name, value in hints.items():
-            if name not in params[n] and name in info[n].variables:
-                params[n][name] = value
+    fill_timing_parameters(params, s, s.connections, {n: i.variables for n, i in info.items()})
     for n, ps in params.items():
         for name, value in ps.items():
             _initial_value(execution, index[n], info[n].variables[name], value)

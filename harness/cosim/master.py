@@ -83,7 +83,7 @@ from harness.cosim.scenario import (
     resolve_fmu_file,
     split_name,
 )
-from harness.cosim.timing import timing_parameters
+from harness.cosim.timing import fill_timing_parameters
 
 log = logging.getLogger(__name__)
 _STATUS = ["OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING"]
@@ -743,14 +743,11 @@ class _Run:
             params[m.instance].update(m.instance_parameters())
         for name, paths in self.files.items():
             params[name].update(paths)
-        for name, hints in timing_parameters(s, self.plan.delayed).items():
-            for var, value in hints.items():
-                # the scenario's own value wins; an FMU without the parameter is left alone
-                if var in params[name] or var not in self.inst[name].info.variables:
-                    continue
-                params[name][var] = value
-                log.info("%s: %s.%s = %d (sample alignment under %s coupling, "
-                         "harness.cosim.timing)", s.name, name, var, value, s.coupling)
+        variables = {n: i.info.variables for n, i in self.inst.items()}
+        for name, var, value in fill_timing_parameters(params, s, self.plan.delayed,
+                                                       variables):
+            log.info("%s: %s.%s = %d (sample alignment under %s coupling, "
+                     "harness.cosim.timing)", s.name, name, var, value, s.coupling)
         for name in self.plan.order:
             inst = self.inst[name]
             inst.instantiate(t0)

@@ -51,7 +51,7 @@ from harness.cosim.scenario import (
     resolve_fmu_file,
     split_name,
 )
-from harness.cosim.timing import timing_parameters
+from harness.cosim.timing import fill_timing_parameters
 
 #: Annotation type understood by libcosim (fixed-step algorithm, step-size hints).
 OSP_ANNOTATION = "com.opensimulationplatform"
@@ -221,10 +221,8 @@ def export_ssp(scenario: Scenario | Path | str, out: Path | str,
         values[f.injector].update(f.injector_parameters())
     # SSP tools step every FMU in parallel (libcosim's fixed-step algorithm: Jacobi), so
     # the Diagnoser's sample alignment is that of a Jacobi plan
-    for inst, hints in timing_parameters(s, s.connections).items():
-        for var, value in hints.items():
-            if var not in values[inst] and var in info[inst].variables:
-                values[inst][var] = value
+    fill_timing_parameters(values, s, s.connections,
+                           {n: i.variables for n, i in info.items()})
     packed: dict[Path, dict[str, Path]] = {}  # FMU file -> {name in its resources: file}
     for inst, params in files.items():
         for name, file_path in params.items():

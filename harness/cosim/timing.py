@@ -27,11 +27,12 @@ from __future__ import annotations
 
 import heapq
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Container, Iterable, Mapping
+from typing import Any
 
 from .scenario import Connection, Scenario, split_name
 
-__all__ = ["timing_parameters"]
+__all__ = ["fill_timing_parameters", "timing_parameters"]
 
 _VOLTAGES = ("dtg.Utx", "dtg.Uty", "dtg.Ux", "dtg.Uy")
 _CASE_RATES = ("dtg.case_rate_y", "dtg.case_rate_x")
@@ -67,7 +68,7 @@ def timing_parameters(scenario: Scenario, delayed: Iterable[Connection]
             graph[a].append((b, lag[c.to]))
     out: dict[str, dict[str, int]] = {}
     for name, inst in scenario.fmus.items():
-        if getattr(inst, "step_ratio", 1) != 1:
+        if inst.step_ratio != 1:
             continue
         found: dict[str, int] = {}
 
@@ -100,6 +101,22 @@ def timing_parameters(scenario: Scenario, delayed: Iterable[Connection]
         if found:
             out[name] = found
     return out
+
+
+def fill_timing_parameters(params: dict[str, dict[str, Any]], scenario: Scenario,
+                           delayed: Iterable[Connection],
+                           variables: Mapping[str, Container[str]]
+                           ) -> list[tuple[str, str, int]]:
+    """Add :func:`timing_parameters` to ``params`` (instance → {name: value}) where the
+    scenario gives no value and the instance's FMU has the parameter (``variables``:
+    instance → its variable names); return what was added as (instance, name, value)."""
+    added = []
+    for inst, hints in timing_parameters(scenario, delayed).items():
+        for name, value in hints.items():
+            if name not in params[inst] and name in variables[inst]:
+                params[inst][name] = value
+                added.append((inst, name, value))
+    return added
 
 
 def _latencies(graph: dict[str, list[tuple[str, int]]], start: str) -> dict[str, int]:
