@@ -423,7 +423,13 @@ def test_campaign_summary_pools_campaigns_and_counts_each_ones_runs(tmp_path):
     n_nominal = rows["fake"]["n_nominal_runs"] + rows["other"]["n_nominal_runs"]
     assert fa["count"] == n_nominal  # the fake runner: one false alarm per nominal run
     assert fa["hours"] == pytest.approx(8 * 60 / 3600)
+    # ... and kept apart per campaign, which add up to the pooled row
+    per = {name: rows[name]["false_alarms"]["df"] for name in ("fake", "other")}
+    assert [per[n]["count"] for n in ("fake", "other")] == [
+        rows["fake"]["n_nominal_runs"], rows["other"]["n_nominal_runs"]]
+    assert per["fake"]["hours"] + per["other"]["hours"] == pytest.approx(fa["hours"])
     md = (out / "summary.md").read_text()
+    assert f"| other | df | {per['other']['count']} (≤ " in md
     assert "| other | 4 / 6 |" in md and (out / "report.html").is_file()
 
     assert main(["-q", "campaign-summary", str(tmp_path / "a"), str(tmp_path / "nowhere"),

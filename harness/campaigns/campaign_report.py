@@ -162,6 +162,25 @@ def _natural(key: str) -> tuple[float, str]:
         return math.inf, key
 
 
+def _false_alarms(ok: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """False alarms per channel of (split) ok records: count, fault-free and nominal
+    hours, rate and its 95 % Garwood interval, runs with a false alarm."""
+    false_alarms: dict[str, dict[str, Any]] = {}
+    for ch in sorted({r["run"]["channel"] for r in ok}):
+        rs = [r for r in ok if r["run"]["channel"] == ch]
+        count = sum(int(r["false_alarms"]) for r in rs)
+        hours = sum(float(r["fault_free_s"]) for r in rs) / SECONDS_PER_HOUR
+        nominal_h = sum(float(r["fault_free_s"]) for r in rs
+                        if r["run"]["kind"] == "nominal") / SECONDS_PER_HOUR
+        lo, hi = garwood_interval(count, hours) if hours > 0 else (math.nan, math.nan)
+        false_alarms[ch] = {"count": count, "hours": hours, "nominal_hours": nominal_h,
+                            "rate_per_h": count / hours if hours > 0 else math.nan,
+                            "lower_95": lo, "upper_95": hi,
+                            "runs_with_false_alarm": sum(int(r["false_alarms"]) > 0
+                                                         for r in rs)}
+    return false_alarms
+
+
 def summarize(records: list[dict[str, Any]], n_planned: int | None = None) -> dict[str, Any]:
     """Campaign figures from run records (module docstring); a JSON-able dict."""
     n_records = len(records)
@@ -199,19 +218,7 @@ def summarize(records: list[dict[str, Any]], n_planned: int | None = None) -> di
             row["n_typed"] = len(typed)
         detection.append(row)
 
-    false_alarms: dict[str, dict[str, Any]] = {}
-    for ch in sorted({r["run"]["channel"] for r in ok}):
-        rs = [r for r in ok if r["run"]["channel"] == ch]
-        count = sum(int(r["false_alarms"]) for r in rs)
-        hours = sum(float(r["fault_free_s"]) for r in rs) / SECONDS_PER_HOUR
-        nominal_h = sum(float(r["fault_free_s"]) for r in rs
-                        if r["run"]["kind"] == "nominal") / SECONDS_PER_HOUR
-        lo, hi = garwood_interval(count, hours) if hours > 0 else (math.nan, math.nan)
-        false_alarms[ch] = {"count": count, "hours": hours, "nominal_hours": nominal_h,
-                            "rate_per_h": count / hours if hours > 0 else math.nan,
-                            "lower_95": lo, "upper_95": hi,
-                            "runs_with_false_alarm": sum(int(r["false_alarms"]) > 0
-                                                         for r in rs)}
+    false_alarms = _false_alarms(ok)
 
     delay: dict[str, dict[str, Any]] = {}
     by_type: dict[str, list[float]] = defaultdict(list)
@@ -302,7 +309,11 @@ def summarize_campaigns(outputs: Sequence[Any]) -> dict[str, Any]:
                      "n_nominal_runs": len(nominal),
                      "nominal_hours": sum(float(r["fault_free_s"]) for r in nominal)
                      / SECONDS_PER_HOUR,
-                     "channels": sorted({r["run"]["channel"] for r in ok})})
+                     "channels": sorted({r["run"]["channel"] for r in ok}),
+                     # per campaign too: a channel pooled over families (the DTG bench
+                     # and the system chain) would hide which family raised them
+                     "false_alarms": _false_alarms(
+                         [r for r in split_grey(ok) if r.get("status") == "ok"])})
     summary = summarize(records, n_planned=sum(o.n_planned for o in outputs))
     summary["campaigns"] = rows
     return summary
@@ -647,6 +658,15 @@ def markdown_summary(summary: dict[str, Any], title: str = "campaign") -> str:
                              c["n_failed"], c["n_fault_runs"], c["n_nominal_runs"],
                              f"{c['nominal_hours']:.2f}", ", ".join(c["channels"])]
                             for c in summary["campaigns"]])
+        lines += ["False alarms per campaign and rule:", ""]
+        lines += _md_table(["campaign", "channel", "false alarms (95 % upper / h)",
+                            "fault-free h", "nominal h", "runs with a false alarm"],
+                           [[c["campaign"], ch,
+                             f"{fa['count']} (≤ {html.unescape(_fmt(fa['upper_95']))})",
+                             f"{fa['hours']:.2f}", f"{fa['nominal_hours']:.2f}",
+                             fa["runs_with_false_alarm"]]
+                            for c in summary["campaigns"]
+                            for ch, fa in c.get("false_alarms", {}).items()])
     rows = []
     for ch, fa in summary["false_alarms"].items():
         d = summary["delay"].get(f"all {ch}", {})
@@ -794,6 +814,13 @@ def write_report(summary: dict[str, Any], records: list[dict[str, Any]], out_dir
                          ", ".join(c["channels"])] for c in summary["campaigns"]])]
                if summary.get("campaigns") else []),
              "<h2>False alarms</h2>",
+             *([_table(["campaign", "channel", "count", "fault-free h", "nominal h",
+                        "rate /h", "95 % high"],
+                       [[c["campaign"], ch, f["count"], f["hours"], f["nominal_hours"],
+                         f["rate_per_h"], f["upper_95"]]
+                        for c in summary["campaigns"]
+                        for ch, f in c.get("false_alarms", {}).items()])]
+               if summary.get("campaigns") else []),
              _table(["channel", "count", "fault-free h", "nominal h", "rate /h",
                      "95 % low", "95 % high"],
                     [[ch, f["count"], f["hours"], f["nominal_hours"], f["rate_per_h"],
