@@ -417,6 +417,8 @@ def test_campaign_summary_pools_campaigns_and_counts_each_ones_runs(tmp_path):
     assert (rows["fake"]["n_finished"], rows["fake"]["n_planned"]) == (4, 4)
     assert (rows["other"]["n_finished"], rows["other"]["n_planned"]) == (4, 6)
     assert rows["fake"]["nominal_hours"] == pytest.approx(2 * 60 / 3600)
+    walls = [json.loads(f.read_text())["wall_s"] for f in (tmp_path / "b" / "runs").glob("*.json")]
+    assert rows["other"]["run_hours"] == pytest.approx(sum(walls) / 3600) and sum(walls) > 0
     assert (s["n_finished"], s["n_planned"]) == (8, 10)
     assert {r["class"] for r in s["detection"]} == {"fake/air", "other/air"}
     fa = s["false_alarms"]["df"]

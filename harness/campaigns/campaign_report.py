@@ -291,7 +291,8 @@ def summarize_campaigns(outputs: Sequence[Any]) -> dict[str, Any]:
     count, records).  Classes are renamed ``<campaign>/<class>`` so that families with
     the same class name stay apart; channels are kept, so the false-alarm and isolation
     tables pool a channel over the campaigns that judge it.  ``campaigns`` adds one row
-    per campaign: runs finished / planned / failed, nominal hours judged, false alarms.
+    per campaign: runs finished / planned / failed, nominal hours judged, false alarms
+    per channel and rule, and ``run_hours`` (the runs' wall times summed, h).
     """
     names = [o.name for o in outputs]
     if len(set(names)) != len(names):
@@ -310,6 +311,10 @@ def summarize_campaigns(outputs: Sequence[Any]) -> dict[str, Any]:
                      "nominal_hours": sum(float(r["fault_free_s"]) for r in nominal)
                      / SECONDS_PER_HOUR,
                      "channels": sorted({r["run"]["channel"] for r in ok}),
+                     # the runs' own wall times summed: the campaign's cost on one
+                     # worker, whatever pauses and resumptions its elapsed time had
+                     "run_hours": sum(float(r.get("wall_s") or 0.0) for r in o.records)
+                     / SECONDS_PER_HOUR,
                      # per campaign too: a channel pooled over families (the DTG bench
                      # and the system chain) would hide which family raised them
                      "false_alarms": _false_alarms(
@@ -652,11 +657,13 @@ def markdown_summary(summary: dict[str, Any], title: str = "campaign") -> str:
              f"{summary['n_failed']} failed.", ""]
     if summary.get("campaigns"):
         lines += _md_table(["campaign", "runs finished / planned", "failed", "fault runs",
-                            "nominal runs", "nominal h judged", "channels"],
+                            "nominal runs", "nominal h judged", "run time h (1 worker)",
+                            "channels"],
                            [[c["campaign"], f"{c['n_finished']} / {c['n_planned']}"
                              + (f" (fraction {c['fraction']:g})" if c["fraction"] < 1 else ""),
                              c["n_failed"], c["n_fault_runs"], c["n_nominal_runs"],
-                             f"{c['nominal_hours']:.2f}", ", ".join(c["channels"])]
+                             f"{c['nominal_hours']:.2f}", f"{c.get('run_hours', 0.0):.2f}",
+                             ", ".join(c["channels"])]
                             for c in summary["campaigns"]])
         lines += ["False alarms per campaign and rule:", ""]
         lines += _md_table(["campaign", "channel", "false alarms (95 % upper / h)",
