@@ -317,8 +317,7 @@ def summarize_campaigns(outputs: Sequence[Any]) -> dict[str, Any]:
                      / SECONDS_PER_HOUR,
                      # per campaign too: a channel pooled over families (the DTG bench
                      # and the system chain) would hide which family raised them
-                     "false_alarms": _false_alarms(
-                         [r for r in split_grey(ok) if r.get("status") == "ok"])})
+                     "false_alarms": _false_alarms(split_grey(ok))})
     summary = summarize(records, n_planned=sum(o.n_planned for o in outputs))
     summary["campaigns"] = rows
     return summary
