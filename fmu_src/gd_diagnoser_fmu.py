@@ -53,6 +53,7 @@ from gyrodiag.decision import UNKNOWN_CODE
 from gyrodiag.dtg import N_THETA
 from gyrodiag.dtg_case_rate import CASE_RATE_SCHEMES
 from gyrodiag.dtg_channel import (
+    BAND_SIGMA,
     CLASSIFIERS,
     ESTIMATOR_KINDS,
     DTGChannel,
@@ -96,6 +97,7 @@ POSITIVE = 1e-9
 #: (the channel is rebuilt with the new value and takes over the old one's state).
 TUNABLE = {
     "dtg": ("dtg.low", "dtg.high", "dtg.persistence_k", "dtg.latch", "dtg.max_distance",
+            "dtg.band_sigma",
             *(f"dtg.monitored[{i}]" for i in range(1, N_THETA + 1)),
             # the pattern classifier's residual tests (the monitor is rebuilt with them)
             "dtg.level_threshold", "dtg.var_threshold", "dtg.long_var_threshold",
@@ -276,6 +278,10 @@ class Diagnoser(FacadeBase):
         _meta("dtg.persistence_k", None, 1)
         p("dtg.persistence_n", "Integer", "parameter", 1, "Persistence window n, samples")
         _meta("dtg.persistence_n", None, 1)
+        p("dtg.band_sigma", "Real", "parameter", BAND_SIGMA,
+          "Case rate, pattern classifier: a ratio outside the band counts only where "
+          "theta is also this many standard errors from theta0 (0: the band alone)")
+        _meta("dtg.band_sigma", "1", 0.0)
         p("dtg.latch", "Boolean", "parameter", False, "Keep the alarm once raised")
         for i in range(1, N_THETA + 1):
             p(f"dtg.monitored[{i}]", "Boolean", "parameter", True,
@@ -1044,6 +1050,7 @@ class Diagnoser(FacadeBase):
             high=float(v["dtg.high"]),
             persistence_k=_named_int(v, "dtg.persistence_k"),
             persistence_n=_named_int(v, "dtg.persistence_n"),
+            band_sigma=float(v["dtg.band_sigma"]),
             latch=bool(v["dtg.latch"]),
             monitored=[bool(v[f"dtg.monitored[{i}]"]) for i in range(1, N_THETA + 1)],
             signatures=signatures,

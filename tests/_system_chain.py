@@ -30,17 +30,21 @@ SIGNALS = ("t", "Utx", "Uty", "Ux", "Uy", "q", "q_read", "y_v", "y_alpha", "y_q"
 def run_chain(duration_s: float, *, command: PitchCommand | None = None,
               x0=(0.0, 0.0, 0.0, 0.0, 0.0), sigma_w: float = 0.0, seed: int = 2,
               dtg_seed: int = 5, noise=(0.05, 1e-4, 2e-4, 1e-4, 1e-3, 0.2),
-              spin: tuple[float, float] | None = None, step_s: float = 1e-3
-              ) -> dict[str, np.ndarray]:
+              spin: tuple[float, float] | None = None, step_s: float = 1e-3,
+              faults: tuple[float, dict[str, float]] | None = None,
+              dtg_noise_std: float = 1e-3) -> dict[str, np.ndarray]:
     """Run the chain; row k holds the samples at t = (k+1)·step_s.
 
+    ``spin`` = (t, fraction) slows the spin motor at t; ``faults`` = (t, {name: value})
+    sets any of the DTG simulator's fault parameters at t (``torquer_scale``, ...).
     ``elevator[k]`` is the command computed from row k's sensors: it acts over the next
     step (what a detection filter must pair with row k's outputs). ``y_q`` is the
     aircraft's own rate sensor (a second gyro), ``q_read`` the DTG read-out.
     """
     ac = AircraftModel(x0=x0, noise_std=noise, seed=seed, gust=DrydenGust(sigma_w))
     law = PitchController(design_pitch_controller())
-    dtg = DTGSimulator(parameter_set(1), noise_std=1e-3, dither_std=1.0, seed=dtg_seed)
+    dtg = DTGSimulator(parameter_set(1), noise_std=dtg_noise_std, dither_std=1.0,
+                       seed=dtg_seed)
     cmd = command or PitchCommand(0)
     n = round(duration_s / step_s)
     out = {k: np.empty(n) for k in SIGNALS}
@@ -50,6 +54,8 @@ def run_chain(duration_s: float, *, command: PitchCommand | None = None,
         t = (k + 1) * step_s
         if spin is not None and abs(k * step_s - spin[0]) < 0.5 * step_s:
             dtg.set_faults(spin_fraction=spin[1])
+        if faults is not None and abs(k * step_s - faults[0]) < 0.5 * step_s:
+            dtg.set_faults(**faults[1])
         ac.step(step_s, np.array([0.0, elev]))
         y = ac.measure()
         dtg.advance(t, 0.0, float(ac.x[2]))

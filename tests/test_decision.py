@@ -251,3 +251,37 @@ def test_unchecked_step_equals_checked_update(monitored, k, n, latch):
         np.testing.assert_array_equal(eta, checked.eta)
         assert alarm == checked.alarm, j
     assert a.get_state()["first_alarm"] == b.get_state()["first_alarm"]
+
+
+def test_confirm_gates_band_violations_and_sees_only_out_of_band_samples():
+    """``step(theta, confirm)``: an out-of-band sample counts only when confirm says so
+    (the DTG channel's significance test); confirm is not asked inside the band."""
+    bad, good = THETA_F["f1_step"], THETA_NOM
+    asked: list[list[float]] = []
+
+    def deny(eta: list[float]) -> bool:
+        asked.append(eta)
+        return False
+
+    dec = ThresholdDecision(THETA_NOM, persistence_k=2, persistence_n=3)
+    assert [dec.step(t, deny)[1] for t in [bad, bad, good, bad]] == [False] * 4
+    assert len(asked) == 3
+    np.testing.assert_allclose(asked[0], parameter_ratios(bad, THETA_NOM))
+    assert dec.out_of_band(asked[0]) == [1, 2, 3, 4]  # η1 = 0.504 stays inside 0.5/1.5
+    dec.reset()
+    assert [dec.step(t, lambda eta: True)[1] for t in [bad, bad, good]] == [False, True, True]
+
+
+def test_set_theta0_moves_the_band_and_validates():
+    dec = ThresholdDecision(THETA_NOM, low=0.9, high=1.1)
+    shifted = [1.2 * v for v in THETA_NOM]
+    assert dec.step(shifted)[1]
+    dec.set_theta0(shifted)
+    eta, alarm = dec.step(shifted)
+    np.testing.assert_allclose(eta, 1.0)
+    assert not alarm
+    with pytest.raises(ValueError, match="theta0"):
+        dec.set_theta0([1.0, 0.0, 1.0, 1.0, 1.0])
+    with pytest.raises(ValueError, match="theta0"):
+        dec.set_theta0([1.0, 2.0])
+    np.testing.assert_allclose(dec.theta0, shifted)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -343,7 +343,29 @@ class ThresholdDecision:
         self._count += 1
         return DecisionOutput(eta, oob, violation, alarm, self._first_alarm)
 
-    def step(self, theta: Sequence[float]) -> tuple[list[float], bool]:
+    def set_theta0(self, theta0: ArrayLike) -> None:
+        """Replace θ0 (a refined reference); the persistence history is kept.
+
+        Raises
+        ------
+        ValueError
+            On a wrong shape, a non-finite or a zero entry; θ0 is then unchanged.
+        """
+        t0 = check_finite_array("theta0", theta0, shape=self.theta0.shape)
+        if np.any(t0 == 0.0):
+            raise ValueError(f"theta0 must have no zero entry, got {t0}")
+        self.theta0 = t0.copy()
+        self._abs_theta0 = np.abs(t0).tolist()
+
+    def out_of_band(self, eta: Sequence[float]) -> list[int]:
+        """Indices of the monitored ratios outside the band."""
+        lo, hi = self.low, self.high
+        return [i for i, (e, m) in enumerate(zip(eta, self._monitored_list, strict=True))
+                if m and (e < lo or e > hi)]
+
+    def step(self, theta: Sequence[float],
+             confirm: Callable[[list[float]], bool] | None = None
+             ) -> tuple[list[float], bool]:
         """:meth:`update` on plain floats, unchecked (the per-sample hot path of a
         channel that has checked its sample): returns (η, alarm) with the same values
         and the same state change.
@@ -352,11 +374,17 @@ class ThresholdDecision:
         ----------
         theta : sequence of float
             n finite estimates.
+        confirm : callable, optional
+            Called with η only when a monitored ratio is outside the band; the sample
+            counts as a violation only if it returns True (e.g. a significance test of
+            the estimate against its standard error). None: the band alone.
         """
         eta = [abs(t) / a for t, a in zip(theta, self._abs_theta0, strict=True)]
         watched = self._watched(eta) if self._watched is not None else eta
         # min/max of the monitored ratios: two builtin calls instead of a loop
         violation = bool(watched) and (min(watched) < self.low or max(watched) > self.high)
+        if violation and confirm is not None:
+            violation = bool(confirm(eta))
         hist = self._history
         hist.append(violation)
         alarm = sum(hist) >= self.persistence_k

@@ -99,6 +99,11 @@ OMEGA_EXCITATION_Z = 6.0
 #: manoeuvre the physical fits are poor for every fault (distance 13-18 measured, spin
 #: included), while a signal fault's residual fit is 0.04-0.08 and a spin's ~4.
 MASKED_SIGNAL_FIT = 1.0
+#: Default significance of a band violation, standard errors (:attr:`DTGChannelConfig.
+#: band_sigma`). Fault-free calm level flight, 610 s, library chain: largest |θ − θ0|
+#: 3.2 of them (θ5; 1.3-1.7 on θ3/θ4, whose v·A⁻¹ is conservative); torquer gain ±10 %:
+#: 5-12 on θ5 within 4 s (docs/notes.md, issue 16).
+BAND_SIGMA = 3.0
 #: Smallest spread of the learning blocks' ω used for that test, rad/s (a noise-free
 #: case rate would make every rounding a manoeuvre).
 OMEGA_SPREAD_FLOOR = 1e-6
@@ -140,6 +145,17 @@ class DTGChannelConfig:
         Ratio band for η (paper: 0.5, 1.5).
     persistence_k, persistence_n : int
         Alarm when k of the last n samples violate the band.
+    band_sigma : float
+        Case rate with the pattern classifier (and the "forgetting" or "rls"
+        estimator): a ratio outside the band counts as a violation only where θ also
+        lies more than this many standard errors from the band's θ0, the standard error
+        combining the estimate's (v·P/(1 + λ), P its RLS covariance) and θ0's (v·A⁻¹,
+        :class:`~gyrodiag.dtg_reference.NominalReference`); θ0 is then refined by the
+        blocks quiet in the residual tests and within half this many standard errors.
+        In calm level flight the fast estimate of θ3/θ4 wanders by ~1.6 % (τ ≈ 5 s)
+        about a θ0 known to ~1.6 %, so a fixed 7 % band alone false-alarms within
+        minutes (docs/notes.md, issue 16). 0: the band alone (the paper's rule, and every
+        channel without the case rate).
     latch : bool
         Keep an alarm until reset.
     monitored : sequence of 5 bool
@@ -233,6 +249,7 @@ class DTGChannelConfig:
     high: float = 1.5
     persistence_k: int = 1
     persistence_n: int = 1
+    band_sigma: float = BAND_SIGMA
     latch: bool = False
     monitored: Sequence[bool] = (True, True, True, True, True)
     signatures: Mapping[str, Sequence[float]] = field(default_factory=dict)
@@ -347,6 +364,7 @@ class DTGChannelConfig:
             np.ones(N_THETA), self.low, self.high, self.persistence_k, self.persistence_n,
             self.latch, self.monitored,
         )
+        check_nonnegative("band_sigma", self.band_sigma)
         if self.signatures:
             SignatureClassifier(self.signatures, self.max_distance)
             for name, sig in self.signatures.items():
@@ -536,6 +554,14 @@ class DTGChannel:
         self._prior: NominalPrior | None = (
             config.patterns.prior
             if config.patterns is not None and config.case_rate is None else None)
+        # the estimate's covariance per unit v·P: 1/(1 + λ) for exponentially weighted
+        # LS with white-equivalent errors, 1 for plain RLS; 0: no significance test (the
+        # paper's regression has no reference information, the window LS no P)
+        self._band_factor = 0.0
+        if (config.band_sigma > 0.0 and self._pattern_mode and self._case_rate
+                and config.estimator != "batch"):
+            self._band_factor = (1.0 / (1.0 + config.forgetting)
+                                 if config.estimator == "forgetting" else 1.0)
         self.reset()
 
     # -- construction helpers -------------------------------------------------
@@ -558,6 +584,53 @@ class DTGChannel:
             )
             for i in range(2)
         ]
+
+    def _band_sigma_active(self) -> bool:
+        """The band's violations need significance (config ``band_sigma``): only once
+        the monitor holds the case rate's refined band reference."""
+        return (self._band_factor > 0.0 and self._monitor is not None
+                and self._monitor.band_reference is not None)
+
+    def _band_z2(self, axis: int, theta: Sequence[float]) -> list[float]:
+        """Squared distance of each θ of ``axis`` from the band's θ0, in standard errors
+        (estimate's v·P/(1 + λ) plus θ0's v·A⁻¹)."""
+        mon = self._monitor
+        assert mon is not None and self.reference is not None
+        assert self.reference.error_variance is not None
+        theta0, var0 = mon.band_reference  # type: ignore[misc]
+        S = self._estimators[axis]._S  # type: ignore[union-attr]
+        p_diag = (S * S).sum(axis=1)
+        var = self.reference.error_variance[axis] * p_diag * self._band_factor + var0[axis]
+        d = np.asarray(theta, dtype=float) - theta0[axis]
+        return (d * d / var).tolist()
+
+    def _significant(self, axis: int, theta: Sequence[float], eta: list[float]) -> bool:
+        """A ratio outside the band whose θ is also band_sigma standard errors off."""
+        decision = self._decisions[axis]  # type: ignore[index]
+        z2 = self._band_z2(axis, theta)
+        limit = self.config.band_sigma ** 2
+        return any(z2[i] > limit for i in decision.out_of_band(eta))
+
+    def _band_quiet(self, theta: tuple[float, ...]) -> bool:
+        """Every monitored θ of both axes within half band_sigma standard errors of the
+        band's θ0 (the block may refine it)."""
+        limit = (0.5 * self.config.band_sigma) ** 2
+        mon = self.config.monitored
+        for axis in range(2):
+            z2 = self._band_z2(axis, theta[axis * N_THETA:(axis + 1) * N_THETA])
+            if any(z > limit for z, m in zip(z2, mon, strict=True) if m):
+                return False
+        return True
+
+    def _refine_band(self) -> None:
+        """Take the monitor's refined band reference as the decisions' θ0."""
+        mon = self._monitor
+        assert mon is not None and self._decisions is not None
+        ref = mon.band_reference
+        assert ref is not None
+        self.theta0 = ref[0].copy()
+        for axis, decision in enumerate(self._decisions):
+            decision.set_theta0(ref[0][axis])
 
     def _theta0_shape(self) -> tuple[int, ...]:
         return (2, N_THETA) if self._case_rate else (N_THETA,)
@@ -753,8 +826,14 @@ class DTGChannel:
             )
             return self._last
 
-        eta_x, alarm_x = self._decisions[0].step(th_x)
-        eta_y, alarm_y = self._decisions[1].step(th_y)
+        if self._band_sigma_active():
+            eta_x, alarm_x = self._decisions[0].step(
+                th_x, lambda eta: self._significant(0, th_x, eta))
+            eta_y, alarm_y = self._decisions[1].step(
+                th_y, lambda eta: self._significant(1, th_y, eta))
+        else:
+            eta_x, alarm_x = self._decisions[0].step(th_x)
+            eta_y, alarm_y = self._decisions[1].step(th_y)
         eta = np.array((eta_x, eta_y))
         band_alarm = alarm_x or alarm_y
         physical = self._physical(th_x, th_y)
@@ -924,10 +1003,14 @@ class DTGChannel:
                                          np.array(self._blk_theta), np.array(self._blk_valid))
         elif n >= self._n_end and self._monitor is not None:
             was = self._monitor.alarm
+            active = self._band_sigma_active()
+            quiet = self._band_quiet(theta) if active else True
             now = self._monitor.push_block(np.array(self._blk_raw),
                                            np.array(self._hist_filtered + self._blk_filtered),
                                            np.array(self._blk_theta),
-                                           np.array(self._blk_valid))
+                                           np.array(self._blk_valid), band_quiet=quiet)
+            if active and quiet and not now:
+                self._refine_band()
             self._hold_estimators(was, now)
             done = True
         self._hist_filtered = self._blk_filtered[-2:]

@@ -1012,12 +1012,42 @@ class ResidualMonitor:
             theta = self._theta0.reshape(2, N_THETA)
             self._rhs = np.einsum("aij,aj->ai", self._info, theta)  # Φᵀy of θ0
             self._theta_ref = theta.copy()
+            # the ratio band's reference: starts at θ0_eta with the learning data's
+            # information and is refined only by blocks that are also quiet in the band
+            # (push_block's band_quiet), so a physical fault, which the residual tests
+            # barely see, is not learned into it
+            eta0 = self.reference.theta0_eta
+            eta0 = (eta0.reshape(2, N_THETA) if eta0.size == 2 * N_THETA
+                    else np.tile(eta0, (2, 1)))
+            self._info_band = info.copy()
+            self._rhs_band = np.einsum("aij,aj->ai", self._info_band, eta0)
+            self._theta_band = eta0.copy()
+            self._band_var = self._band_variances()
 
     @property
     def theta_reference(self) -> NDArray[np.float64]:
         """θ the residuals are computed with now: θ0, or with the case rate θ0 refined
         by the fault-free blocks so far ((10,), x then y axis)."""
         return self._theta_ref.reshape(-1).copy() if self._refine else self._theta0.copy()
+
+    @property
+    def band_reference(self) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """(θ, variance of θ) of the ratio band's reference, each (2, 5) per axis, or
+        None without the case rate. θ starts as the learning window's θ0_eta and is
+        refined by the blocks quiet in both the residual tests and the band; its
+        variance is v·diag(A⁻¹) of the information so far (:class:`NominalReference`)."""
+        if not self._refine:
+            return None
+        return self._theta_band.copy(), self._band_var.copy()
+
+    def _band_variances(self) -> NDArray[np.float64]:
+        out = np.empty((2, N_THETA))
+        for a in range(2):
+            try:
+                out[a] = self._err_var[a] * np.diag(np.linalg.inv(self._info_band[a]))
+            except np.linalg.LinAlgError:
+                out[a] = np.inf
+        return out
 
     def prefill(self, means: NDArray[np.float64], variances: NDArray[np.float64],
                 theta: NDArray[np.float64]) -> None:
@@ -1043,7 +1073,8 @@ class ResidualMonitor:
         return self._means[idx], self._vars[idx], self._theta[idx]
 
     def push_block(self, raw: NDArray[np.float64], filtered: NDArray[np.float64],
-                   theta: NDArray[np.float64], valid: NDArray[np.bool_]) -> bool:
+                   theta: NDArray[np.float64], valid: NDArray[np.bool_],
+                   band_quiet: bool = True) -> bool:
         """Add one block and run the tests; returns the alarm.
 
         Parameters
@@ -1056,6 +1087,9 @@ class ResidualMonitor:
             Fast-estimator θ of both axes per sample.
         valid : ndarray of bool, shape (nb,)
             Samples whose regression rows are sound (False next to a skipped sample).
+        band_quiet : bool, optional
+            The fast estimates are near the band's reference (case rate): a block the
+            tests accept also refines :attr:`band_reference`.
         """
         allow = None
         if self._refine:
@@ -1090,6 +1124,14 @@ class ResidualMonitor:
                 sol = _ls(self._info[a], self._rhs[a])
                 if sol is not None:
                     self._theta_ref[a] = sol
+                if band_quiet:
+                    self._info_band[a] += ph.T @ ph
+                    self._rhs_band[a] += ph.T @ y
+                    sol = _ls(self._info_band[a], self._rhs_band[a])
+                    if sol is not None:
+                        self._theta_band[a] = sol
+            if band_quiet:
+                self._band_var = self._band_variances()
         return alarm
 
     def _allowance(self, phis: tuple[NDArray[np.float64], NDArray[np.float64]],
@@ -1249,7 +1291,9 @@ class ResidualMonitor:
                 "statistics": self.statistics.copy(),
                 "refinement": None if not self._refine else {
                     "allow": self._allow.copy(), "info": self._info.copy(),
-                    "rhs": self._rhs.copy(), "theta_ref": self._theta_ref.copy()}}
+                    "rhs": self._rhs.copy(), "theta_ref": self._theta_ref.copy(),
+                    "info_band": self._info_band.copy(), "rhs_band": self._rhs_band.copy(),
+                    "theta_band": self._theta_band.copy()}}
 
     def set_state(self, s: dict[str, Any]) -> None:
         """Restore :meth:`get_state` output of an identically configured monitor."""
@@ -1282,4 +1326,9 @@ class ResidualMonitor:
                                            shape=(2, N_THETA)).copy()
             self._theta_ref = check_finite_array("state['refinement']['theta_ref']",
                                                  ref["theta_ref"], shape=(2, N_THETA)).copy()
+            for key, shape in (("info_band", (2, N_THETA, N_THETA)),
+                               ("rhs_band", (2, N_THETA)), ("theta_band", (2, N_THETA))):
+                setattr(self, f"_{key}", check_finite_array(
+                    f"state['refinement'][{key!r}]", ref[key], shape=shape).copy())
+            self._band_var = self._band_variances()
 
