@@ -518,14 +518,14 @@ def _first_alarm(outs, k0: int) -> int | None:
 def test_band_significance_ignores_the_calm_air_wander_of_theta(calm) -> None:
     """In calm level flight the gyro sees only its dither: θ3/θ4's fast estimates wander
     by ~1.6 % (τ ≈ 5 s) about a θ0 known to ~1.6 %, so a band of ±3 % alarms within
-    seconds; with ``band_sigma`` every such excursion is within 3 standard errors and
+    seconds; with ``band_sigma`` every such excursion is within 5 standard errors and
     the same band stays quiet (the FMU campaign's 8 false alarms in 2 of 8 ten-minute
     runs came from the same wander reaching the 7 % band)."""
     tight = dict(FINE_BAND, low=0.97, high=1.03)
     _, plain = _run_dtg(calm["nominal"], "central", **{**tight, "band_sigma": 0.0})
     assert _first_alarm(plain, round(10.0 / T)) is not None
     ch, gated = _run_dtg(calm["nominal"], "central", **tight)
-    assert ch.config.band_sigma == 3.0  # the default
+    assert ch.config.band_sigma == 5.0  # the default
     assert not any(x.alarm for x in gated)
     out_of_band = sum(1 for x in gated[round(10.0 / T):]
                       if np.any(np.abs(x.eta - 1.0) > 0.03))
@@ -534,14 +534,14 @@ def test_band_significance_ignores_the_calm_air_wander_of_theta(calm) -> None:
 
 def test_band_significance_keeps_physical_faults_in_level_flight(calm) -> None:
     """Torquer gain 90 % at 20 s in calm level flight: θ5 moves 5-10 % and 5-12 standard
-    errors (θ5 is well determined by the dither); detected within 8 s (band alone 3.5-4.5 s
-    on two seeds, with the significance 4.0-6.9 s), never before the fault. The reference
+    errors (θ5 is well determined by the dither); detected within 10 s (band alone
+    3.5-4.5 s on two seeds, with band_sigma 5 6.1-7.1 s), never before the fault. The reference
     the band is judged against has been refined by the quiet blocks since learning."""
     k0 = round(20.0 / T) - 1
     ch, outs = _run_dtg(calm["torquer"], "central", **FINE_BAND)
     assert not any(x.alarm for x in outs[:k0])
     first = _first_alarm(outs, k0)
-    assert first is not None and (first - k0) * T < 8.0
+    assert first is not None and (first - k0) * T < 10.0
     assert outs[-1].alarm and outs[-1].diagnosis.class_name == "unknown"  # no library
     assert not np.allclose(ch.theta0, ch.reference.theta0_eta.reshape(2, N_THETA))
 
@@ -552,13 +552,13 @@ def test_band_significance_detects_spin_in_a_manoeuvre_as_fast(runs) -> None:
     k0 = round(15.0 / T) - 1
     spun = _chain(20.0, spin=(15.0, 0.9), **SQUARE)
     delays = {}
-    for sigma in (0.0, 3.0):
+    for sigma in (0.0, 5.0):
         _, outs = _run_dtg(spun, "central", **{**FINE_BAND, "band_sigma": sigma})
         assert not any(x.alarm for x in outs[:k0])
         first = _first_alarm(outs, k0)
         assert first is not None
         delays[sigma] = (first - k0) * T
-    assert delays[3.0] <= delays[0.0] + 0.05, delays
+    assert delays[5.0] <= delays[0.0] + 0.05, delays
 
 
 def test_band_significance_state_round_trip(runs) -> None:
