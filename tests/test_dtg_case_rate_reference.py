@@ -308,3 +308,44 @@ def test_allowance_sigma_scales_the_learning_guards_ratio() -> None:
         verdict[k] = learner._segment_fails(ref_means, ref_vars, seg_means, seg_vars, theta,
                                             M, theta, M, allow, err_var)
     assert verdict == {1.0: True, 3.0: False}
+
+
+def test_band_reference_refines_from_theta0_eta_only_with_quiet_blocks(record) -> None:
+    """The ratio band's reference (DTGChannelConfig.band_sigma, docs/dtg_case_rate.md §10)
+    starts at θ0_eta with θ0's covariance v·A⁻¹ and takes the same accepted rows as θref,
+    but only from blocks marked band-quiet: with every block quiet,
+    θband − θref = (A0 + R)⁻¹·A0·(θ0_eta − θ0) (same rows R, other start); with none, it
+    stays at θ0_eta; it survives a state round trip."""
+    learner, ref = _learn(record)
+    assert ref.information is not None and ref.error_variance is not None
+    eta0 = ref.theta0_eta.reshape(2, N_THETA)
+    assert not np.allclose(eta0, ref.theta0.reshape(2, N_THETA))  # mean fast θ vs LS
+    mon = _monitor(learner, ref)
+    theta, var = mon.band_reference
+    np.testing.assert_array_equal(theta, eta0)
+    for a in range(2):
+        np.testing.assert_allclose(
+            var[a], ref.error_variance[a] * np.diag(np.linalg.inv(ref.information[a])))
+    assert not _feed(mon, record, LEARN, LEARN + 3000).any()
+    theta, var = mon.band_reference
+    refined = mon.theta_reference.reshape(2, N_THETA)
+    for a in range(2):
+        A0, A = ref.information[a], mon._info[a]
+        theta0 = ref.theta0[a * N_THETA:(a + 1) * N_THETA]
+        expected = refined[a] + np.linalg.solve(A, A0 @ (eta0[a] - theta0))
+        np.testing.assert_allclose(theta[a], expected, rtol=1e-7, atol=1e-12)
+        np.testing.assert_allclose(var[a], ref.error_variance[a] * np.diag(np.linalg.inv(A)))
+    # blocks that are not band-quiet refine θref only
+    held = _monitor(learner, ref)
+    thb = np.tile(THETA, (NB, 2))
+    for b0 in range(LEARN, LEARN + 3000, NB):
+        held.push_block(record[b0:b0 + NB, :4], record[b0 - 2:b0 + NB], thb,
+                        np.ones(NB, dtype=bool), band_quiet=False)
+    np.testing.assert_array_equal(held.band_reference[0], eta0)
+    np.testing.assert_allclose(held.theta_reference, mon.theta_reference)
+    # state round trip
+    other = ResidualMonitor(NominalReference.from_state(ref.get_state()), NB, NB * T, SHORT,
+                            LONG, ResidualThresholds(), 20, MODEL)
+    other.set_state(mon.get_state())
+    for x, y in zip(other.band_reference, mon.band_reference, strict=True):
+        np.testing.assert_array_equal(x, y)

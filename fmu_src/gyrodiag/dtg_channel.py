@@ -591,7 +591,7 @@ class DTGChannel:
         """The band's violations need significance (config ``band_sigma``): only once
         the monitor holds the case rate's refined band reference."""
         return (self._band_factor > 0.0 and self._monitor is not None
-                and self._monitor.band_reference is not None)
+                and self._monitor.refines)
 
     def _band_z2(self, axis: int, theta: Sequence[float]) -> list[float]:
         """Squared distance of each θ of ``axis`` from the band's θ0, in standard errors
@@ -599,7 +599,7 @@ class DTGChannel:
         mon = self._monitor
         assert mon is not None and self.reference is not None
         assert self.reference.error_variance is not None
-        theta0, var0 = mon.band_reference  # type: ignore[misc]
+        theta0, var0 = mon.band_arrays()
         S = self._estimators[axis]._S  # type: ignore[union-attr]
         p_diag = (S * S).sum(axis=1)
         var = self.reference.error_variance[axis] * p_diag * self._band_factor + var0[axis]

@@ -1040,6 +1040,16 @@ class ResidualMonitor:
             return None
         return self._theta_band.copy(), self._band_var.copy()
 
+    @property
+    def refines(self) -> bool:
+        """θ0 is refined (the case rate): :attr:`band_reference` exists."""
+        return bool(self._refine)
+
+    def band_arrays(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """:attr:`band_reference` without the copies, for the per-sample path (read
+        only; valid while :attr:`refines`)."""
+        return self._theta_band, self._band_var
+
     def _band_variances(self) -> NDArray[np.float64]:
         out = np.empty((2, N_THETA))
         for a in range(2):
