@@ -529,7 +529,9 @@ def test_band_significance_ignores_the_calm_air_wander_of_theta(calm) -> None:
     assert not any(x.alarm for x in gated)
     out_of_band = sum(1 for x in gated[round(10.0 / T):]
                       if np.any(np.abs(x.eta - 1.0) > 0.03))
-    assert out_of_band > 1000  # the wander is there; only its significance is missing
+    # the wander is there (647 samples with band_sigma 5, whose θ0 is refined more
+    # than 3's); only its significance is missing
+    assert out_of_band > 300
 
 
 def test_band_significance_keeps_physical_faults_in_level_flight(calm) -> None:
