@@ -20,6 +20,7 @@ The Diagnoser FMU only maps its variables onto this class.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import deque
 from collections.abc import Mapping, Sequence
@@ -560,6 +561,9 @@ class DTGChannel:
         # LS with white-equivalent errors, 1 for plain RLS; 0: no significance test (the
         # paper's regression has no reference information, the window LS no P)
         self._band_factor = 0.0
+        # the decisions' confirm hooks, made once (they read the current θ)
+        self._confirm = (functools.partial(self._significant, 0),
+                         functools.partial(self._significant, 1))
         if (config.band_sigma > 0.0 and self._pattern_mode and self._case_rate
                 and config.estimator != "batch"):
             self._band_factor = (1.0 / (1.0 + config.forgetting)
@@ -606,10 +610,11 @@ class DTGChannel:
         d = np.asarray(theta, dtype=float) - theta0[axis]
         return (d * d / var).tolist()
 
-    def _significant(self, axis: int, theta: Sequence[float], eta: list[float]) -> bool:
-        """A ratio outside the band whose θ is also band_sigma standard errors off."""
+    def _significant(self, axis: int, eta: list[float]) -> bool:
+        """A ratio outside the band whose θ (the current estimate) is also band_sigma
+        standard errors off."""
         decision = self._decisions[axis]  # type: ignore[index]
-        z2 = self._band_z2(axis, theta)
+        z2 = self._band_z2(axis, self._theta_now[axis])
         limit = self.config.band_sigma ** 2
         return any(z2[i] > limit for i in decision.out_of_band(eta))
 
@@ -828,14 +833,10 @@ class DTGChannel:
             )
             return self._last
 
-        if self._band_sigma_active():
-            eta_x, alarm_x = self._decisions[0].step(
-                th_x, lambda eta: self._significant(0, th_x, eta))
-            eta_y, alarm_y = self._decisions[1].step(
-                th_y, lambda eta: self._significant(1, th_y, eta))
-        else:
-            eta_x, alarm_x = self._decisions[0].step(th_x)
-            eta_y, alarm_y = self._decisions[1].step(th_y)
+        confirm_x, confirm_y = (self._confirm if self._band_sigma_active()
+                                else (None, None))
+        eta_x, alarm_x = self._decisions[0].step(th_x, confirm_x)
+        eta_y, alarm_y = self._decisions[1].step(th_y, confirm_y)
         eta = np.array((eta_x, eta_y))
         band_alarm = alarm_x or alarm_y
         physical = self._physical(th_x, th_y)

@@ -935,6 +935,17 @@ class ClassificationStatistics:
     raw_signals: bool = True
 
 
+def _accumulate(info: NDArray[np.float64], rhs: NDArray[np.float64],
+                theta: NDArray[np.float64], d_info: NDArray[np.float64],
+                d_rhs: NDArray[np.float64]) -> None:
+    """Add rows' normal equations in place and re-solve θ (kept if singular)."""
+    info += d_info
+    rhs += d_rhs
+    sol = _ls(info, rhs)
+    if sol is not None:
+        theta[:] = sol
+
+
 class ResidualMonitor:
     """Runtime residual tests with alarm memory (module docstring).
 
@@ -1129,17 +1140,11 @@ class ResidualMonitor:
             # is constant; in alarm the block is left out, so a fault is not learned)
             for a, (ph, y) in enumerate(((phx, yx), (phy, yy))):
                 ph, y = ph[use], y[use]
-                self._info[a] += ph.T @ ph
-                self._rhs[a] += ph.T @ y
-                sol = _ls(self._info[a], self._rhs[a])
-                if sol is not None:
-                    self._theta_ref[a] = sol
+                info, rhs = ph.T @ ph, ph.T @ y
+                _accumulate(self._info[a], self._rhs[a], self._theta_ref[a], info, rhs)
                 if band_quiet:
-                    self._info_band[a] += ph.T @ ph
-                    self._rhs_band[a] += ph.T @ y
-                    sol = _ls(self._info_band[a], self._rhs_band[a])
-                    if sol is not None:
-                        self._theta_band[a] = sol
+                    _accumulate(self._info_band[a], self._rhs_band[a],
+                                self._theta_band[a], info, rhs)
             if band_quiet:
                 self._band_var = self._band_variances()
         return alarm
