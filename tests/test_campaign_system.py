@@ -24,6 +24,7 @@ from harness.campaigns.campaign import (
     _judge_system,
     build_scenario,
     expand_runs,
+    select,
 )
 from harness.campaigns.campaign_report import markdown_summary, summarize
 
@@ -86,6 +87,25 @@ def test_conditions_multiply_runs_with_paired_seeds() -> None:
         "sweeps": [{"class": "air", "type": "bias", "magnitudes": [0.01], "onsets_s": [20.0],
                     "channels": [2]}]})
     assert expand_runs(alone, ROOT)[0].run_id == plain.run_id
+
+
+def test_select_by_group_or_condition_keeps_the_full_campaigns_ids() -> None:
+    runs = expand_runs(spec(), ROOT)
+    level = select(runs, 1.0, groups=["level"])
+    assert [r.run_id for r in level] == [r.run_id for r in runs if r.condition == "level"]
+    assert len(level) == 2  # spin 0.9 at 20 s, 2 seeds: the nominal runs fly "square"
+    both = select(runs, 1.0, conditions=["square", "rough"])
+    assert {r.condition for r in both} == {"square", "rough"} and len(both) == 6
+    assert [r.run_id for r in select(runs, 1.0, groups=["manoeuvre"])] == \
+        [r.run_id for r in both]
+    # group and fraction combine: half of each stratum of the manoeuvre group
+    half = select(runs, 0.5, groups=["manoeuvre"])
+    assert {r.kind for r in half} == {"fault", "nominal"} and len(half) == 3
+    with pytest.raises(ValueError, match=r"groups: \['cruise'\] not in this campaign.*"
+                                         r"'level', 'manoeuvre'"):
+        select(runs, 1.0, groups=["cruise"])
+    with pytest.raises(ValueError, match="conditions: "):
+        select(runs, 1.0, conditions=[])
 
 
 def test_condition_and_fault_reach_the_scenario() -> None:

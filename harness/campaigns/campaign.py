@@ -1538,8 +1538,9 @@ def run_campaign(spec: CampaignSpec, base_dir: Path, out_dir: Path, *, workers: 
                  dask: str | None = None, runner: str | None = None,
                  timeout_s: float | None = None, max_runs: int | None = None,
                  retry_failed: bool = False, fraction: float = 1.0,
-                 progress: bool = True, fmu_dir: Path | str | None = None
-                 ) -> CampaignOutcome:
+                 progress: bool = True, fmu_dir: Path | str | None = None,
+                 groups: Sequence[str] | None = None,
+                 conditions: Sequence[str] | None = None) -> CampaignOutcome:
     """Run (or resume) a campaign; every finished run is written as it finishes.
 
     Parameters
@@ -1569,6 +1570,8 @@ def run_campaign(spec: CampaignSpec, base_dir: Path, out_dir: Path, *, workers: 
     fmu_dir : path, optional
         Folder of the FMUs, before ``$GYRODIAG_FMU_DIR`` and the spec's
         (:func:`campaign_fmu_dir`); the run ids do not depend on it.
+    groups, conditions : sequence of str, optional
+        Run only these condition groups / flight conditions (:func:`select`).
     """
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
@@ -1580,14 +1583,18 @@ def run_campaign(spec: CampaignSpec, base_dir: Path, out_dir: Path, *, workers: 
     records_dir.mkdir(parents=True, exist_ok=True)
     if fmu_dir is not None and not Path(fmu_dir).is_dir():
         raise FileNotFoundError(f"fmu_dir {str(fmu_dir)!r} is not a folder")
-    runs = select(expand_runs(spec, base_dir, out_dir, fmu_dir), fraction)
+    runs = select(expand_runs(spec, base_dir, out_dir, fmu_dir), fraction, groups=groups,
+                  conditions=conditions)
     prepare(spec, base_dir, out_dir, fmu_dir)
     runner = runner or spec.runner
     if runner == DEFAULT_RUNNER:  # another runner need not read the scenarios
         preflight_runs(runs)
     _write_json_atomic(out_dir / "campaign.json", {
         "spec": spec.model_dump(by_alias=True), "base_dir": str(base_dir),
-        "fraction": fraction, "run_ids": [r.run_id for r in runs]})
+        "fraction": fraction,
+        "selection": {"groups": list(groups) if groups is not None else None,
+                      "conditions": list(conditions) if conditions is not None else None},
+        "run_ids": [r.run_id for r in runs]})
     for stale in records_dir.glob(".*.tmp"):  # atomic writes cut short by a kill
         if time.time() - stale.stat().st_mtime > 60.0:  # not one being written now
             stale.unlink(missing_ok=True)
@@ -1651,10 +1658,27 @@ def run_campaign(spec: CampaignSpec, base_dir: Path, out_dir: Path, *, workers: 
                                    if r.get("status") != "ok"])
 
 
-def select(runs: list[RunSpec], fraction: float) -> list[RunSpec]:
+def select(runs: list[RunSpec], fraction: float, *, groups: Sequence[str] | None = None,
+           conditions: Sequence[str] | None = None) -> list[RunSpec]:
     """Deterministic subset, stratified: of every (class, kind, fault type) group the
     ``ceil(fraction * n)`` runs whose ids hash lowest (all runs when ``fraction`` is 1),
-    so that a reduced campaign still has nominal runs of every class."""
+    so that a reduced campaign still has nominal runs of every class.
+
+    ``groups`` / ``conditions`` keep only the runs of those condition groups / flight
+    conditions (e.g. re-fly the ``level`` group after a change that only level flight
+    sees); the run ids are the full campaign's, so the records serve both. An unknown
+    name raises ValueError listing the spec's names.
+    """
+    for arg, values, have in (("groups", groups, {r.group for r in runs}),
+                              ("conditions", conditions, {r.condition for r in runs})):
+        if values is None:
+            continue
+        known = sorted(str(v) for v in have if v is not None)
+        unknown = [v for v in values if v not in known]
+        if unknown or not values:
+            raise ValueError(f"{arg}: {unknown or list(values)} not in this campaign "
+                             f"(it has {known or 'none'})")
+        runs = [r for r in runs if (r.group if arg == "groups" else r.condition) in values]
     if fraction >= 1.0:
         return runs
     groups: dict[tuple[str, str, str | None], list[RunSpec]] = {}

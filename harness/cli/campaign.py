@@ -47,6 +47,10 @@ def add_parser(sub: Any) -> None:
                    help="start at most this many pending runs, then stop")
     p.add_argument("--fraction", type=float, default=1.0,
                    help="run a deterministic fraction of the runs (e.g. 0.1)")
+    p.add_argument("--group", action="append", default=None, dest="groups", metavar="NAME",
+                   help="run only this condition group (repeatable; e.g. level)")
+    p.add_argument("--condition", action="append", default=None, dest="conditions",
+                   metavar="NAME", help="run only this flight condition (repeatable)")
     p.add_argument("--retry-failed", action="store_true", help="re-run failed runs")
     p.add_argument("--report-only", action="store_true",
                    help="summarise the records already written, run nothing")
@@ -93,7 +97,12 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     spec, base_dir = load_campaign(args.spec)
     out = args.out or REPO_ROOT / "build" / "campaigns" / spec.name
     if args.report_only:
-        runs = select(expand_runs(spec, base_dir, Path(out)), args.fraction)
+        try:
+            runs = select(expand_runs(spec, base_dir, Path(out)), args.fraction,
+                          groups=args.groups, conditions=args.conditions)
+        except ValueError as exc:
+            log.error("%s", exc)
+            return 2
         ids = {r.run_id for r in runs}
         records = [r for rid, r in load_records(Path(out) / "runs").items() if rid in ids]
         n_total = len(runs)
@@ -103,10 +112,14 @@ def cmd_campaign(args: argparse.Namespace) -> int:
                                    dask=args.dask, timeout_s=args.timeout,
                                    max_runs=args.max_runs, retry_failed=args.retry_failed,
                                    fraction=args.fraction, progress=not args.no_progress,
-                                   fmu_dir=args.fmu_dir)
+                                   fmu_dir=args.fmu_dir, groups=args.groups,
+                                   conditions=args.conditions)
         except CampaignInterrupted as exc:
             log.warning("%s", exc)
             return 130
+        except ValueError as exc:  # a bad --group/--condition/--fraction/--workers
+            log.error("%s", exc)
+            return 2
         records, n_total = outcome.records, outcome.n_total
         log.info(f"{spec.name}: {outcome.n_executed} runs executed, {outcome.n_skipped} "
               f"already done, {len(outcome.failed)} failed, in {outcome.wall_s:.0f} s")
