@@ -442,6 +442,43 @@ def test_campaign_summary_pools_campaigns_and_counts_each_ones_runs(tmp_path):
                  "--out", str(out)]) == 2  # the same campaign twice
 
 
+def test_a_group_runs_alone_and_its_summary_says_so(tmp_path):
+    """`--group`: only that flight condition group's runs (ids of the full campaign),
+    recorded in campaign.json and named in campaign-summary's table; a bad name exits 2
+    naming the spec's groups and writes nothing."""
+    from harness.cli.commands import main
+
+    base = Path(__file__).resolve().parents[1] / "scenarios" / "system_pitch_gyro_nominal.toml"
+    data = fake_spec([0.6, 0.7], nominal_runs=2).model_dump(by_alias=True)
+    data["conditions"] = {"calm": {"group": "level"},
+                          "rough": {"group": "manoeuvre",
+                                    "parameters": {"aircraft": {"turbulence_sigma_w": 1.5}}}}
+    for entry in data["sweeps"] + data["nominal"]:
+        entry["conditions"] = ["calm", "rough"]
+    spec = CampaignSpec.model_validate(data)
+    everything = expand_runs(spec, tmp_path)
+    assert len(everything) == 8
+    out = run_campaign(spec, tmp_path, tmp_path / "level", workers=2, progress=False,
+                       groups=["level"])
+    calm = sorted(r.run_id for r in everything if r.condition == "calm")
+    assert sorted(r["run"]["run_id"] for r in out.records) == calm and out.n_total == 4
+    saved = json.loads((tmp_path / "level" / "campaign.json").read_text())
+    assert saved["selection"] == {"groups": ["level"], "conditions": None}
+    assert main(["-q", "campaign-summary", str(tmp_path / "level"),
+                 "--out", str(tmp_path / "all")]) == 0  # 4 of the 4 selected
+    assert "| fake | 4 / 4 (groups level) |" in (tmp_path / "all" / "summary.md").read_text()
+    toml = tmp_path / "spec.toml"
+    toml.write_text('name = "fake"\nrunner = "_campaign_fake_runner:fake"\n'
+                    f'[classes.air]\nscenario = "{base.as_posix()}"\nchannel = "df"\n'
+                    '[conditions.calm]\ngroup = "level"\n'
+                    '[[sweeps]]\nclass = "air"\ntype = "bias"\nmagnitudes = [0.6]\n'
+                    'onsets_s = [1.0]\nchannels = [3]\nconditions = ["calm"]\n',
+                    encoding="utf-8")
+    assert main(["-q", "campaign", str(toml), "--group", "cruise", "--out",
+                 str(tmp_path / "bad"), "--no-progress"]) == 2
+    assert not (tmp_path / "bad").exists()
+
+
 @pytest.mark.skipif(not Path("/proc/self/autogroup").is_file(),
                     reason="needs Linux scheduler autogroups")
 def test_run_processes_keep_the_campaigns_niceness_in_their_own_session(tmp_path):

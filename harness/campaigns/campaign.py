@@ -1382,6 +1382,8 @@ class CampaignOutput:
     n_planned: int
     fraction: float
     records: list[dict[str, Any]]
+    # flight conditions the run was restricted to (``--group``/``--condition``), if any
+    selection: dict[str, list[str] | None] = field(default_factory=dict)
 
 
 def load_campaign_output(out_dir: Path | str) -> CampaignOutput:
@@ -1396,6 +1398,8 @@ def load_campaign_output(out_dir: Path | str) -> CampaignOutput:
         data = json.loads(path.read_text(encoding="utf-8"))
         name, ids = str(data["spec"]["name"]), list(data["run_ids"])
         fraction = float(data.get("fraction", 1.0))
+        selection = {k: (None if v is None else [str(x) for x in v])
+                     for k, v in dict(data.get("selection") or {}).items()}
     except FileNotFoundError:
         raise ValueError(f"{out_dir}: not a campaign output folder (no campaign.json; "
                          "run `python -m harness campaign SPEC --out DIR` first)") from None
@@ -1403,7 +1407,8 @@ def load_campaign_output(out_dir: Path | str) -> CampaignOutput:
         raise ValueError(f"{path}: unreadable campaign record ({exc})") from None
     done = load_records(out_dir / "runs")
     return CampaignOutput(name=name, out_dir=out_dir, n_planned=len(ids), fraction=fraction,
-                          records=[done[rid] for rid in ids if rid in done])
+                          records=[done[rid] for rid in ids if rid in done],
+                          selection=selection)
 
 
 def _iter_pool(runs: Sequence[RunSpec], runner: str, timeout_s: float, records_dir: Path,
@@ -1580,11 +1585,12 @@ def run_campaign(spec: CampaignSpec, base_dir: Path, out_dir: Path, *, workers: 
     t0 = time.perf_counter()
     out_dir = Path(out_dir).resolve()
     records_dir = out_dir / "runs"
-    records_dir.mkdir(parents=True, exist_ok=True)
     if fmu_dir is not None and not Path(fmu_dir).is_dir():
         raise FileNotFoundError(f"fmu_dir {str(fmu_dir)!r} is not a folder")
+    # selected before anything is written: a bad selection leaves no folder behind
     runs = select(expand_runs(spec, base_dir, out_dir, fmu_dir), fraction, groups=groups,
                   conditions=conditions)
+    records_dir.mkdir(parents=True, exist_ok=True)
     prepare(spec, base_dir, out_dir, fmu_dir)
     runner = runner or spec.runner
     if runner == DEFAULT_RUNNER:  # another runner need not read the scenarios

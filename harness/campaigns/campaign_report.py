@@ -303,7 +303,9 @@ def summarize_campaigns(outputs: Sequence[Any]) -> dict[str, Any]:
             records.append({**r, "run": {**r["run"], "cls": f"{o.name}/{r['run']['cls']}"}})
         ok = [r for r in o.records if r.get("status") == "ok"]
         nominal = [r for r in ok if r["run"]["kind"] == "nominal"]
+        selection = {k: v for k, v in getattr(o, "selection", {}).items() if v}
         rows.append({"campaign": o.name, "folder": str(o.out_dir), "fraction": o.fraction,
+                     "selection": selection,
                      "n_planned": o.n_planned, "n_finished": len(o.records),
                      "n_failed": len(o.records) - len(ok),
                      "n_fault_runs": sum(r["run"]["kind"] == "fault" for r in ok),
@@ -659,7 +661,9 @@ def markdown_summary(summary: dict[str, Any], title: str = "campaign") -> str:
                             "nominal runs", "nominal h judged", "run time h (1 worker)",
                             "channels"],
                            [[c["campaign"], f"{c['n_finished']} / {c['n_planned']}"
-                             + (f" (fraction {c['fraction']:g})" if c["fraction"] < 1 else ""),
+                             + (f" (fraction {c['fraction']:g})" if c["fraction"] < 1 else "")
+                             + "".join(f" ({k} {', '.join(v)})"
+                                       for k, v in c.get("selection", {}).items()),
                              c["n_failed"], c["n_fault_runs"], c["n_nominal_runs"],
                              f"{c['nominal_hours']:.2f}", f"{c.get('run_hours', 0.0):.2f}",
                              ", ".join(c["channels"])]
