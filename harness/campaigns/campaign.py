@@ -1675,23 +1675,23 @@ def select(runs: list[RunSpec], fraction: float, *, groups: Sequence[str] | None
     sees); the run ids are the full campaign's, so the records serve both. An unknown
     name raises ValueError listing the spec's names.
     """
-    for arg, values, have in (("groups", groups, {r.group for r in runs}),
-                              ("conditions", conditions, {r.condition for r in runs})):
+    for arg, values, field_name in (("groups", groups, "group"),
+                                    ("conditions", conditions, "condition")):
         if values is None:
             continue
-        known = sorted(str(v) for v in have if v is not None)
+        known = sorted({getattr(r, field_name) for r in runs} - {None})
         unknown = [v for v in values if v not in known]
         if unknown or not values:
             raise ValueError(f"{arg}: {unknown or list(values)} not in this campaign "
                              f"(it has {known or 'none'})")
-        runs = [r for r in runs if (r.group if arg == "groups" else r.condition) in values]
+        runs = [r for r in runs if getattr(r, field_name) in values]
     if fraction >= 1.0:
         return runs
-    groups: dict[tuple[str, str, str | None], list[RunSpec]] = {}
+    strata: dict[tuple[str, str, str | None], list[RunSpec]] = {}
     for r in runs:
-        groups.setdefault((r.cls, r.kind, r.fault_type), []).append(r)
+        strata.setdefault((r.cls, r.kind, r.fault_type), []).append(r)
     keep: set[str] = set()
-    for members in groups.values():
+    for members in strata.values():
         ranked = sorted(members, key=lambda r: hashlib.sha256(r.run_id.encode()).hexdigest())
         keep.update(r.run_id for r in ranked[:math.ceil(fraction * len(members))])
     return [r for r in runs if r.run_id in keep]
