@@ -44,6 +44,29 @@ def _eval(raw: dict, result: RunResult) -> ex.ExpectationResult:
     return ex.evaluate(raw, result)
 
 
+# ------------------------------------------------------------ known limitations
+def test_known_limitation_is_a_strict_expected_failure(run: RunResult) -> None:
+    why = "the early false alarm at 3 s (issue 99)"
+    still = _eval({"kind": "no_alarm_before", "signal": "diag.early", "t_s": 10.0,
+                   "known_limitation": why}, run)
+    assert still.passed and still.is_known_limitation
+    assert still.known_limitation == why and "known limitation: " + why in still.message
+    assert still.value == pytest.approx(3.0)  # the measurement is kept
+    fixed = _eval({"kind": "no_alarm_before", "signal": "diag.df.detected", "t_s": 10.0,
+                   "known_limitation": why}, run)
+    assert not fixed.passed and not fixed.is_known_limitation
+    assert "promote it" in fixed.message
+    plain = _eval({"kind": "no_alarm_before", "signal": "diag.early", "t_s": 10.0}, run)
+    assert not plain.passed and not plain.is_known_limitation
+    (verdict,) = ex.verify_results([run], [{"name": "q_bias", "expect": [
+        {"kind": "no_alarm_before", "signal": "diag.early", "t_s": 10.0,
+         "known_limitation": why}]}])
+    assert verdict.passed
+    with pytest.raises(ValidationError, match="known_limitation"):
+        ex.parse_expectation({"kind": "no_alarm_before", "signal": "s",
+                              "known_limitation": ""})
+
+
 # ------------------------------------------------------------ detected_within
 def test_detected_within_passes_and_reports_the_delay(run: RunResult) -> None:
     r = _eval({"kind": "detected_within", "signal": "diag.df.detected", "fault": "q_bias",

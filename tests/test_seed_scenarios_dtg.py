@@ -21,7 +21,6 @@ delays, the physical faults' η and the system scenario's two witnesses.
 from __future__ import annotations
 
 import json
-import math
 import os
 import subprocess
 import sys
@@ -247,36 +246,42 @@ def test_system_dtg_channel_witness(system_runs):
     # (not yet the full 0.9 with a 5 s memory, 6-8 s after the step)
     ratio = _theta34(spin, 26.0, 28.0) / _theta34(ctrl, 26.0, 28.0)
     assert np.all((ratio > 0.88) & (ratio < 0.96)), ratio
-    # once the pilot manoeuvres the unmodelled case rate dominates: the DTG channel is no
-    # witness there (documented in the scenario header)
-    assert np.any(alarm_c[t >= 28.0] > 0.5)
+
+
+@pytest.mark.xfail(strict=True, reason="known limitation: DTG channel alarms once the pilot "
+                   "manoeuvres in the fault-free paper-configuration run (unmodelled case "
+                   "rate; issues 32, 34)")
+def test_system_dtg_channel_quiet_in_fault_free_manoeuvres(system_runs):
+    ctrl = _system(system_runs, "system_pitch_gyro_nominal")
+    assert not np.any(ctrl.signal("diag_fine.dtg.alarm") > 0.5)
 
 
 def test_system_detection_filter_witness(system_runs):
     spin = _system(system_runs, "system_pitch_gyro_spin")
-    ctrl = _system(system_runs, "system_pitch_gyro_nominal")
     t = spin.time
-    gains = {}
-    for name, r in (("spin", spin), ("ctrl", ctrl)):
-        det = r.signal("diag_df.df.detected")
-        # a q gain error is invisible at q ~ 0: quiet in level flight, also after the
-        # spin fault
-        assert not np.any(det[t < 28.0] > 0.5), name
-        assert detection_delay_s(t, det, 28.0) < 0.5, name
-        assert r.signal("diag_df.df.isolated_sensor")[-1] == 3, name
-        assert r.signal("diag_df.df.fault_type")[-1] == 2, name
-        gains[name] = r.signal("diag_df.df.fault_magnitude")[-1]
-    # fault-free the read-out lag of the paper rotor's rebalance loop looks like a q gain
-    # ~0.85; the spin fault scales the read-out by 0.9 on top of it
-    assert 0.81 < gains["ctrl"] < 0.90
-    assert 0.72 < gains["spin"] < 0.81
-    assert gains["spin"] / gains["ctrl"] == pytest.approx(0.9, abs=0.02)
+    det = spin.signal("diag_df.df.detected")
+    # a q gain error is invisible at q ~ 0: quiet in level flight, also after the spin
+    # fault; the spin fault scales the gyro's read-out (sensor 3, q) from the manoeuvre on
+    assert not np.any(det[t < 28.0] > 0.5)
+    assert detection_delay_s(t, det, 28.0) < 0.5
+    assert spin.signal("diag_df.df.isolated_sensor")[-1] == 3
+    assert spin.signal("diag_df.df.fault_type")[-1] == 2
+    assert spin.signal("diag_df.df.fault_magnitude")[-1] < 0.95
 
 
-def test_campaign_wall_time_is_recorded(campaign, capsys):
-    with capsys.disabled():
-        print(f"\nDTG seed campaign wall time: {campaign['wall_s']:.0f} s")
-    assert math.isfinite(campaign["wall_s"])
+@pytest.mark.xfail(strict=True, reason="known limitation: the paper rule types the paper "
+                   "rotor's read-out lag as a q gain of ~0.85 in fault-free manoeuvres "
+                   "(issue 33)")
+def test_system_detection_filter_quiet_in_fault_free_manoeuvres(system_runs):
+    ctrl = _system(system_runs, "system_pitch_gyro_nominal")
+    assert not np.any(ctrl.signal("diag_df.df.detected") > 0.5)
+
+
+@pytest.mark.xfail(strict=True, reason="known limitation: the spin fault's q gain is typed "
+                   "with the read-out lag on top (~0.77 for a true 0.9; issue 33)")
+def test_system_detection_filter_types_the_spin_fault_gain(system_runs):
+    spin = _system(system_runs, "system_pitch_gyro_spin")
+    assert spin.signal("diag_df.df.fault_magnitude")[-1] == pytest.approx(0.9, abs=0.03)
 
 
 # ----------------------------------------------------------------- fast checks

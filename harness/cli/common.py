@@ -146,7 +146,11 @@ def verify_and_report(results: Sequence[RunResult], scenarios: Sequence[Scenario
     for v in ordered:
         n = len(v.expectations)
         if v.passed:
-            log.info("%s: PASS (%d expectations)", v.scenario, n)
+            known = [e for e in v.expectations if e.is_known_limitation]
+            log.info("%s: PASS (%d expectations%s)", v.scenario, n,
+                     f", {len(known)} of them known limitations" if known else "")
+            for e in known:
+                log.info("    %s: %s", e.name, e.message)
             continue
         failed += 1
         run = runs.get(v.scenario)

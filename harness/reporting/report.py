@@ -297,6 +297,8 @@ def _status_html(status: str) -> str:
 def _expectation_status(e: Any) -> str:
     if not _evaluated(e):
         return '<span class="other">NOT EVALUATED</span>'
+    if getattr(e, "is_known_limitation", False):
+        return '<span class="other">KNOWN LIMITATION</span>'
     return _status(e.passed)
 
 

@@ -27,7 +27,11 @@ metric                     a metric of :data:`harness.verification.metrics.METRI
 ========================== ==============================================================
 
 Every kind also takes an optional ``name`` (label in reports; default built from the
-kind and its signal). The measured ``value`` of an :class:`ExpectationResult` is: the
+kind and its signal) and an optional ``known_limitation``: the expectation states the
+right behaviour, and the text says why the product does not meet it yet. Such an
+expectation is a strict expected failure: it passes (reported "KNOWN LIMITATION") while
+its check fails, and fails ("promote it") once the check holds, so a fix is noticed.
+The measured ``value`` of an :class:`ExpectationResult` is: the
 detection delay (s) for detected_within; the first alarm time (s) for no_alarm_before;
 the time the alarm is on outside the windows (s) for no_alarm_outside_faults, inside them
 for no_alarm_during_manoeuvres; the spread of the witnesses' detection delays (s) for
@@ -109,6 +113,12 @@ class ExpectationResult:
     value: float | None = None
     kind: str = ""
     evaluated: bool = True
+    known_limitation: str = ""
+
+    @property
+    def is_known_limitation(self) -> bool:
+        """True for a known limitation that still holds (its check failed, as stated)."""
+        return bool(self.known_limitation) and self.passed
 
 
 @dataclass
@@ -156,6 +166,10 @@ class _Base(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, use_attribute_docstrings=True)
 
     name: str | None = Field(default=None, description="Label in reports")
+    known_limitation: str | None = Field(
+        default=None, min_length=1,
+        description="Why the product does not meet this (right) expectation yet: a strict "
+                    "expected failure, failing once the check holds")
 
     def label(self) -> str:
         """The ``name`` if given, else kind and signal (and fault / metric)."""
@@ -652,7 +666,22 @@ def evaluate(expectation: Expectation | Mapping[str, Any], result: RunResult) ->
         return ExpectationResult(name, False, f"cannot evaluate: {reason}", None, exp.kind)
     if value is not None and math.isnan(value):
         value = None
+    if exp.known_limitation:
+        return _as_known_limitation(exp, bool(passed), message, value)
     return ExpectationResult(name, bool(passed), message, value, exp.kind)
+
+
+def _as_known_limitation(exp: Expectation, held: bool, message: str,
+                         value: float | None) -> ExpectationResult:
+    """A strict expected failure: it passes while the check fails, and fails once it holds."""
+    limitation = str(exp.known_limitation)
+    if held:
+        text = (f"known limitation no longer holds ({message}): the check passes now; "
+                f"promote it to a plain expectation (was: {limitation})")
+    else:
+        text = f"known limitation: {limitation} ({message})"
+    return ExpectationResult(exp.label(), not held, text, value, exp.kind,
+                             known_limitation=limitation)
 
 
 # --------------------------------------------------------------- scenario level
