@@ -331,7 +331,7 @@ def compile_status_shim(work_dir: Path) -> Path | None:
     out = work_dir / "fmi2_status_shim.so"
     cmd = [cc, "-O2", "-shared", "-fPIC", "-pthread", "-Wall", "-Wextra", "-Werror", f"-I{headers}",
            "-o", str(out), str(SHIM_SOURCE), "-ldl"]
-    proc = subprocess.run(cmd, capture_output=True, text=True)
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     if proc.returncode != 0:
         raise RuntimeError(f"compiling the status shim failed:\n{proc.stderr}")
     return out
@@ -358,7 +358,7 @@ def compile_kernels(source: Path, work_dir: Path) -> Path | None:
     cmd = [cc, "-O2", "-shared", "-fPIC", "-ffp-contract=off", "-Wall", "-Wextra",
            "-Wno-unused-parameter", "-Wno-missing-field-initializers",
            "-Wno-cast-function-type", "-Werror", f"-I{include}", "-o", str(out), str(source)]
-    proc = subprocess.run(cmd, capture_output=True, text=True)
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     if proc.returncode != 0:
         raise RuntimeError(f"compiling {source.name} failed:\n{proc.stderr}")
     return out
@@ -537,7 +537,7 @@ def generate_resources(name: str, work_dir: Path) -> dict[str, Path]:
         target = work_dir / archive
         target.parent.mkdir(parents=True, exist_ok=True)
         cmd = [sys.executable, str(ROOT / script), *args, "--out", str(target)]
-        proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+        proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
         if proc.returncode != 0 or not target.is_file():
             raise RuntimeError(f"{name}: generating resources/{archive} failed "
                                f"({' '.join(cmd)}): {proc.stderr.strip()}")
@@ -630,7 +630,7 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         proc = subprocess.run(
             [sys.executable, str(Path(__file__).resolve()), "--_one", name, "--out", str(out_dir)],
-            cwd=ROOT, capture_output=True, text=True,
+            cwd=ROOT, capture_output=True, text=True, timeout=600,
         )
         sys.stdout.write(proc.stdout)
         if proc.returncode != 0:

@@ -60,7 +60,7 @@ def _run(rule: str, period: float, window: float, table: Path) -> dict:
     code = _CHILD.format(src=str(ROOT / "fmu_src"), table=str(table), period=period,
                          rule=rule, window=window)
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          check=True)
+                          check=True, timeout=3600)
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
@@ -73,7 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="gyrodiag-bench-") as tmp:
         table = Path(tmp) / "observer_gains.npz"
         subprocess.run([sys.executable, str(ROOT / "fmu_src" / "tools" / "observer_gains.py"),
-                        "--out", str(table)], check=True, capture_output=True)
+                        "--out", str(table)], check=True, capture_output=True, timeout=3600)
         absent = Path(tmp) / "absent.npz"
         print(f"detection-filter start-up, {args.window_s:g} s window, CPU s "
               f"(median of {args.repeat} processes)")

@@ -216,7 +216,7 @@ def run_measurement(specs: dict[str, dict], warmup: int, steps: int,
         env.pop("GYRODIAG_KERNELS", None)
         if fallback:
             env["GYRODIAG_KERNELS"] = "python"
-        subprocess.run(cmd, check=True, cwd=ROOT, env=env)
+        subprocess.run(cmd, check=True, cwd=ROOT, env=env, timeout=3600)
         return json.loads(out.read_text())
 
 
@@ -225,7 +225,8 @@ def build_trivial(tmp: Path) -> Path:
     (tmp / "gd_bench_trivial.py").write_text(TRIVIAL_SCRIPT, encoding="utf-8")
     code = ("from pythonfmu import FmuBuilder; "
             "FmuBuilder.build_FMU('gd_bench_trivial.py', dest='.')")
-    subprocess.run([sys.executable, "-c", code], check=True, cwd=tmp, capture_output=True)
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=tmp, capture_output=True,
+                   timeout=3600)
     return tmp / "GdBenchTrivial.fmu"
 
 
@@ -237,7 +238,7 @@ def built_fmus(names: list[str]) -> Path:
 
     if build_fmu.stale_fmus(out, names):
         subprocess.run([sys.executable, str(ROOT / "build_fmu.py"), "--out", str(out),
-                        *names], check=True, cwd=ROOT, capture_output=True)
+                        *names], check=True, cwd=ROOT, capture_output=True, timeout=3600)
     return out
 
 
@@ -299,7 +300,7 @@ def measure_chain(fmu_dir: Path, fallback: bool) -> dict:
         env["GYRODIAG_KERNELS"] = "python"
     proc = subprocess.run([sys.executable, "-c", _CHAIN_RUNNER,
                            str(ROOT / "scenarios" / "dtg_nominal.toml"), str(fmu_dir)],
-                          cwd=ROOT, capture_output=True, text=True, env=env)
+                          cwd=ROOT, capture_output=True, text=True, env=env, timeout=3600)
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
     if proc.returncode != 0 or not lines:
         raise RuntimeError(f"dtg_nominal failed ({proc.returncode}):\n{proc.stderr[-2000:]}")

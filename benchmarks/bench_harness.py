@@ -72,7 +72,8 @@ _FMPY_RUNNER = textwrap.dedent(
 
 def _run_json(code: str, *args: str) -> dict:
     proc = subprocess.run(
-        [sys.executable, "-c", code, *args], cwd=ROOT, capture_output=True, text=True
+        [sys.executable, "-c", code, *args], cwd=ROOT, capture_output=True, text=True,
+        timeout=3600,
     )
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
     if proc.returncode != 0 or not lines:
@@ -89,7 +90,7 @@ def build_fmus() -> None:
     if stale:
         print(f"building the FMUs ({', '.join(stale)}) into {FMU_DIR}", flush=True)
         subprocess.run([sys.executable, str(ROOT / "build_fmu.py"), "--out", str(FMU_DIR)],
-                       cwd=ROOT, check=True, capture_output=True)
+                       cwd=ROOT, check=True, capture_output=True, timeout=3600)
 
 
 #: Run-time files the seed scenarios read through ``${out}/``, and the training set each
@@ -101,7 +102,7 @@ RECIPES = {"dtg_signatures.json": ROOT / "scenarios" / "training",
 def _learn_signatures(results: Path, name: str = "dtg_signatures.json") -> None:
     subprocess.run([sys.executable, "-m", "harness", "learn-signatures",
                     str(RECIPES[name]), "--out", str(results / name), "--fmu-dir",
-                    str(FMU_DIR), "--no-progress", "-q"], cwd=ROOT, check=True)
+                    str(FMU_DIR), "--no-progress", "-q"], cwd=ROOT, check=True, timeout=3600)
 
 
 def prepare_results(paths: list[str], results: Path,

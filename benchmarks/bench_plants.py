@@ -86,7 +86,7 @@ def measure(fmu: str, steps: int, warmup: int) -> dict:
 def _fresh(fmu: str, steps: int, warmup: int) -> dict:
     out = subprocess.run([sys.executable, __file__, "--child", fmu, "--steps", str(steps),
                           "--warmup", str(warmup)], capture_output=True, text=True,
-                         check=True)
+                         check=True, timeout=3600)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -113,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"building {', '.join(stale)} into {a.fmu_dir}", flush=True)
             subprocess.run([sys.executable, str(ROOT / "build_fmu.py"), "--out",
                             str(a.fmu_dir), *stale], check=True, cwd=ROOT,
-                           capture_output=True)
+                           capture_output=True, timeout=3600)
     fmus = {name: str(a.fmu_dir / f"{name}.fmu") for name in a.plants}
     for spec in a.fmu:
         name, _, path = spec.partition("=")

@@ -110,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     fmu_dir = Path(os.environ.get("GYRODIAG_FMU_DIR", ROOT / "build" / "fmus"))
     subprocess.run([sys.executable, str(ROOT / "build_fmu.py"), "--out", str(fmu_dir)],
-                   check=True, capture_output=True)
+                   check=True, capture_output=True, timeout=3600)
     with tempfile.TemporaryDirectory(prefix="gyrodiag-onset-") as tmp:
         out = Path(tmp) if args.keep is None else args.keep
         out.mkdir(parents=True, exist_ok=True)
@@ -121,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
                             str(ROOT / "scenarios" / "training" / "patterns"), "--out",
                             str(patterns), "--fmu-dir", str(fmu_dir), "--no-progress",
                             "--workers", str(args.workers)],
-                           check=True, capture_output=True, cwd=ROOT)
+                           check=True, capture_output=True, cwd=ROOT, timeout=3600)
         elif not patterns.is_file():
             parser.error(f"--patterns: no such file {patterns}")
         seeds = _seeds(args.seeds)

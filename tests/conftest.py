@@ -51,11 +51,72 @@ _LONG_MODULES = ("test_harness_results.py", "test_system_diagnosis.py",
                  "test_fmu_hosts.py", "test_seed_scenarios_dtg.py", "test_campaign.py")
 
 
+#: Fixtures that build FMUs or run co-simulations: a test using one is in the slow tier.
+_SLOW_FIXTURES = frozenset({"fmu_dir", "run_fmu_script", "gyrodiag_run",
+                            "gyrodiag_fmu_dir", "pytester"})
+#: Modules slow without those fixtures (library simulations of many seconds, subprocesses).
+_SLOW_MODULES = frozenset(_LONG_MODULES) | {
+    "test_benchmarks.py", "test_dtg_torquer_noise.py", "test_harness_interrupt.py",
+    "test_harness_parallel.py", "test_campaign_hrg.py", "test_campaign_system.py",
+    "test_campaign_sidebyside.py", "test_turbulence_manoeuvres.py",
+    "test_isolation_closed_loop.py", "test_dtg_case_rate.py", "test_sample_alignment.py",
+    "test_dtg_case_rate_reference.py", "test_distributions.py", "test_gain_table.py",
+    "test_harness_reference.py", "test_harness_layout.py",
+}
+
+
 def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config,
                                   items: list[pytest.Item]) -> None:
-    """Longest modules first (a stable sort: the order within a module is kept)."""
+    """Mark the slow tier; longest modules first (a stable sort keeps a module's order)."""
+    for item in items:
+        fixtures = set(getattr(item, "fixturenames", ()))
+        if (fixtures & _SLOW_FIXTURES or item.path.name in _SLOW_MODULES
+                or item.path.suffix == ".toml"):
+            item.add_marker(pytest.mark.slow)
     rank = {name: k for k, name in enumerate(_LONG_MODULES)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
+
+
+# ------------------------------------------------------------------ no silent skips
+#: Skips that CI accepts (GYRODIAG_STRICT_SKIPS=1, set by .ci/run): a regular expression
+#: of the skip reason -> why that skip is no defect on CI. Everything else fails the run.
+ALLOWED_SKIPS: dict[str, str] = {}
+_SKIPPED: list[tuple[str, str]] = []
+_SKIP_PROBLEM: list[str] = []
+
+
+def _skip_reason(report: pytest.TestReport) -> str:
+    longrepr = report.longrepr
+    if isinstance(longrepr, tuple) and len(longrepr) == 3:
+        return str(longrepr[2])
+    return str(longrepr)
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    # on the xdist controller too: every worker's reports pass through it
+    if report.skipped and not hasattr(report, "wasxfail"):
+        _SKIPPED.append((report.nodeid, _skip_reason(report)))
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    if hasattr(session.config, "workerinput") or os.environ.get("GYRODIAG_STRICT_SKIPS") != "1":
+        return
+    import re
+
+    bad = [(node, why) for node, why in _SKIPPED
+           if not any(re.search(pattern, why) for pattern in ALLOWED_SKIPS)]
+    if bad:
+        _SKIP_PROBLEM[:] = [f"{node}: {why}" for node, why in bad]
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED
+
+
+def pytest_terminal_summary(terminalreporter: Any, exitstatus: int, config: pytest.Config) -> None:
+    if _SKIP_PROBLEM:
+        terminalreporter.section("skips not on the allow-list (tests/conftest.py ALLOWED_SKIPS)",
+                                 red=True)
+        for line in _SKIP_PROBLEM:
+            terminalreporter.line(line)
 
 
 def load_builder() -> Any:
@@ -78,7 +139,7 @@ def fmu_dir() -> Path:
         if stale:
             proc = subprocess.run(
                 [sys.executable, str(ROOT / "build_fmu.py"), "--out", str(out)],
-                cwd=ROOT, capture_output=True, text=True,
+                cwd=ROOT, capture_output=True, text=True, timeout=1800,
             )
             if proc.returncode != 0:
                 pytest.fail(f"build_fmu.py failed (stale: {stale}):\n{proc.stdout[-4000:]}\n"
@@ -94,7 +155,7 @@ def run_fmu_script(fmu_dir: Path, tmp_path_factory: pytest.TempPathFactory):
         out = tmp_path_factory.mktemp("fmu_run") / "result.npz"
         proc = subprocess.run(
             [sys.executable, str(script), str(fmu_dir), str(out), *args],
-            cwd=ROOT, capture_output=True, text=True,
+            cwd=ROOT, capture_output=True, text=True, timeout=1800,
         )
         if proc.returncode != 0:
             pytest.fail(f"{Path(script).name} failed (exit {proc.returncode}):\n"

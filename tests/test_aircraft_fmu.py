@@ -249,6 +249,24 @@ def test_fmu_state_round_trip_is_exact(rec):
     np.testing.assert_array_equal(rec["state_first"], rec["state_third"])
 
 
+def test_plant_and_library_matrices_are_one_aircraft():
+    """The Aircraft FMU's core and the library's detection-filter model are written
+    apart (the FMU ships without gyrodiag): they must be the same seed aircraft."""
+    sys.path.insert(0, str(ROOT / "models" / "aircraft"))
+    import gd_aircraft_core as core
+
+    from gyrodiag.aircraft import seed_aircraft
+
+    lib = seed_aircraft()
+    for name in ("A", "B", "C"):
+        np.testing.assert_array_equal(getattr(core, name), getattr(lib, name), err_msg=name)
+    assert core.STATE_NAMES == lib.state_names and core.OUTPUT_NAMES == lib.output_names
+    assert core.INPUT_NAMES == lib.input_names
+    # paper data (DESIGN §4): the pitch-moment row and the elevator column
+    np.testing.assert_array_equal(lib.A[2, 1:3], [-7.9101, -3.0241])
+    np.testing.assert_array_equal(lib.B[1:3, 1], [-0.2779, -26.3821])
+
+
 def _design_module():
     sys.path.insert(0, str(ROOT / "models" / "pitch_controller"))
     import gd_pitch_controller_design as design
@@ -257,7 +275,8 @@ def _design_module():
 
 
 def test_controller_gains_and_margins_match_python_control(rec):
-    control = pytest.importorskip("control")
+    import control
+
     design = _design_module()
     d = design.design_pitch_controller()
     k_ctrl, _, poles = control.lqr(d.a_aug, d.b_aug, np.diag([1.0, 1.0, 10.0, 1e-3]), 100.0)

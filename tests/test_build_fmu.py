@@ -110,7 +110,7 @@ def test_postprocess_sets_variability_units_dependencies():
 
 def test_cli_rejects_unknown_name(tmp_path):
     proc = subprocess.run([sys.executable, str(ROOT / "build_fmu.py"), "--out", str(tmp_path),
-                           "NoSuchFMU"], capture_output=True, text=True)
+                           "NoSuchFMU"], capture_output=True, text=True, timeout=1800)
     assert proc.returncode == 2 and "unknown FMU name" in proc.stderr
 
 

@@ -325,7 +325,7 @@ def test_stopping_a_campaign_kills_its_runs_in_flight_and_keeps_finished_ones(
     gone within a few seconds, and the two finished records are intact. On Dask the
     runs die with their workers when the campaign closes its LocalCluster."""
     if dask:
-        pytest.importorskip("distributed")
+        import distributed  # noqa: F401  (the test extra's; a missing one is an error)
     log = tmp_path / "log"
     log.mkdir()
     spec = fake_spec([0.6, 0.7, 2.0, 2.1], timeout_s=3600.0)
@@ -365,7 +365,8 @@ def test_stopping_a_campaign_kills_its_runs_in_flight_and_keeps_finished_ones(
 
 
 def test_smoke_campaign_pool_and_dask_give_the_same_figures(tmp_path, fmu_dir, monkeypatch):
-    pytest.importorskip("distributed")
+    import distributed  # noqa: F401  (the test extra's; a missing one is an error)
+
     monkeypatch.setenv("GYRODIAG_FMU_DIR", str(fmu_dir))
     spec, base = load_campaign(SMOKE)
     pool = run_campaign(spec, base, tmp_path / "pool", workers=2, progress=False)

@@ -42,5 +42,5 @@ def test_the_diagnosers_channels_do_not_import_scipy_stats():
             "gyrodiag.dtg_channel, gyrodiag.sequential_diagnosis; "
             "print('scipy.stats' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], cwd=str(ROOT / "fmu_src"),
-                         capture_output=True, text=True, check=True).stdout
+                         capture_output=True, text=True, check=True, timeout=600).stdout
     assert out.strip() == "False"

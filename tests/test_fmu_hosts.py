@@ -35,7 +35,7 @@ EXIT_RUNS = 20
 
 def _run_runner(fmu_dir: Path, out: Path, mode: str) -> dict:
     proc = subprocess.run([sys.executable, str(RUNNER), str(fmu_dir), str(out), mode],
-                          capture_output=True, text=True)
+                          capture_output=True, text=True, timeout=600)
     if proc.returncode != 0:
         pytest.fail(f"_host_runner {mode} failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-6000:]}")
     return json.loads(out.read_text(encoding="utf-8"))
@@ -50,7 +50,7 @@ def host(tmp_path_factory) -> Path:
     headers = Path(fmpy.__file__).parent / "c-code"
     proc = subprocess.run([cc, "-std=c11", "-O2", "-Wall", "-Wextra", "-Werror",
                            f"-I{headers}", "-o", str(exe), str(HOST_SOURCE), "-ldl"],
-                          capture_output=True, text=True)
+                          capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
     return exe
 

@@ -47,7 +47,7 @@ EXPECTED: dict[str, tuple[str, tuple[str, ...]]] = {
 def states(fmu_dir, tmp_path_factory) -> dict:
     out = tmp_path_factory.mktemp("states") / "states.json"
     proc = subprocess.run([sys.executable, str(RUNNER), str(fmu_dir), str(out)],
-                          capture_output=True, text=True)
+                          capture_output=True, text=True, timeout=600)
     if proc.returncode != 0:
         pytest.fail(f"state runner failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-6000:]}")
     return json.loads(out.read_text(encoding="utf-8"))

@@ -160,7 +160,7 @@ figures = ch.thresholds[0] if ch.thresholds is not None else ch.noise_std
 print(int("scipy.signal" in sys.modules), *map(float.hex, map(float, figures)))
 """
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          check=True)
+                          check=True, timeout=600)
     flag, *values = proc.stdout.split()
     return flag == "1", np.array([float.fromhex(v) for v in values])
 
@@ -196,14 +196,15 @@ def test_generator_command_writes_the_table(tmp_path):
     out = tmp_path / "gains.npz"
     proc = subprocess.run([sys.executable, str(ROOT / "fmu_src" / "tools" / "observer_gains.py"),
                            "--out", str(out), "--periods", "0.01", "0.001"],
-                          capture_output=True, text=True)
+                          capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
     assert "42 observer designs" in proc.stdout
     with np.load(out) as table:
         assert len(table.files) == 42 + 1  # and the format entry
         assert str(table[gain_table.FORMAT_KEY]) == gain_table.FORMAT
     bad = subprocess.run([sys.executable, str(ROOT / "fmu_src" / "tools" / "observer_gains.py"),
-                          "--out", str(out), "--periods", "0"], capture_output=True, text=True)
+                          "--out", str(out), "--periods", "0"], capture_output=True, text=True,
+                         timeout=600)
     assert bad.returncode == 2 and "--periods must all be > 0" in bad.stderr
 
 

@@ -106,7 +106,6 @@ start_s = 0.1
 
 
 def test_verify_runs_checks_expectations_and_writes_reports(tmp_path, fmu_dir):
-    pytest.importorskip("harness.reporting.report")
     scenario = tmp_path / "verify_me.toml"
     scenario.write_text((DATA / "closed_loop.toml").read_text() + """
 [[expect]]

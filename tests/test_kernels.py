@@ -56,7 +56,7 @@ def test_environment_variable_forces_the_fallback() -> None:
     code = "import gyrodiag._accel as a; print(a.ACCELERATED, a.kernels.__name__)"
     env = {**os.environ, "GYRODIAG_KERNELS": "python"}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
-                         text=True, check=True, cwd=ROOT).stdout.split()
+                         text=True, check=True, cwd=ROOT, timeout=600).stdout.split()
     assert out == ["False", "gyrodiag._pykernels"]
 
 

@@ -99,7 +99,7 @@ def _unbounded_reason(fmu_name: str, name: str) -> str | None:
 def runtime(fmu_dir, tmp_path_factory) -> dict:
     out = tmp_path_factory.mktemp("md") / "md.json"
     proc = subprocess.run([sys.executable, str(RUNNER), str(fmu_dir), str(out)],
-                          capture_output=True, text=True)
+                          capture_output=True, text=True, timeout=600)
     if proc.returncode != 0:
         pytest.fail(f"_md_runner failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-6000:]}")
     return json.loads(out.read_text(encoding="utf-8"))

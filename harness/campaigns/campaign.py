@@ -1534,7 +1534,8 @@ def _learn_library(spec: CampaignSpec, base_dir: Path, out_dir: Path, name: str,
            str(target)]
     if fmu_dir:
         cmd += ["--fmu-dir", fmu_dir]
-    proc = subprocess.run(cmd, env=_child_env(), cwd=str(REPO_ROOT))
+    proc = subprocess.run(cmd, env=_child_env(), cwd=str(REPO_ROOT),
+                          timeout=7200)
     if proc.returncode != 0 or not target.is_file():
         raise RuntimeError(f"learning the DTG signatures failed (exit {proc.returncode})")
 

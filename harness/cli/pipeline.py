@@ -89,7 +89,7 @@ def build_fmus(fmu_dir: Path) -> int:
         log.error("%s not found: 'all' needs a source checkout of gyrodiag", script)
         return 1
     return subprocess.run([sys.executable, str(script), "--out", str(fmu_dir)],
-                          cwd=REPO_ROOT).returncode
+                          cwd=REPO_ROOT, timeout=1800).returncode
 
 
 def _drop_training_signals(folder: Path, scenarios: list[Any]) -> None:
