@@ -1179,7 +1179,7 @@ class Diagnoser(FacadeBase):
 
     # ------------------------------------------------------------------ stepping
     def do_step(self, current_time: float, step_size: float) -> bool:
-        # Returning False would mean fmi2Discard (DESIGN §6.7): always True, and report
+        # Returning False would mean fmi2Discard (docs/methods.md §6.7): always True, and report
         # problems through the logger (→ fmi2Error).
         try:
             self._step(current_time, step_size)

@@ -1,6 +1,6 @@
 """Grey prediction (GM(1,1)) and the improved moving-window grey fault detector (HRG).
 
-Method B of the design notes (DESIGN.md §3, seed 001): a hemispherical resonator gyro's
+Method B (docs/methods.md §3, seed 001): a hemispherical resonator gyro's
 output is predicted one sample ahead by a grey model fitted to the last ``m`` samples;
 a measured sample farther than a threshold from its prediction raises a fault alarm.
 
@@ -167,9 +167,9 @@ def gm11_optimal_initial_value(x0: ArrayLike, a: float, b: float) -> float:
     Notes
     -----
     x̂¹ is linear in C, so the least-squares optimum is this closed form. The paper
-    (its ref. 9) writes the optimum as a weight β between x¹(1) and x¹(m); DESIGN.md
+    (its ref. 9) writes the optimum as a weight β between x¹(1) and x¹(m); docs/methods.md §3
     states that this is the same optimum. The β formula itself is not legible in our
-    copy of the paper, so that equivalence is taken from DESIGN.md, not re-derived.
+    copy of the paper, so that equivalence is taken from docs/methods.md §3, not re-derived.
     """
     arr = _check_window("x0", x0)
     return _optimal_c(arr, float(a), float(b))
@@ -1006,7 +1006,7 @@ class GreyFaultDetector:
     Calibrated detector
     -------------------
     With noise on the signal a fixed threshold either false-alarms or misses
-    (DESIGN §3). The first ``calibrate_samples`` one-step prediction errors after the
+    (docs/methods.md §3). The first ``calibrate_samples`` one-step prediction errors after the
     warm-up (assumed fault-free) give σ_e (see :func:`_calibrated_sigma`: winsorised,
     raised to its 95 % upper confidence bound) and the threshold
     max(k_sigma·σ_e, ``threshold``); σ_e keeps learning from the samples judged
@@ -1590,7 +1590,7 @@ class GreyFaultDetector:
         predictor's own prediction (the paper's substitution) for the first
         ``hold_after`` samples of a substitution run, then held at the last of them,
         and always clipped to the widened envelope. A predictor fed its own
-        extrapolation compounds it (volts within 20 s at 20 mV of noise, DESIGN §3); a
+        extrapolation compounds it (volts within 20 s at 20 mV of noise, docs/methods.md §3); a
         straight line fitted to the last fault-free samples misses the seed-001
         profile's curvature by ~0.05 V within its own window. Holding after a few
         samples bounds the drift by what the model extrapolates in that time."""

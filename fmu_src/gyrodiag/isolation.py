@@ -1,7 +1,7 @@
 """Which sensor failed: isolability analysis and a streaming sensor-fault isolator.
 
 The single Beard–Jones filter of the seed paper detects faults but cannot tell most
-of them apart on the seed aircraft (DESIGN §4): constant-bias signatures of v and h
+of them apart on the seed aircraft (docs/methods.md §4): constant-bias signatures of v and h
 are zero, those of α, θ and γ nearly collinear. :func:`isolability_analysis` works
 out, for a given model, what is detectable and what is isolable;
 :class:`SensorFaultIsolator` isolates by a generalised observer scheme (GOS):
