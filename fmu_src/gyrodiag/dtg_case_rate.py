@@ -36,8 +36,8 @@ and to O(T²) the centred differences for the rotor's own (smooth) motion::
 with Ū = ½(U(k) + U(k−1)) (``torquer_average``, default) or the paper's U(k).  The paper's
 form evaluates the springs at t(k), the damper and gyroscopic terms at t(k−½) and the
 inertia at t(k−1); its θ3/θ4 at rest carry that truncation error, and a manoeuvre, which
-pins them through the large L·ω term, moves them toward the physical values (measured:
-+7 % on the paper rotor, 4.5 times the seed spread; the central form: ≤ 4 %).
+pins them through the large L·ω term, moves them toward the physical values (more than
+the central form does: docs/notes.md, case-rate schemes).
 
 The pick-off scale KT (rad/V) is the nominal gyro's (a datasheet value).  ω must be an
 estimate that does not come from the gyro under test; its noise enters a regressor

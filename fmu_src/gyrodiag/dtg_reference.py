@@ -543,7 +543,7 @@ class ResidualThresholds:
         its covariance P: they add ``allowance_sigma² ·`` (the block's θ-uncertainty
         variance) to their nominal variance. The error is one draw per run, and a
         manoeuvre edge that excites a direction where it is c standard deviations off
-        raises those ratios towards c², so 1 (the allowance of 2026-11-25) lets them
+        raises those ratios towards c², so 1 (the first, tighter allowance) lets them
         alarm at c ≈ 1.4 (2 s ratio 2): 16 % of runs per excited direction. The level
         test allows up to ``level`` standard deviations already (its allowance enters
         as a standard deviation).
