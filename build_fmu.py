@@ -6,9 +6,9 @@ Usage::
 
 Each FMU is built in a fresh subprocess (``python build_fmu.py --_one NAME --out DIR``)
 because the pythonfmu builder imports the model script, and two scripts imported into one
-interpreter could shadow each other's modules (DESIGN §6.3, §6.4).  After the build the
+interpreter could shadow each other's modules (docs/methods.md §6.3, §6.4).  After the build the
 subprocess post-processes ``modelDescription.xml``, which pythonfmu leaves invalid
-(DESIGN §6.1, §6.2):
+(docs/methods.md §6.1, §6.2):
 
 * ``variability`` on every variable (pythonfmu omits it for Integer/Boolean, for which the
   FMI default ``continuous`` is illegal);
@@ -19,7 +19,7 @@ subprocess post-processes ``modelDescription.xml``, which pythonfmu leaves inval
 * units, min/max/nominal and descriptions from the script's ``VARIABLE_META``, with every
   unit declared in ``<UnitDefinitions>`` (SI base-unit exponents where known);
 * ``resources/requirements.txt`` from the script's ``REQUIREMENTS`` (default numpy+scipy),
-  because the FMU runs on the host's Python (DESIGN §6.5).  Hosts that are not Python
+  because the FMU runs on the host's Python (docs/methods.md §6.5).  Hosts that are not Python
   processes need no LD_PRELOAD: the status shim finds and starts a Python itself
   (``HOST_NOTES`` below, in every FMU's documentation).
 

@@ -5,7 +5,7 @@ Usage::
     .venv/bin/python benchmarks/bench_diagnoser.py [--steps 3000] [--warmup 1500] [--no-chain]
 
 Measures, in one run, through fmpy, on the same input records at 1 kHz, in one fresh
-process per Diagnoser configuration (DESIGN §6.11) in which three FMUs are stepped in
+process per Diagnoser configuration (docs/methods.md §6.11) in which three FMUs are stepped in
 turn, step by step, so that their ratios do not depend on the load of a shared machine:
 
 * the host step of a trivial pythonfmu FMU (one Real output set in do_step, built here in

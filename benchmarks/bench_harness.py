@@ -9,7 +9,7 @@ Prints, in one run:
 
 * for each seed scenario (default: ``scenarios/*.toml``): simulated time, wall time and
   real-time factor RTF = simulated / wall (> 1: faster than real time), each scenario
-  in its own fresh process (DESIGN §6.11);
+  in its own fresh process (docs/methods.md §6.11);
 * the master's overhead on a single FMU: the Aircraft FMU alone (noise on, 10 ms step)
   through ``harness.run_scenario`` and through ``fmpy.simulate_fmu`` with the same
   step and duration, recording the same outputs, each in a fresh process; the ratio

@@ -1,4 +1,4 @@
-"""Count interpreter-exit aborts of processes that ran pythonfmu FMUs (DESIGN §6.11).
+"""Count interpreter-exit aborts of processes that ran pythonfmu FMUs (docs/methods.md §6.11).
 
 Each child process extracts Aircraft, FaultInjector and Diagnoser, instantiates, steps,
 terminates and frees them with fmpy, then exits normally (no ``os._exit``).  pythonfmu

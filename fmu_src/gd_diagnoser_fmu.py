@@ -334,8 +334,8 @@ class Diagnoser(FacadeBase):
         p("dtg.allowance_sigma", "Real", "parameter", ALLOWANCE_SIGMA,
           "Pattern classifier with the case rate: the reference's error the variance "
           "tests and the power CUSUM allow for, in standard deviations of its covariance "
-          "(a manoeuvre edge raises their ratios to that error squared); 1: the first "
-          "rule (2026-11-25)")
+          "(a manoeuvre edge raises their ratios to that error squared); 1: the channel's "
+          "earlier, tighter allowance")
         _meta("dtg.allowance_sigma", "1", 0.0)
         p("dtg.theta_spread_threshold", "Real", "parameter", 30.0,
           "Learning guard: largest spread of a learning segment's theta against the "
@@ -1179,7 +1179,7 @@ class Diagnoser(FacadeBase):
 
     # ------------------------------------------------------------------ stepping
     def do_step(self, current_time: float, step_size: float) -> bool:
-        # Returning False would mean fmi2Discard (DESIGN §6.7): always True, and report
+        # Returning False would mean fmi2Discard (docs/methods.md §6.7): always True, and report
         # problems through the logger (→ fmi2Error).
         try:
             self._step(current_time, step_size)

@@ -8,14 +8,14 @@ This module supplies:
   communication-step checks, and FMU states that cannot kill the instance: a state is
   tagged with its model and format, a state of another model, an unreadable or
   ill-fitting one gives fmi2Error and leaves the instance exactly as it was
-  (DESIGN §6.14; the shim also frames serialized states with the FMU's GUID and a
+  (docs/methods.md §6.14; the shim also frames serialized states with the FMU's GUID and a
   checksum).
 * ``FacadeBase``: a ``GuardedSlave`` with table-driven variables (names may contain dots
   and brackets, FMI "structured" naming), values in one dict, and full FMU state
   through JSON-safe encoding of numpy arrays.
 * ``encode`` / ``decode`` for numpy arrays, NaN and nested containers in JSON.
 
-The module name is unique to this project (DESIGN §6.3). build_fmu.py ships this file
+The module name is unique to this project (docs/methods.md §6.3). build_fmu.py ships this file
 with every FMU; all gyrodiag FMUs in one process share the copy imported first, so FMUs
 of one process should come from one build.
 """
@@ -306,7 +306,7 @@ class GuardedSlave(Fmi2Slave):
                 errors.append(f"{var.name} = {value!r} is outside its range {bounds}")
         return errors
 
-    # -- FMU state (DESIGN §6.8, §6.14) ---------------------------------------
+    # -- FMU state (docs/methods.md §6.8, §6.14) ---------------------------------------
     def _state_payload(self) -> dict[str, Any]:
         """Everything the instance needs to resume (JSON-serialisable)."""
         return {var.name: var.getter() for var in self.vars.values()}
@@ -430,7 +430,7 @@ class FacadeBase(GuardedSlave):
             self._vr_names: dict[str, dict[int, str]] = {}
         self._vr_names.setdefault(kind, {})[var.value_reference] = name
 
-    # -- FMU state (DESIGN §6.8: save everything, not only registered variables) -
+    # -- FMU state (docs/methods.md §6.8: save everything, not only registered variables) -
     def _capture_state(self) -> dict[str, Any]:
         return {}
 

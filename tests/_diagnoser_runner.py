@@ -1,10 +1,10 @@
-"""Diagnoser.fmu scenarios, run in a fresh process (DESIGN §6.11) by test_diagnoser_fmu.
+"""Diagnoser.fmu scenarios, run in a fresh process (docs/methods.md §6.11) by test_diagnoser_fmu.
 
 ``python _diagnoser_runner.py FMU_DIR OUT.npz IN.npz`` reads the input records from
 IN.npz, runs every scenario below through fmpy and writes all outputs to OUT.npz.
 
 This module must not import ``gyrodiag``: the FMU loads the copy shipped in its
-resources into this interpreter, and the first imported copy would win (DESIGN §6.3).
+resources into this interpreter, and the first imported copy would win (docs/methods.md §6.3).
 The parameter sets live here so that the test module (which builds the library
 references) and this process share them.
 """
@@ -257,7 +257,7 @@ class Diag:
         return np.array(rows)
 
     def close(self) -> None:
-        """Free the instance but keep the shared library loaded (DESIGN §6.11)."""
+        """Free the instance but keep the shared library loaded (docs/methods.md §6.11)."""
         self.call(self.fmu.terminate)
         self.fmu.fmi2FreeInstance(self.fmu.component)
 

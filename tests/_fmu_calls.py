@@ -1,6 +1,6 @@
 """A logged fmpy instance for the FMI-level tests (state bytes, steps, tunables, hosts).
 
-Used only in processes that run FMUs (never imports ``gyrodiag``, DESIGN §6.3). fmpy
+Used only in processes that run FMUs (never imports ``gyrodiag``, docs/methods.md §6.3). fmpy
 raises ``FMICallException`` for a status worse than warning; :meth:`Instance.call`
 returns the status instead, so that a test can record it together with the log.
 """

@@ -1,4 +1,4 @@
-"""Diagnoser.fmu detection filter at start-up, in a fresh process (DESIGN §6.11), for
+"""Diagnoser.fmu detection filter at start-up, in a fresh process (docs/methods.md §6.11), for
 test_gain_table.
 
 ``python _gain_table_runner.py FMU_DIR OUT.npz RULE PERIOD_S A23`` runs the
@@ -6,7 +6,7 @@ detection-filter channel alone (RULE 0 paper, 1 sequential; ``df.A[2,3]`` = A23,
 the default for ``default``) through its calibration window on seeded noise and saves
 the thresholds or noise figures in use and whether this process imported
 ``scipy.signal`` (the FMU runs in this interpreter).  Must not
-import ``gyrodiag`` (the FMU loads its own copy, DESIGN §6.3).
+import ``gyrodiag`` (the FMU loads its own copy, docs/methods.md §6.3).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Diagnoser.fmu grey-channel options, run in a fresh process (DESIGN §6.11) by
+"""Diagnoser.fmu grey-channel options, run in a fresh process (docs/methods.md §6.11) by
 test_diagnoser_grey_options.
 
 ``python _grey_options_runner.py FMU_DIR OUT.npz IN.npz`` runs the grey channel alone

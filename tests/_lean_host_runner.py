@@ -7,7 +7,7 @@ off, and an instance with the defaults (detection filter on), whose initialisati
 fail with fmi2Error naming the missing package. With the extra argument ``python`` the
 FMU runs its plain-Python kernels (GYRODIAG_KERNELS=python).
 
-Must not import gyrodiag (the FMU loads the copy in its resources; DESIGN §6.3).
+Must not import gyrodiag (the FMU loads the copy in its resources; docs/methods.md §6.3).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The same scenarios through three masters, in a fresh process (DESIGN §6.11, §6.16).
+"""The same scenarios through three masters, in a fresh process (docs/methods.md §6.11, §6.16).
 
 ``python _libcosim_runner.py FMU_DIR OUT_DIR`` runs every case of :data:`CASES`
 

@@ -1,4 +1,4 @@
-"""Runtime side of test_model_descriptions, in a fresh process (DESIGN §6.11).
+"""Runtime side of test_model_descriptions, in a fresh process (docs/methods.md §6.11).
 
 ``python _md_runner.py FMU_DIR OUT.json`` records, for every FMU:
 

@@ -1,4 +1,4 @@
-"""Bad FMU states against every FMU, in a fresh process (DESIGN §6.11, §6.14).
+"""Bad FMU states against every FMU, in a fresh process (docs/methods.md §6.11, §6.14).
 
 ``python _state_runner.py FMU_DIR OUT.json`` runs, for every FMU of the project: N steps,
 get and serialise the state S, M more steps (the reference R1); restore S and run M

@@ -1,5 +1,5 @@
 """Diagnoser.fmu on the system chain with the case rate and the read-out dynamics, run in
-a fresh process (DESIGN §6.11) by test_system_diagnosis.
+a fresh process (docs/methods.md §6.11) by test_system_diagnosis.
 
 ``python _system_diagnoser_runner.py FMU_DIR OUT.npz IN.npz``: IN.npz holds the chain
 record (columns of :data:`DTG_IN` and :data:`DF_IN`) and the read-out file's path. Must

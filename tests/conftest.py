@@ -1,11 +1,11 @@
 """Shared pytest fixtures: FMUs built once per session, FMU scenarios in fresh processes.
 
 * ``fmu_dir`` (session): builds every available FMU with ``python build_fmu.py --out DIR``
-  in a subprocess (DESIGN §6.4: never build and simulate in one process) unless all FMUs
+  in a subprocess (docs/methods.md §6.4: never build and simulate in one process) unless all FMUs
   in DIR are newer than their sources; returns DIR.  DIR is ``build/fmus`` or
   ``$GYRODIAG_FMU_DIR``.  A file lock serialises concurrent pytest sessions.
 * ``run_fmu_script`` (session): runs ``python SCRIPT FMU_DIR OUT.npz [ARGS]`` in a fresh
-  process (DESIGN §6.11) and returns the arrays saved in OUT.npz.
+  process (docs/methods.md §6.11) and returns the arrays saved in OUT.npz.
 * :class:`FmuSlave`: a thin fmpy ``FMU2Slave`` loop helper for those scripts
   (``sys.path.insert(0, tests_dir); from conftest import FmuSlave``).  It never unloads
   the shared library, because unloading and reloading a pythonfmu binary in one process

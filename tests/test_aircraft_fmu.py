@@ -1,6 +1,6 @@
 """Aircraft.fmu and PitchController.fmu acceptance tests (fmpy, fresh process).
 
-* open-loop outputs equal an independent solve_ivp simulation of DESIGN §4 to 1e−6,
+* open-loop outputs equal an independent solve_ivp simulation of docs/methods.md §4 to 1e−6,
   with a step-size change mid-run (the ZOH matrices are recomputed);
 * sensor noise is the documented seeded sequence; FMU state round trip is exact;
 * the LQR gains equal python-control's, margins as documented;

@@ -1,4 +1,4 @@
-"""Known answers of the DTG paper's decision table (DESIGN §2)."""
+"""Known answers of the DTG paper's decision table (docs/methods.md §2)."""
 
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""Detection-filter design, sampled-data filter, thresholds and alarms (DESIGN §4)."""
+"""Detection-filter design, sampled-data filter, thresholds and alarms (docs/methods.md §4)."""
 
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ def gain() -> np.ndarray:
 
 
 def test_seed_model_ranks_and_open_loop_eigenvalues():
-    # DESIGN §4: ctrb rank 4 (v uncontrollable), obsv rank 5, unstable +1.46, +0.99.
+    # docs/methods.md §4: ctrb rank 4 (v uncontrollable), obsv rank 5, unstable +1.46, +0.99.
     ctrb = np.hstack([np.linalg.matrix_power(A, k) @ B for k in range(5)])
     assert np.linalg.matrix_rank(ctrb) == 4
     assert np.linalg.matrix_rank(observability_matrix(A, C)) == 5
@@ -64,7 +64,7 @@ def test_designed_gain_places_eigenvalues_and_eigenvectors(gain):
 def test_designed_gain_is_minimum_norm_and_free_part_is_parity(gain):
     w = parity_space(C)
     assert w.shape == (1, 6)
-    # DESIGN: left null vector [0, 1, 0, -1, 1, 0] (α − θ + γ = 0).
+    # docs/methods.md §4: left null vector [0, 1, 0, -1, 1, 0] (α − θ + γ = 0).
     np.testing.assert_allclose(np.abs(w[0]), np.abs([0, 1, 0, -1, 1, 0]) / np.sqrt(3), atol=1e-12)
     # Min-norm: K has no component along the parity direction.
     np.testing.assert_allclose(gain @ w[0], 0.0, atol=1e-10)
@@ -76,7 +76,7 @@ def test_designed_gain_is_minimum_norm_and_free_part_is_parity(gain):
 
 def test_paper_printed_gain_is_unstable():
     eig = np.sort(np.linalg.eigvals(A - PAPER_PRINTED_K @ C).real)
-    # Computed: {-5.7475, -5, -3.8820, -1, +2.4669}; DESIGN quotes -5.75, -5, -3.88, -1, +2.47.
+    # Computed: {-5.7475, -5, -3.8820, -1, +2.4669}; methods §4 quotes -5.75, -5, -3.88, -1, +2.47.
     np.testing.assert_allclose(eig, [-5.7475, -5.0, -3.8820, -1.0, 2.4669], atol=1e-3)
     assert eig.max() > 2.0
 

@@ -1,7 +1,7 @@
 """Diagnoser.fmu acceptance: the FMU equals the library, keeps its full state, recovers
 from NaN inputs and rejects bad parameters with fmi2Error.
 
-All FMU calls run in one fresh process (tests/_diagnoser_runner.py, DESIGN §6.11); the
+All FMU calls run in one fresh process (tests/_diagnoser_runner.py, docs/methods.md §6.11); the
 library references are computed here, from the same input records, with channel
 objects configured independently of the facade's parameter mapping.
 """

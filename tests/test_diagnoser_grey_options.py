@@ -2,7 +2,7 @@
 (``grey.window = 0``) and the textbook evaluation of the classic model
 (``grey.classic_evaluation = 1``), compared with the library to 1e−12.
 
-The FMU runs in a fresh process (tests/_grey_options_runner.py, DESIGN §6.11); the
+The FMU runs in a fresh process (tests/_grey_options_runner.py, docs/methods.md §6.11); the
 references are built here from ``gyrodiag.grey`` directly.
 """
 

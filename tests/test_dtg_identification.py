@@ -97,7 +97,7 @@ def test_streaming_regressor_equals_batch_regression():
 
 
 def test_common_prefilter_keeps_the_regression_exact():
-    """DESIGN §2: filtering all four signals with one LTI filter keeps θ exact."""
+    """docs/methods.md §2: filtering all four signals with one LTI filter keeps θ exact."""
     theta = theta_from_physical(STABLE_ROTOR, T)
     ux, uy = _inputs(6000, seed=14)
     tx, ty = simulate_difference_equation(theta, ux, uy)

@@ -1,5 +1,5 @@
 """DTG pattern classifier end to end: the pattern training set learned through the CLI,
-then the ``dtg_pattern_*`` verification scenarios, in subprocesses (DESIGN §6.11).
+then the ``dtg_pattern_*`` verification scenarios, in subprocesses (docs/methods.md §6.11).
 
 * the pytest plugin's session learns the library from the 54 training runs (as for the
   scenario items of ``scenarios/``; the CLI's ``learn-signatures`` calls the same

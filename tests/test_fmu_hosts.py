@@ -1,7 +1,7 @@
 """Every FMU in hosts other than the harness: fmpy's own simulate with its defaults, and
 a plain C host (tests/host/gd_fmi2_host.c) without LD_PRELOAD or PYTHONPATH.
 
-Issue 13 items 1 and 2, DESIGN §6.5, §6.12, §6.13. The C host is compiled here with the
+Issue 13 items 1 and 2, docs/methods.md §6.5, §6.12, §6.13. The C host is compiled here with the
 system C compiler against fmpy's FMI headers (the same compiler build_fmu.py needs for
 the status shim). Its outputs are compared with fmpy's run of the same inputs, bit for
 bit; then it is run 20 times in a row, each time loading every FMU, running 1 s with

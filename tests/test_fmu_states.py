@@ -1,6 +1,6 @@
 """Bad FMU states give fmi2Error naming the problem and leave every FMU as it was.
 
-Issue 13 item 3 / DESIGN §6.14: truncated, corrupt and foreign serialized states, states
+Issue 13 item 3 / docs/methods.md §6.14: truncated, corrupt and foreign serialized states, states
 of other FMUs and freed states, for every FMU of the project. The calls run in one fresh
 process (tests/_state_runner.py); see there for the cases.
 """

@@ -559,7 +559,7 @@ SEED_H = 0.1  # s
 
 
 def seed_like_hrg_timeline() -> tuple[np.ndarray, np.ndarray]:
-    """Seed-001 scenario at 10 Hz (DESIGN.md §3), noise-free, 0–1000 s.
+    """Seed-001 scenario at 10 Hz (docs/methods.md §3), noise-free, 0–1000 s.
 
     10 V/(rad/s) times the HRG model's seed-001 rate profile (two slow sines about
     0.25 rad/s, tapered to exactly constant from 825 s), then bias −0.2 V in 27–47 s,

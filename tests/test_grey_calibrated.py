@@ -1,5 +1,5 @@
 """Calibrated grey detector (gyrodiag.grey.GreyFaultDetector with calibrate_samples) on
-the seed-001 HRG timeline with output noise (DESIGN §3): the HRG output model of
+the seed-001 HRG timeline with output noise (docs/methods.md §3): the HRG output model of
 models/hrg, at 2 Hz, bias −0.2 V in 27–47 s, stuck at 3 V in 252–272 s, scale factor
 × 1.05 from 420 s, flat from 825 s; and on long fault-free records of the same model."""
 
@@ -211,7 +211,7 @@ def test_state_round_trip_through_a_lagged_alarm():
 
 
 def test_fixed_threshold_false_alarms_on_the_noisy_timeline_the_calibrated_one_not():
-    """DESIGN §3: with some mV of output noise the paper's 0.05 V threshold false-alarms;
+    """docs/methods.md §3: with some mV of output noise the paper's 0.05 V threshold false-alarms;
     at 20 mV the error of the improved model is ~33 mV rms."""
     t, y = timeline(0.02, 5)
     paper = GreyFaultDetector(ImprovedGreyPredictor(10), 0.05, H, 20.0)

@@ -1,7 +1,7 @@
 """Co-simulation master (harness.cosim.master) on the real FMUs.
 
 All FMU work happens in ONE fresh process (this file run as a script through the
-``run_fmu_script`` fixture, DESIGN §6.11): it runs every case below and saves the arrays;
+``run_fmu_script`` fixture, docs/methods.md §6.11): it runs every case below and saves the arrays;
 the tests compare them with hand-written fmpy loops and with the documented timing of
 the FMUs (FaultInjector: ``out(t+h) = F(in, t)``, RAMP fault ``u + m (t - t_start)``).
 """

@@ -18,7 +18,7 @@ from harness.reporting import plots, report
 from harness.verification.expectations import verify_results
 
 STEP_S = 0.01
-THETA_NOM = (1.9951, 0.9959, -0.0288, -0.0303, 0.0002)  # DESIGN §2, paper's θ_nom
+THETA_NOM = (1.9951, 0.9959, -0.0288, -0.0303, 0.0002)  # docs/methods.md §2, paper's θ_nom
 
 
 def _full_run() -> RunResult:

@@ -1,4 +1,4 @@
-"""Isolability of the seed aircraft's sensors: checks DESIGN §4's claims numerically."""
+"""Isolability of the seed aircraft's sensors: checks docs/methods.md §4's claims numerically."""
 
 from __future__ import annotations
 
@@ -59,7 +59,7 @@ def test_onset_transient_time_constants(report):
 def test_alpha_theta_gamma_collinear_q_apart(report):
     i = {n: k for k, n in enumerate(NAMES)}
     cos = np.abs(report.cosines)
-    # DESIGN claims |cos| > 0.98 among α, θ, γ: computed 0.9888, 0.9961, 0.9960.
+    # docs/methods.md §4 claims |cos| > 0.98 among α, θ, γ: computed 0.9888, 0.9961, 0.9960.
     assert cos[i["alpha"], i["theta"]] == pytest.approx(0.98878, abs=1e-4)
     assert cos[i["alpha"], i["gamma"]] == pytest.approx(0.99607, abs=1e-4)
     assert cos[i["theta"], i["gamma"]] == pytest.approx(0.99604, abs=1e-4)
@@ -72,7 +72,7 @@ def test_alpha_theta_gamma_collinear_q_apart(report):
 
 
 def test_redundancy_flags(report):
-    # v and h: nobody else sees them (DESIGN); α, q, θ, γ: observable without them.
+    # v and h: nobody else sees them (docs/methods.md §4); α, q, θ, γ: observable without them.
     assert [report.sensor(n).redundant for n in NAMES] == [False, True, True, True, True, False]
 
 

@@ -1,4 +1,4 @@
-"""Closed-loop seed aircraft: detection and isolation of sensor faults (DESIGN §4).
+"""Closed-loop seed aircraft: detection and isolation of sensor faults (docs/methods.md §4).
 
 Test simulation only: the open-loop aircraft is unstable (+1.46, +0.99), so an LQR
 pitch-attitude controller with integral action closes the loop on the true state

@@ -1,5 +1,5 @@
 """A second master and SSP: libcosim runs the seed scenarios and the exported SSPs with
-the same results as the harness's Jacobi run (issue 13 items 6 and 7, DESIGN §6.15-16).
+the same results as the harness's Jacobi run (issue 13 items 6 and 7, docs/methods.md §6.15-16).
 
 The three masters run in one fresh process (tests/_libcosim_runner.py): the aircraft
 seed scenario as shipped, the DTG seed scenario dtg_fault_utx_step_s1 shortened (θ0

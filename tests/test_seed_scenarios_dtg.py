@@ -4,7 +4,7 @@ The suite collects ``scenarios/`` with the gyrodiag pytest plugin (ini ``gyrodia
 true``): each seed scenario is a test item checked against its ``[[expect]]`` tables.
 The tests here take the same runs from the session's run cache (fixture
 ``gyrodiag_run``: each scenario runs once per session, in a worker process of its own,
-DESIGN §6.11, whoever asks first, also across xdist workers):
+docs/methods.md §6.11, whoever asks first, also across xdist workers):
 
 * the DTG fault scenarios (8 runs, seeds 11-12) load the signature library through
   ``files = { "dtg.signature_file" = "${out}/dtg_signatures.json" }``, which the plugin
@@ -182,7 +182,7 @@ def test_physical_faults_detected_in_the_fine_band_only(campaign):
     assert eta5 == pytest.approx(0.8, abs=0.05)  # θ5 ∝ Ku
 
 
-# ----------------------------------------------------------------- system (DESIGN §5)
+# ----------------------------------------------------------------- system (docs/methods.md §5)
 @pytest.fixture(scope="module")
 def system_runs(gyrodiag_run) -> dict:
     """Spin scenario and its fault-free control, from the session's run cache."""

@@ -206,7 +206,7 @@ def test_aircraft_pitch_rate_fault_detected_isolated_and_typed(verify, name):
 
 @pytest.mark.parametrize("name", [*AIRCRAFT_FAULTS, FAULT_FREE])
 def test_aircraft_verdicts_are_the_same_under_jacobi_coupling(verify, verify_jacobi, name):
-    """DESIGN §4: under Jacobi coupling the Diagnoser's y arrives one step after its u;
+    """docs/methods.md §4: under Jacobi coupling the Diagnoser's y arrives one step after its u;
     the alignment found on the calibration window (df.input_delay_in_use) restores the
     pairing, and every expectation of the scenario passes again, with the same
     isolation, type and size, one sample later at most."""
@@ -277,7 +277,7 @@ def test_isolability_command_prints_and_writes_json(tmp_path):
     sensors = {s["name"]: s for s in data["sensors"]}
     assert list(sensors) == ["v", "alpha", "q", "theta", "gamma", "h"]
     # v and h have no analytical redundancy: a constant bias is just another initial
-    # state, visible at onset only, and cannot be isolated (DESIGN §4)
+    # state, visible at onset only, and cannot be isolated (docs/methods.md §4)
     for name in ("v", "h"):
         assert sensors[name]["detectable"] == "onset only"
         assert sensors[name]["isolable_from"] == [] and not sensors[name]["redundant"]

@@ -1,6 +1,6 @@
 """Sequential tests (gyrodiag.sequential) and the residual model (gyrodiag.residual_model):
 known answers for CUSUM run lengths, the shipped threshold table, the chart bank, and
-the whitening of the detection filter's coloured residual (DESIGN §4)."""
+the whitening of the detection filter's coloured residual (docs/methods.md §4)."""
 
 import math
 
@@ -175,7 +175,7 @@ def main_model():
 
 
 def test_residual_is_coloured_as_design_says(main_model):
-    """DESIGN §4: the q residual is 1.03 σ with autocorrelation ≈ 0.06 at lags 1–5;
+    """docs/methods.md §4: the q residual is 1.03 σ with autocorrelation ≈ 0.06 at lags 1–5;
     its long-run variance (spectral density at 0) is what a CUSUM integrates: 5.3 times
     the variance on q, and 0 on v and h (a constant offset of them is a state)."""
     var = NOISE_STD**2

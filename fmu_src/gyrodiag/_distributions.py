@@ -1,9 +1,9 @@
 """The few distribution quantiles the diagnoser needs, from ``scipy.special``.
 
 ``scipy.stats`` would give the same numbers (these are the formulas it evaluates, equal
-to the bit: tests/test_distributions.py) but importing it costs about 1.5 s of CPU
-(measured 2026-11-26), paid again by every process that instantiates the Diagnoser FMU;
-``scipy.special`` costs 0.5 s and the library already needs it.  Imported where used:
+to the bit: tests/test_distributions.py) but importing it costs three times as much
+CPU as ``scipy.special``, which the library already needs, and every process that
+instantiates the Diagnoser FMU pays it (docs/notes.md, distributions).  Imported where used:
 the DTG and grey channels run on hosts without SciPy (tests/test_lean_host.py).
 """
 

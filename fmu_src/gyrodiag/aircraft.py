@@ -1,4 +1,4 @@
-"""Seed longitudinal aircraft model of the pitch-rate sensor paper (seed 002, DESIGN §4).
+"""Seed longitudinal aircraft model of the pitch-rate sensor paper (seed 002, docs/methods.md §4).
 
 Small-perturbation longitudinal dynamics at Ma 0.8, H 50 m::
 
@@ -113,7 +113,7 @@ class LongitudinalModel:
 
 
 def seed_aircraft() -> LongitudinalModel:
-    """Return the seed aircraft of DESIGN §4 (paper data, Ma 0.8, H 50 m).
+    """Return the seed aircraft of docs/methods.md §4 (paper data, Ma 0.8, H 50 m).
 
     Returns
     -------

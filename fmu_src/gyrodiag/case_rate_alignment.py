@@ -5,10 +5,8 @@ the rotor over that sample. A co-simulation master does not always deliver them 
 with Jacobi coupling (libcosim's default) the DTG plant sees the aircraft's rate one
 step late, while the second gyro reaches the Diagnoser directly, so the case rate
 arrives one sample *ahead* of the voltages it explains. At a manoeuvre edge the error
-is the whole rate change of a step, and the ratio band alarms (measured: a 0.1 rad
-doublet in σ_w 1.5 m/s turbulence, one sample of misalignment, alarm 0.11 s after the
-first edge and for the rest of the run). Between edges a wrong pairing also biases θ:
-two samples in calm air moved θ_L of the y axis by 14 %, beyond the ratio band.
+is the whole rate change of a step, and the ratio band alarms; between edges a wrong
+pairing also biases θ beyond the ratio band (docs/notes.md, case-rate alignment).
 
 :class:`CaseRateAligner` selects the pairing as a model-selection problem: for every
 delay d = −``max_delay`` … ``max_delay`` of the case rate (d < 0: the case rate arrives

@@ -1,6 +1,6 @@
 """Beard–Jones fault detection filter, its sampled-data form and residual alarms.
 
-Continuous filter (DESIGN §4, with the paper's sign typo corrected)::
+Continuous filter (docs/methods.md §4, with the paper's sign typo corrected)::
 
     x̂' = A x̂ + B u + K (y − C x̂),    γ = y − C x̂,
     e'  = (A − K C) e − K Q f,         γ = C e + Q f.

@@ -827,7 +827,7 @@ class DFChannel:
         self._cal_u, self._cal_y = cal_u.copy(), cal_y.copy()
         self._monitor.set_state(state["monitor"])
         self._last = _output_from_state(state["last"])
-        # absent in a state saved before 2026-11-26 (no skew then)
+        # absent in a state saved by an older version (no skew then)
         su = np.asarray(state.get("skew_u", np.zeros((0, self.p))), dtype=float)
         sy = np.asarray(state.get("skew_y", np.zeros((0, self.m))), dtype=float)
         if (su.ndim != 2 or su.shape[1:] != (self.p,) or sy.shape != (su.shape[0], self.m)
@@ -852,7 +852,7 @@ class DFChannel:
         iso = self._paper_isolator()
         k = float(c.k_sigma)
         stats = state.get("threshold_stats")
-        if stats is None:  # a state saved before the statistics were (2026-11-26)
+        if stats is None:  # a state saved by a version without the statistics
             rebuilt = [_thresholds(t, k) for t in thresholds]
         else:
             if len(stats) != len(thresholds):

@@ -1,6 +1,6 @@
 """Dynamically tuned gyro (DTG) rotor model for parameter identification.
 
-Rotor equations (DESIGN §2, the paper's eq. 2 with its typo corrected)::
+Rotor equations (docs/methods.md §2, the paper's eq. 2 with its typo corrected)::
 
     J α'' + c α' + k α + L β' + λ β = Ku·Ux
     J β'' + c β' + k β − L α' − λ α = Ku·Uy

@@ -1,6 +1,6 @@
 """DTG identification with the case rate: regressors with ω and Δω (docs/dtg_case_rate.md).
 
-With the case turning at ωx, ωy (rad/s) the rotor equations of DESIGN §2 read::
+With the case turning at ωx, ωy (rad/s) the rotor equations of docs/methods.md §2 read::
 
     J (α'' + ω̇x) + c α' + k α + L (β' + ωy) + λ β = Ku·Ux
     J (β'' + ω̇y) + c β' + k β − L (α' + ωx) − λ α = Ku·Uy
@@ -28,7 +28,7 @@ and to O(T²) the centred differences for the rotor's own (smooth) motion::
 (J/(T²·a1) = (1 + θ2)/2 splits the J·Δω/T term into a known part and a θ2 part.)
 
 ``"paper"``.  The paper's backward-difference θ = [a2/a1, a3/a1, b1/a1, b2/a1, Ku/(KT·a1)]
-(DESIGN §2) with the case rate folded in the same way::
+(docs/methods.md §2) with the case rate folded in the same way::
 
     Utx(k) = θ1 Utx(k−1) − θ2 [Utx(k−2) + sΔωx] − θ3 Uty(k) + θ4 [Uty(k−1) − s ωy(k)] + θ5 Ū
     Uty(k) = θ1 Uty(k−1) − θ2 [Uty(k−2) + sΔωy] + θ3 Utx(k) − θ4 [Utx(k−1) − s ωx(k)] + θ5 Ū
@@ -36,8 +36,8 @@ and to O(T²) the centred differences for the rotor's own (smooth) motion::
 with Ū = ½(U(k) + U(k−1)) (``torquer_average``, default) or the paper's U(k).  The paper's
 form evaluates the springs at t(k), the damper and gyroscopic terms at t(k−½) and the
 inertia at t(k−1); its θ3/θ4 at rest carry that truncation error, and a manoeuvre, which
-pins them through the large L·ω term, moves them toward the physical values (measured:
-+7 % on the paper rotor, 4.5 times the seed spread; the central form: ≤ 4 %).
+pins them through the large L·ω term, moves them toward the physical values (more than
+the central form does: docs/notes.md, case-rate schemes).
 
 The pick-off scale KT (rad/V) is the nominal gyro's (a datasheet value).  ω must be an
 estimate that does not come from the gyro under test; its noise enters a regressor

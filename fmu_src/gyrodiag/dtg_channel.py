@@ -97,15 +97,12 @@ STATUS_FAILED = 5
 OMEGA_EXCITATION_Z = 6.0
 #: Case rate in a manoeuvre: a signal-fault fit to the residuals alone worse than this
 #: (distance per library component) leaves a band alarm to the physical classes. In a
-#: manoeuvre the physical fits are poor for every fault (distance 13-18 measured, spin
-#: included), while a signal fault's residual fit is 0.04-0.08 and a spin's ~4.
+#: manoeuvre the physical fits are poor for every fault, a signal fault's residual fit
+#: is good (docs/notes.md, DTG channel constants).
 MASKED_SIGNAL_FIT = 1.0
 #: Default significance of a band violation, standard errors (:attr:`DTGChannelConfig.
-#: band_sigma`). Library chain, calm level flight: largest |θ − θ0| in 4 × 600 s 3.95 of
-#: them (θ5, whose standard error is accurate; ≤ 1.9 on θ3/θ4, whose v·A⁻¹ is
-#: conservative); with 3× the pick-off noise θ5 left the band at 3.6-3.9 of them (3
-#: false-alarmed there, 5 did not); torquer gain ±10 % reaches 5 within 4-8.5 s
-#: (docs/dtg_case_rate.md §10).
+#: band_sigma`): above the calm-air wander, below a ±10 % torquer gain's shift
+#: (docs/dtg_case_rate.md §10; figures: docs/notes.md, DTG channel constants).
 BAND_SIGMA = 5.0
 #: Smallest spread of the learning blocks' ω used for that test, rad/s (a noise-free
 #: case rate would make every rounding a manoeuvre).
@@ -197,7 +194,7 @@ class DTGChannelConfig:
     allowance_sigma : float
         Case rate only: the reference's error the variance-type residual tests allow
         for, in standard deviations of its covariance (:class:`~gyrodiag.dtg_reference.
-        ResidualThresholds`; 1 was the first rule, 2026-11-25).
+        ResidualThresholds`; 1 is the channel's first, tighter rule).
     clear_after_s : float
         An alarm of the residual tests clears this long after the last block in which a
         test exceeded its hold threshold.
@@ -1222,7 +1219,7 @@ class DTGChannel:
         self._hist_filtered = [tuple(r) for r in np.asarray(
             buffers["history"], dtype=float).reshape(2, self._width).tolist()]
         self._gap = int(buffers["gap"])
-        omega = state.get("omega")  # absent in a state saved before 2026-11-25
+        omega = state.get("omega")  # absent in a state saved by an older version
         if omega is None:
             self._omega_learn, self._omega_ref = [], None
             self._omega_dev = deque(maxlen=self._long_blocks)
@@ -1266,7 +1263,7 @@ class DTGChannel:
 
     def _set_alignment_state(self, state: dict[str, Any] | None) -> None:
         self._reset_alignment()
-        if state is None:  # a state saved before 2026-11-26: no queue, delay as configured
+        if state is None:  # a state saved by an older version: no queue, delay as configured
             return
         if (state["aligner"] is None) != (self._aligner is None):
             raise ValueError("state['alignment'] does not match case_rate_align_max")

@@ -5,7 +5,7 @@ mean θ0. A forgetting estimator absorbs a persistent fault into θ, so that dec
 forgets a fault while it is still there. This module keeps the nominal model fixed
 instead and tests the *data* against it:
 
-* **Reference residuals.** With the reference θ0 the regression of DESIGN §2 gives, per
+* **Reference residuals.** With the reference θ0 the regression of docs/methods.md §2 gives, per
   axis, e(k) = y(k) − φ(k)ᵀθ0 (V). On fault-free data e is the small unexplained part
   (≈ 2e−5 V on the paper plant); a corrupted signal changes its level (steps, drifts),
   its variance (noise, loss) or both, for as long as the fault lasts.
@@ -117,7 +117,7 @@ class RegressionModel:
     Attributes
     ----------
     case_rate_scheme : {"central", "paper"} or None
-        None: the paper's regression of DESIGN §2 on (Utx, Uty, Ux, Uy), one θ0 (5,) for
+        None: the paper's regression of docs/methods.md §2 on (Utx, Uty, Ux, Uy), one θ0 (5,) for
         both axes (pooled). Otherwise the case-rate regression of
         :mod:`gyrodiag.dtg_case_rate` on (Utx, Uty, Ux, Uy, ωx, ωy) in that scheme, with
         a θ0 per axis (10,: x then y): the two lines see the case rate differently
@@ -186,7 +186,7 @@ def regression_residuals(filtered: NDArray[np.float64], theta: NDArray[np.float6
     theta : ndarray, shape (model.n_par,)
         Reference θ (5,), or with the case rate θ of the x then the y axis (10,).
     model : RegressionModel
-        The regression (default: the paper's, DESIGN §2).
+        The regression (default: the paper's, docs/methods.md §2).
 
     Returns
     -------
@@ -543,7 +543,7 @@ class ResidualThresholds:
         its covariance P: they add ``allowance_sigma² ·`` (the block's θ-uncertainty
         variance) to their nominal variance. The error is one draw per run, and a
         manoeuvre edge that excites a direction where it is c standard deviations off
-        raises those ratios towards c², so 1 (the allowance of 2026-11-25) lets them
+        raises those ratios towards c², so 1 (the first, tighter allowance) lets them
         alarm at c ≈ 1.4 (2 s ratio 2): 16 % of runs per excited direction. The level
         test allows up to ``level`` standard deviations already (its allowance enters
         as a standard deviation).

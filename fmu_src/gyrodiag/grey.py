@@ -1,6 +1,6 @@
 """Grey prediction (GM(1,1)) and the improved moving-window grey fault detector (HRG).
 
-Method B of the design notes (DESIGN.md §3, seed 001): a hemispherical resonator gyro's
+Method B (docs/methods.md §3, seed 001): a hemispherical resonator gyro's
 output is predicted one sample ahead by a grey model fitted to the last ``m`` samples;
 a measured sample farther than a threshold from its prediction raises a fault alarm.
 
@@ -167,9 +167,9 @@ def gm11_optimal_initial_value(x0: ArrayLike, a: float, b: float) -> float:
     Notes
     -----
     x̂¹ is linear in C, so the least-squares optimum is this closed form. The paper
-    (its ref. 9) writes the optimum as a weight β between x¹(1) and x¹(m); DESIGN.md
+    (its ref. 9) writes the optimum as a weight β between x¹(1) and x¹(m); docs/methods.md §3
     states that this is the same optimum. The β formula itself is not legible in our
-    copy of the paper, so that equivalence is taken from DESIGN.md, not re-derived.
+    copy of the paper, so that equivalence is taken from docs/methods.md §3, not re-derived.
     """
     arr = _check_window("x0", x0)
     return _optimal_c(arr, float(a), float(b))
@@ -972,27 +972,25 @@ class GreyFaultDetector:
         :func:`~gyrodiag.sequential.mean_cusum_threshold`).
     false_alarms_per_h, cusum_k : float, optional
         Design false-alarm rate (1/h, default 1e-3) and reference (σ_e, default 1.5: the
-        faults a grey predictor sees are steps of 4 σ_e and more; on the seed timeline
-        at 20 mV the 5 % scale fault was found within 1.5 s in 6 of 12 seeds with
-        k = 1.5, 4 with k = 1 and 7 with k = 2, missed in 3, 3 and 5; with k = 1 the
-        deterministic error of a low residual order added false alarms at 5 mV).
+        faults a grey predictor sees are steps of 4 σ_e and more; see docs/notes.md,
+        grey detector).
     suspicion_sigma : float, optional
         Calibrated: a sample with |e| > suspicion_sigma·σ_e (or a CUSUM above half its
         threshold) is not fed to the predictor, so that a step is not absorbed before
-        the test has decided (default 4; with 3, substituting for 3 σ_e noise samples
-        locked the model into false alarms at 20 mV of noise on the seed timeline).
+        the test has decided (default 4; lower values lock the model into false alarms
+        in noise, see docs/notes.md, grey detector).
     hold_after : int, optional
         Calibrated: suspect samples not followed by an alarm are substituted for at
         most this many samples in a row (default 1: a step of 4 σ_e gives two samples
         of evidence before the predictor absorbs it); in alarm the substitute is held
-        after this many samples (see :meth:`_substitute`). Longer runs made the seed
-        timeline false-alarm where it moves fastest (0.03 V/s), at 5 mV of noise.
+        after this many samples (see :meth:`_substitute`; longer runs false-alarm where
+        the signal moves fast, see docs/notes.md, grey detector).
     candidates : sequence of predictors, optional
         Calibrated: other predictors (same window) run beside ``predictor`` during the
         warm-up and calibration; the one with the least root-mean-square error on the
         calibration window is kept (e.g. the improved model with residual orders 2, 1
         and 0: the quadratic residual fit is exact on a smooth noise-free signal and
-        amplifies noise, 1.64 σ against 1.26 σ for order 1 at m = 10).
+        amplifies noise).
     lag_max : int, optional
         Sequential: the lagged step test looks at the last 1..lag_max samples (0..4,
         default 3; 0 turns it off and the CUSUM decides alone). See below.
@@ -1006,7 +1004,7 @@ class GreyFaultDetector:
     Calibrated detector
     -------------------
     With noise on the signal a fixed threshold either false-alarms or misses
-    (DESIGN §3). The first ``calibrate_samples`` one-step prediction errors after the
+    (docs/methods.md §3). The first ``calibrate_samples`` one-step prediction errors after the
     warm-up (assumed fault-free) give σ_e (see :func:`_calibrated_sigma`: winsorised,
     raised to its 95 % upper confidence bound) and the threshold
     max(k_sigma·σ_e, ``threshold``); σ_e keeps learning from the samples judged
@@ -1047,9 +1045,8 @@ class GreyFaultDetector:
 
     Bounded substitution: once the window holds only substituted samples the
     predictor extrapolates its own extrapolation, and the GM exponential and the
-    quadratic residual compound without limit over a long alarm (measured with the
-    unbounded detector: 2e7 V after a pitch manoeuvre at 100 Hz, −1184 V on the
-    seed-001 timeline at 10 Hz after the stuck fault). While in alarm, ŷ is therefore
+    quadratic residual compound without limit over a long alarm (docs/notes.md, grey
+    detector). While in alarm, ŷ is therefore
     clipped to the envelope of the fault-free samples seen since reset widened by
     ``envelope_margin`` times its span, and once it has been clipped it is held at
     that value for the rest of the alarm (see :meth:`_bounded` for why). Inside the
@@ -1590,7 +1587,7 @@ class GreyFaultDetector:
         predictor's own prediction (the paper's substitution) for the first
         ``hold_after`` samples of a substitution run, then held at the last of them,
         and always clipped to the widened envelope. A predictor fed its own
-        extrapolation compounds it (volts within 20 s at 20 mV of noise, DESIGN §3); a
+        extrapolation compounds it (volts within 20 s at 20 mV of noise, docs/methods.md §3); a
         straight line fitted to the last fault-free samples misses the seed-001
         profile's curvature by ~0.05 V within its own window. Holding after a few
         samples bounds the drift by what the model extrapolates in that time."""
@@ -1620,28 +1617,12 @@ class GreyFaultDetector:
     def _bounded(self, prediction: float) -> float:
         """The substitute for the next sample while in alarm (signal units).
 
-        Choice, measured on the seed-001 timeline (improved predictor, m = 10,
-        threshold 0.05 V, 20 s clearing, noise-free, at 2 Hz and 10 Hz) and on an
-        HRG output following a ±0.1 rad/s (±1 V) pitch-rate manoeuvre at 100 Hz,
-        with and without 2 mV noise:
-
-        * Envelope of the fault-free window at onset (± 1–3 ranges): bounded, but the
-          5 % scale-fault alarm ends at 431–433 s instead of 439.5 s. That window's
-          range (0.0075 V at 2 Hz, about 50 times less at 100 Hz) is far below the
-          signal's legitimate 0.11 V motion during the 20 s alarm, which the
-          self-fed quadratic extrapolation does follow; a window-based bound cuts it.
-        * Linear trend of the onset window (or a band moving with it): at 420 s the
-          signal is at a peak (slope ≈ 0, curvature down), so the line departs
-          upwards; after a re-seed on a window holding a fault's end the slope is
-          that of the step and the band runs away (13.7 V on the manoeuvre).
-        * Envelope of all fault-free samples since reset: wide enough for the
-          legitimate motion (alarm intervals identical to the unbounded detector at
-          2 Hz, 10 Hz and 100 Hz), and the runaway is caught at most one span outside the
-          observed signal. Clipping alone is not enough: a polynomial extrapolator
-          fed a clipped, kinked window turns around and re-enters, so the alarm
-          chatters (noisy manoeuvre). Hence the hold: once the model's own
-          extrapolation has left the plausible range it is not trusted again
-          until the alarm ends or is cleared.
+        The predictor's own value, clipped to the envelope of all fault-free samples
+        since reset widened by ``envelope_margin`` spans (wide enough for the signal's
+        legitimate motion, and it catches a runaway). Once clipped, the value is held
+        until the alarm ends or is cleared: a polynomial extrapolator fed a clipped,
+        kinked window turns around and re-enters, so the alarm would chatter. The
+        designs compared: docs/notes.md, grey detector.
         """
         if not math.isfinite(prediction):
             return prediction

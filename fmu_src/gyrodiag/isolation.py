@@ -1,7 +1,7 @@
 """Which sensor failed: isolability analysis and a streaming sensor-fault isolator.
 
 The single Beard–Jones filter of the seed paper detects faults but cannot tell most
-of them apart on the seed aircraft (DESIGN §4): constant-bias signatures of v and h
+of them apart on the seed aircraft (docs/methods.md §4): constant-bias signatures of v and h
 are zero, those of α, θ and γ nearly collinear. :func:`isolability_analysis` works
 out, for a given model, what is detectable and what is isolable;
 :class:`SensorFaultIsolator` isolates by a generalised observer scheme (GOS):
@@ -722,12 +722,8 @@ class SensorFaultIsolator:
     gain_tolerance : float
         |g − 1| below which a fitted gain counts as 1 (bias fault); a gain must also
         differ from 1 by 4 standard errors, and its part of the deviation,
-        (g − 1)²·var(ŷ), must exceed the fit's squared offset (b of y = g ŷ + b).  Measured
-        on the system chain (1 kHz, DTG read-out modelled, 0.05 rad square wave, ~12 s
-        since detection): fitted g of q bias faults 0.99958 (standard error 2.1e-4),
-        of 3 % and 5 % spin slow-downs 0.9702 and 0.9506; on the 100 Hz aircraft loop a
-        0.1 rad/s q bias fits g = 0.985.  The former rule (tolerance 0.05 alone) typed
-        a 5 % scale error as a bias.
+        (g − 1)²·var(ŷ), must exceed the fit's squared offset (b of y = g ŷ + b): in a
+        closed loop a bias moves the fitted g too (docs/notes.md, isolation).
     stuck_noise_ratio : float
         Output std below this fraction of the sensor's fault-free noise std means
         "constant output" (stuck or failed).
@@ -740,13 +736,8 @@ class SensorFaultIsolator:
         ``energy_ok`` (consistent with fault-free) and every other observer's is
         ``energy_ratio`` times higher.  Small faults in turbulence need it: the
         calibration's gust response widens the bank's per-sample thresholds, so a
-        3-5 % q scale error can leave most of the bank silent.  Measured (system
-        chain, 1 kHz, read-out modelled, 0.1 rad doublets, σ_w 0.77 m/s, 3 % spin
-        slow-down, 3 seeds): ¬q has the lowest energy (0.3-1.3) and the others reach
-        2.5-2.8 times it by the next doublet pulse, 3.9 s after detection, where the
-        pattern isolated 1 of 3.  A q bias of 0.01 rad/s in the same turbulence stays
-        unisolated either way (¬ϑ's energy rises as little as ¬q's: 2.3-2.5 against
-        1.5-2.4); without turbulence the pattern isolates at once.
+        3-5 % q scale error can leave most of the bank silent; without turbulence the
+        pattern isolates at once (figures: docs/notes.md, isolation).
     energy_ok, energy_ratio : float
         Thresholds of that test (fault-free energy is 1 on average).
     energy_baseline_s : float
@@ -756,12 +747,8 @@ class SensorFaultIsolator:
         against the larger of 1 and the baseline.  Turbulence stronger than in the
         calibration window raises the energy of the observers that are most sensitive
         to gusts before any fault, and the energy test then takes the least
-        gust-sensitive observer for the faultless one.  Measured (library system chain,
-        σ_w 1.5 m/s, 0.1 rad doublets, 5 % spin slow-down, aircraft/DTG seeds 17/41):
-        fault-free energies before the fault ¬v 1.66, ¬α 1.31, ¬q 2.52, ¬ϑ 1.04,
-        ¬γ 1.29, ¬h 1.69; 1.6 s after detection ¬ϑ was lowest and ϑ was isolated (a
-        q fault); against the baseline ¬q is lowest and the test abstains (1.25 against
-        2.10 at 1 s).  It can only make the energy test abstain more, never isolate more.
+        gust-sensitive observer for the faultless one (docs/notes.md, isolation).  It
+        can only make the energy test abstain more, never isolate more.
 
     Notes
     -----

@@ -13,12 +13,12 @@ sensor variances to residual variances (to estimate R from a fault-free window,
 :func:`estimate_sensor_variances`), and its innovations form (:class:`Whitening`): the
 steady-state one-step predictor of ``r`` from its own past, whose prediction error
 ``ε = r − C ê`` is white with covariance S. The detection filter's residual is
-slightly coloured (DESIGN §4: lag-1 autocorrelation 0.06 on q, but a long-run variance
+slightly coloured (docs/methods.md §4: lag-1 autocorrelation 0.06 on q, but a long-run variance
 5.3 times the variance, which is what a CUSUM integrates); the whitened residual makes
 the CUSUM thresholds of :mod:`gyrodiag.sequential` exact.
 
 Sensors that no other sensor observes (v, h of the seed aircraft) give residual channels
-with no power at frequency 0 (a constant offset of them is a state, DESIGN §4): their
+with no power at frequency 0 (a constant offset of them is a state, docs/methods.md §4): their
 innovations form has a zero on the unit circle and no stable whitening filter. The
 model is therefore regularised by an extra white noise of ``regularisation``·R on the
 residual: the whitening filter is stable, and the real (unregularised) residual comes

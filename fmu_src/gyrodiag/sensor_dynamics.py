@@ -1,6 +1,6 @@
 """Sensor dynamics in the detection filter's sensor model, by matched filtering.
 
-The detection filter (DESIGN §4) models every sensor as y_i = C_i x.  A rate gyro whose
+The detection filter (docs/methods.md §4) models every sensor as y_i = C_i x.  A rate gyro whose
 read-out is a closed rebalance loop reports a filtered rate instead, y_j = G(z)·C_j x:
 for the paper DTG the read-out has a gain of 0.74 at 1 Hz and settles in ~1 s, so any
 manoeuvre gives residuals of 50–100 thresholds and the filter reports a "q gain 0.85"

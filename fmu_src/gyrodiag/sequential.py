@@ -32,7 +32,7 @@ of states; :func:`mean_cusum_threshold` and :func:`variance_cusum_threshold` inv
 A stated false-alarm rate (alarms per hour of the whole bank) is split evenly over the
 charts (a union bound: charts on correlated channels alarm together, so the real rate
 is lower). The thresholds hold for *white* input only: the residual of a detection
-filter is coloured (white-noise formulas applied to it are wrong, DESIGN §4), which is
+filter is coloured (white-noise formulas applied to it are wrong, docs/methods.md §4), which is
 why the detection-filter channel whitens it first and checks the whole chain by long
 fault-free simulation (:func:`gyrodiag.residual_model.simulate_fault_free`).
 """

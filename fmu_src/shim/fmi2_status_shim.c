@@ -20,7 +20,7 @@
  * It also forwards log messages as "%s" arguments: pythonfmu passes the message as the
  * format string, which would make a '%' in a traceback undefined behaviour in the host.
  *
- * Hosts that are not Python processes (DESIGN §6.5, §6.12): pythonfmu's library expects
+ * Hosts that are not Python processes (docs/methods.md §6.5, §6.12): pythonfmu's library expects
  * the Python C API to be loaded already (LD_PRELOAD of libpython) and initialises the
  * interpreter on a thread of its own, which it finalises at exit; finalising scipy's
  * extension modules there crashed C hosts at exit. At the first fmi2Instantiate the
@@ -33,7 +33,7 @@
  * until the process exits (no Py_Finalize, as is usual for embedded interpreters that
  * run extension modules).
  *
- * FMU states (DESIGN §6.14): pythonfmu hands out a Python object as fmi2FMUstate and
+ * FMU states (docs/methods.md §6.14): pythonfmu hands out a Python object as fmi2FMUstate and
  * turns any problem with state bytes into fmi2Fatal (a dead instance). The shim wraps
  * every state it hands out (it only accepts its own, by address, so a state of another
  * FMU is refused without being touched) and frames serialized states with a header

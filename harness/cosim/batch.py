@@ -5,7 +5,7 @@ plugin and anything else that runs a list of scenarios.
 
 :func:`run_all` checks every scenario first (files, FMUs, variable names: an invalid
 one stops the batch before anything runs), then runs each scenario in a fresh process
-(:mod:`harness.cosim.worker`; DESIGN §6.11: pythonfmu FMUs are not loaded twice into
+(:mod:`harness.cosim.worker`; docs/methods.md §6.11: pythonfmu FMUs are not loaded twice into
 one process), ``workers`` at a time, the longest first.  Each run saves its files as it
 ends; results come back in scenario order and are the same whatever the number of
 workers (every run is deterministic and alone in its process).  They are the runs at

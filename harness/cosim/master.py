@@ -42,7 +42,7 @@ Life of a run
    :class:`~harness.cosim.interrupt.RunInterrupted` carrying the partial result.
 6. Instances are terminated and freed, but the shared libraries are **never unloaded**
    (fmpy's ``freeInstance`` would call ``freeLibrary``; unloading and reloading a
-   pythonfmu binary in one process has crashed before, DESIGN §6.11).  Loading the same
+   pythonfmu binary in one process has crashed before, docs/methods.md §6.11).  Loading the same
    FMU again reuses the loaded library.
 """
 

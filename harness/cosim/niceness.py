@@ -4,8 +4,8 @@ Every run process starts a session of its own (so that a stop can kill its proce
 group). On Linux with automatic scheduler groups (``kernel.sched_autogroup_enabled``,
 the default of most distributions) a new session is also a new *autogroup*, and CPU
 time is shared between autogroups before ``nice`` is looked at: a campaign started with
-``nice -n 10`` then took as much CPU as anything else on the machine (measured
-2026-11-25: two campaigns at nice 5 and 15, four run processes at 49 % each). Writing
+``nice -n 10`` then took as much CPU as anything else on the machine (docs/notes.md,
+harness niceness). Writing
 the process's nice value into ``/proc/self/autogroup`` gives the new group that weight.
 """
 

@@ -1,7 +1,7 @@
 """One scenario run in a process of its own: ``python -m harness.cosim.worker JOB``.
 
 :mod:`harness.cosim.batch` starts one such process per scenario: pythonfmu FMUs must
-not be loaded again into a process that ran them (DESIGN §6.11), a crash or abort of
+not be loaded again into a process that ran them (docs/methods.md §6.11), a crash or abort of
 an FMU only ends its own run, and runs can go in parallel.  ``JOB`` is a pickle written
 by the batch (:class:`Job`); the run's files are saved into ``Job.out_dir`` as by
 :func:`harness.cosim.master.run_scenario`, and a small status file (JSON) says how the

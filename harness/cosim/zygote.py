@@ -10,7 +10,7 @@ per line), forks a child that starts a session of its own and runs exactly what
 negative for a signal).
 
 The server never loads an FMU, so every child starts without one (pythonfmu FMUs must
-not be loaded twice into a process, DESIGN §6.11), and it has no thread (children are
+not be loaded twice into a process, docs/methods.md §6.11), and it has no thread (children are
 reaped by a SIGCHLD handler), so a fork copies a consistent process. It exits when the
 request pipe closes, i.e. when its batch is done or has died; children still running
 then see their parent change and stop as orphans of a killed batch do

@@ -233,7 +233,7 @@ def _build_fmus(out: Path) -> Path:
         fcntl.flock(lock, fcntl.LOCK_EX)   # one session builds, concurrent ones wait
         stale = builder.stale_fmus(out)
         if stale:
-            # a fresh process: the builder imports the model scripts (DESIGN §6.4)
+            # a fresh process: the builder imports the model scripts (docs/methods.md §6.4)
             proc = subprocess.run([sys.executable, str(builder_path), "--out", str(out)],
                                   cwd=_REPO_ROOT, capture_output=True, text=True, timeout=1800)
             if proc.returncode != 0:

@@ -2,7 +2,7 @@
 
 Which faults on the six sensors (v, α, q, ϑ, γ, h) the detection-filter channel can
 detect and from which other sensors it can tell them apart, worked out from the model by
-:func:`gyrodiag.isolation.isolability_analysis` (DESIGN §4: main Beard–Jones filter with
+:func:`gyrodiag.isolation.isolability_analysis` (docs/methods.md §4: main Beard–Jones filter with
 F = I, eigenvalues −1 … −5, plus the bank of observers each without one sensor).
 
 This is analysis, not simulation: the harness still knows the FMUs only through fmpy;
@@ -95,7 +95,7 @@ def isolability_data(report: Any) -> dict[str, Any]:
         })
     eig = np.asarray(report.closed_loop_eigenvalues)
     return {
-        "model": "seed aircraft (DESIGN §4)",
+        "model": "seed aircraft (docs/methods.md §4)",
         "sensor_names": list(report.sensor_names),
         "closed_loop_eigenvalues": [float(e.real) for e in eig]
         if np.all(np.abs(eig.imag) < 1e-12) else [[float(e.real), float(e.imag)] for e in eig],

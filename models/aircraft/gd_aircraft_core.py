@@ -1,4 +1,4 @@
-"""Seed-002 longitudinal aircraft model (Ma 0.8, H 50 m), DESIGN §4 (no FMI knowledge).
+"""Seed-002 longitudinal aircraft model (Ma 0.8, H 50 m), docs/methods.md §4 (no FMI knowledge).
 
 States x = [v (m/s), α (rad), q (rad/s), ϑ (rad), h (m)], all perturbations from trim;
 inputs u = [δ_throttle, δ_e (rad)]; sensor outputs y = C x + noise with

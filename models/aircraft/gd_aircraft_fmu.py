@@ -1,4 +1,4 @@
-"""Aircraft FMU (FMI 2.0 co-simulation): seed-002 longitudinal dynamics, DESIGN §4.
+"""Aircraft FMU (FMI 2.0 co-simulation): seed-002 longitudinal dynamics, docs/methods.md §4.
 
 Timing: ``do_step(t, h)`` integrates exactly (ZOH matrix exponential) with throttle and
 elevator held at their values set for t; at t + h it publishes the true states x(t + h)

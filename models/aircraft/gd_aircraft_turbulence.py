@@ -18,7 +18,7 @@ stationary variance of w_g is exactly σ_w² (∫|H_w(jω)|² dω / 2π = K²/τ
 Low altitude (h < 1000 ft) MIL-F-8785C: L_w = h and σ_w = 0.1·W20 (W20 the wind speed at
 20 ft: light 15 kt ≈ 0.77 m/s, moderate 30 kt ≈ 1.5 m/s, severe 45 kt ≈ 2.3 m/s).  The
 seed aircraft flies at H = 50 m, so the defaults are L_w = 50 m, V = 272.24 m/s (the
-kinematic coefficient of ḣ in DESIGN §4's A) and a span b of 10 m.
+kinematic coefficient of ḣ in docs/methods.md §4's A) and a span b of 10 m.
 
 State space of the filter: g = [w-filter state (2), q-filter state (1)], output
 [α_g, q_g]; ``g' = Ag g + Bg n``, ``[α_g, q_g] = Cg g`` (no feed-through: H_w has
@@ -38,7 +38,7 @@ from scipy.linalg import expm, solve_continuous_lyapunov
 
 FloatArray = NDArray[np.float64]
 
-#: Airspeed of the seed aircraft (m/s): the ḣ = V (ϑ − α) coefficient of DESIGN §4's A.
+#: Airspeed of the seed aircraft (m/s): the ḣ = V (ϑ − α) coefficient of docs/methods.md §4's A.
 SEED_AIRSPEED = 272.24
 DEFAULT_SCALE_LENGTH = 50.0
 DEFAULT_WINGSPAN = 10.0

@@ -1,6 +1,6 @@
 """Dynamically tuned gyro (DTG) rotor with its digital rebalance loop, no FMI in it.
 
-The rotor (DESIGN §2), with the case turning at ωx, ωy about the case axes::
+The rotor (docs/methods.md §2), with the case turning at ωx, ωy about the case axes::
 
     J(α'' + ω̇x) + c α' + k α + L(β' + ωy) + λ β = Ku·Ux
     J(β'' + ω̇y) + c β' + k β − L(α' + ωx) − λ α = Ku·Uy

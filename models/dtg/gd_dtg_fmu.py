@@ -66,7 +66,7 @@ _FAULT_DOC = {
 class DTG(GuardedSlave):
     author = "gyrodiag"
     description = (
-        "Two-axis dynamically tuned gyro rotor (DESIGN §2) with case-rate inputs, seeded "
+        "Two-axis dynamically tuned gyro rotor (docs/methods.md §2) with case-rate inputs, seeded "
         "pick-off noise, torquers and a digital rebalance loop (switchable), exact "
         "matrix-exponential integration; physical faults as tunable parameters. "
         "parameter_set 1: rotor reproducing the paper's identified θ at 1 kHz; "

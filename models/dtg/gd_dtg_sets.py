@@ -10,7 +10,7 @@ from gd_dtg_core import DTGParameterSet
 PAPER = 1
 PRODUCTION = 2
 
-#: The paper's measured nominal θ (DESIGN §2) and its sample time (s).
+#: The paper's measured nominal θ (docs/methods.md §2) and its sample time (s).
 PAPER_THETA_NOM = (1.9951, 0.9959, -0.0288, -0.0303, 0.0002)
 PAPER_SAMPLE_TIME = 1.0e-3
 
@@ -18,7 +18,7 @@ PAPER_SAMPLE_TIME = 1.0e-3
 def paper_set() -> DTGParameterSet:
     """Set (a): the rotor whose backward-difference θ at T = 1 ms is the paper's θ_nom.
 
-    Inverting θ_nom (DESIGN §2) gives, per unit J: c/J = 3.314 1/s, k/J = 803.3 1/s²,
+    Inverting θ_nom (docs/methods.md §2) gives, per unit J: c/J = 3.314 1/s, k/J = 803.3 1/s²,
     L/J = −30.42 rad/s, |λ|/J = 1506 1/s², Ku/(KT·J) = 200.8 1/s². J, Jz, Ie, Iz and KT
     are chosen; c, k (hence K), L (hence Ω), |λ| (hence D) and Ku follow.
     """

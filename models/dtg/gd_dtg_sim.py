@@ -13,7 +13,7 @@ exceeds Tc; h need not be a multiple of Tc); each piece is integrated exactly (m
 exponential, inputs held). The reported torquer voltages Ux, Uy are their mean over
 the last communication step (what an integrating read-out of the torquer current
 measures), so the value at t_k is the voltage that acted on [t_{k−1}, t_k], as the
-regression of DESIGN §2 wants.
+regression of docs/methods.md §2 wants.
 
 The stepping runs at every controller tick (10 kHz for the production set), so it works
 on plain Python floats: the rotor state, the per-axis controller states and the 2-vectors

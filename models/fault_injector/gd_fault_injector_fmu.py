@@ -3,7 +3,7 @@
 Timing: outputs are computed in ``do_step(t, h)`` from the inputs set for the step that
 starts at ``t`` and the fault evaluated at sample time ``t``; they are published at
 ``t + h``.  So ``out_i(t_{k+1}) = F_i(in_i(t_k), t_k)``: one communication step of latency
-(count it in detection delays, DESIGN §6.9).  Before the first step ``out_i(t_0)`` equals
+(count it in detection delays, docs/methods.md §6.9).  Before the first step ``out_i(t_0)`` equals
 the start value of ``in_i`` (no fault applied at initialisation).  Fault codes and
 formulas: see ``gd_fault_injector_core``.  An idle channel is bit-exact.
 

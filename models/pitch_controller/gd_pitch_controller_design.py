@@ -1,6 +1,6 @@
 """LQR pitch-attitude controller for the seed-002 aircraft (no FMI knowledge).
 
-Design model: the pitch subsystem z = [α, q, ϑ] of DESIGN §4 (v and h do not feed back
+Design model: the pitch subsystem z = [α, q, ϑ] of docs/methods.md §4 (v and h do not feed back
 into it: columns 1 and 5 of A are zero), elevator δe as input, augmented with the
 integral ξ of the pitch error ϑ − ϑ_cmd.  LQR on [α, q, ϑ, ξ] with Q = diag(q_alpha,
 q_q, q_theta, q_int), R = r gives u = −K [α, q, ϑ, ξ]; reference tracking uses the exact
@@ -44,8 +44,8 @@ _A = np.array([
     [0.0, -1.5122, 1.0],
     [-7.9101, -3.0241, 0.0],
     [0.0, 1.0, 0.0],
-])  # rows/cols [α, q, ϑ] of DESIGN §4 A
-_B = np.array([[-0.2779], [-26.3821], [0.0]])  # elevator column of DESIGN §4 B
+])  # rows/cols [α, q, ϑ] of docs/methods.md §4 A
+_B = np.array([[-0.2779], [-26.3821], [0.0]])  # elevator column of docs/methods.md §4 B
 
 DEFAULT_WEIGHTS = (1.0, 1.0, 10.0, 1.0e-3)
 DEFAULT_R = 100.0

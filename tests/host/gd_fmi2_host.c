@@ -1,7 +1,7 @@
 /*
  * gd_fmi2_host.c: a minimal FMI 2.0 co-simulation master in plain C, in the spirit of
  * the Reference-FMUs' fmusim, to check that gyrodiag's FMUs run in a host that is not a
- * Python process (DESIGN §6.5, §6.12; issue 13).
+ * Python process (docs/methods.md §6.5, §6.12; issue 13).
  *
  *   gd_fmi2_host [--stop S] [--step H] [--set NAME=VALUE]... [--out-dir DIR] FMU_DIR...
  *

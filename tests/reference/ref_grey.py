@@ -1,6 +1,6 @@
 """Grey prediction (GM(1,1)) and the improved moving-window grey fault detector (HRG).
 
-Method B of the design notes (DESIGN.md §3, seed 001): a hemispherical resonator gyro's
+Method B (docs/methods.md §3, seed 001): a hemispherical resonator gyro's
 output is predicted one sample ahead by a grey model fitted to the last ``m`` samples;
 a measured sample farther than a threshold from its prediction raises a fault alarm.
 
@@ -158,9 +158,9 @@ def gm11_optimal_initial_value(x0: ArrayLike, a: float, b: float) -> float:
     Notes
     -----
     x̂¹ is linear in C, so the least-squares optimum is this closed form. The paper
-    (its ref. 9) writes the optimum as a weight β between x¹(1) and x¹(m); DESIGN.md
+    (its ref. 9) writes the optimum as a weight β between x¹(1) and x¹(m); docs/methods.md §3
     states that this is the same optimum. The β formula itself is not legible in our
-    copy of the paper, so that equivalence is taken from DESIGN.md, not re-derived.
+    copy of the paper, so that equivalence is taken from docs/methods.md §3, not re-derived.
     """
     arr = _check_window("x0", x0)
     return _optimal_c(arr, float(a), float(b))
