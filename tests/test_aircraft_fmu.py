@@ -262,7 +262,7 @@ def test_plant_and_library_matrices_are_one_aircraft():
         np.testing.assert_array_equal(getattr(core, name), getattr(lib, name), err_msg=name)
     assert core.STATE_NAMES == lib.state_names and core.OUTPUT_NAMES == lib.output_names
     assert core.INPUT_NAMES == lib.input_names
-    # paper data (DESIGN §4): the pitch-moment row and the elevator column
+    # paper data (docs/methods.md §4): the pitch-moment row and the elevator column
     np.testing.assert_array_equal(lib.A[2, 1:3], [-7.9101, -3.0241])
     np.testing.assert_array_equal(lib.B[1:3, 1], [-0.2779, -26.3821])
 

@@ -31,7 +31,7 @@ T = 1e-3
 IDENT_SECONDS = 10.0  # per half of the identification run
 RATE_X, RATE_Y = 0.01, -0.02  # rad/s, read-out test
 IDENT_SEEDS = (1, 2, 3)  # FMU noise seeds of the nominal identification runs
-#: The paper's nominal θ at T = 1 ms (DESIGN §2), typed here, not read from the model.
+#: The paper's nominal θ at T = 1 ms (docs/methods.md §2), typed here, not read from the model.
 PAPER_THETA = (1.9951, 0.9959, -0.0288, -0.0303, 0.0002)
 #: Seed-to-seed spread (1 σ) of 10 s batch-LS θ on the FMU's nominal closed loop (dither
 #: 1 V, pick-off noise 1 mV; measured over 6 seeds, docs/notes.md "θ spread"): of
@@ -230,7 +230,7 @@ def _identify(rec: np.ndarray, start: float, stop: float) -> np.ndarray:
 
 
 def _paper_rotor(J: float = 1.0e-5, KT: float = 1.0e-3) -> dict[str, float]:
-    """Rotor coefficients inverted from the paper's θ_nom (DESIGN §2), independent of
+    """Rotor coefficients inverted from the paper's θ_nom (docs/methods.md §2), independent of
     the model's parameter sets; λ carries the sign of L (only |λ| is in θ)."""
     t1, t2, t3, t4, t5 = PAPER_THETA
     L = J * t4 / (t2 * T)
@@ -335,7 +335,7 @@ def test_identified_theta_matches_an_independent_reference(rec):
     scale = np.sqrt(1 / len(fmu) + 1 / len(ref))
     for key, sigma in THETA_SPREAD.items():
         assert abs(got[key] - want[key]) < 4 * sigma * scale, (key, got[key], want[key])
-    # the paper's pattern (DESIGN §2): θ5 about two orders of magnitude below θ3, θ4
+    # the paper's pattern (docs/methods.md §2): θ5 about two orders of magnitude below θ3, θ4
     theta = np.mean(fmu, axis=0)
     assert abs(theta[2]) / theta[4] > 50 and abs(theta[3]) / theta[4] > 50
 
