@@ -61,8 +61,22 @@ _SLOW_MODULES = frozenset(_LONG_MODULES) | {
     "test_campaign_sidebyside.py", "test_turbulence_manoeuvres.py",
     "test_isolation_closed_loop.py", "test_dtg_case_rate.py", "test_sample_alignment.py",
     "test_dtg_case_rate_reference.py", "test_distributions.py", "test_gain_table.py",
-    "test_harness_reference.py", "test_harness_layout.py",
+    "test_harness_reference.py", "test_harness_layout.py", "test_dtg_fast_path.py",
+    "test_harness_report.py",
 }
+#: Single slow tests of otherwise fast modules (function names, parameters aside).
+_SLOW_TESTS = frozenset({
+    "test_no_covariance_windup_over_a_million_quiet_samples",
+    "test_grey_predictors_equal_reference", "test_rls_family_equals_reference_on_dtg_data",
+    "test_nan_sample_skipped_and_state_round_trip_exact",
+    "test_update_floats_equals_update_through_calibration_faults_and_nan",
+    "test_persistent_fault_keeps_the_alarm_and_an_intermittent_one_clears",
+    "test_thresholds_invert_the_run_length",
+    "test_a_bad_state_is_refused_and_leaves_the_channel_as_it_was",
+    "test_sequential_rule_detects_a_two_sigma_bias_that_the_paper_rule_misses",
+    "test_a_wrong_fixed_alignment_is_what_the_automatic_choice_avoids",
+    "test_alignment_is_found_and_the_verdict_does_not_depend_on_it",
+})
 
 
 def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config,
@@ -71,7 +85,7 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
     for item in items:
         fixtures = set(getattr(item, "fixturenames", ()))
         if (fixtures & _SLOW_FIXTURES or item.path.name in _SLOW_MODULES
-                or item.path.suffix == ".toml"):
+                or item.name.split("[")[0] in _SLOW_TESTS or item.path.suffix == ".toml"):
             item.add_marker(pytest.mark.slow)
     rank = {name: k for k, name in enumerate(_LONG_MODULES)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
