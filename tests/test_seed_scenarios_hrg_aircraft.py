@@ -16,7 +16,6 @@ import json
 import math
 import subprocess
 import sys
-import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -91,25 +90,8 @@ def verify_jacobi(gyrodiag_run, tmp_path_factory):
     return run
 
 
-def n_expectations(name: str) -> int:
-    with open(SCENARIOS / f"{name}.toml", "rb") as f:
-        return len(tomllib.load(f).get("expect", []))
-
-
 def onsets(t: np.ndarray, alarm: np.ndarray) -> np.ndarray:
     return t[np.flatnonzero(np.diff(np.r_[0.0, alarm]) > 0.5)]
-
-
-# ------------------------------------------------------------------------- all of them
-@pytest.mark.parametrize("name", ALL)
-def test_scenario_completes_and_every_expectation_holds(verify, name):
-    # the scenario's own pytest item checks the same; this keeps `pytest tests/` complete
-    r = verify(name).result
-    assert r.error is None
-    assert r.time[-1] == pytest.approx(r.stop_time_s)
-    (verdict,) = verify_results([r], [load_scenario(SCENARIOS / f"{name}.toml")])
-    assert verdict.passed, [e.message for e in verdict.expectations if not e.passed]
-    assert len(verdict.expectations) == n_expectations(name) >= 4
 
 
 # ------------------------------------------------------------------------------- HRG
