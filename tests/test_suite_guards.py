@@ -55,7 +55,8 @@ def _declared_modules() -> set[str]:
         reqs += extra
     names = {re.split(r"[\[<>=~!; ]", r, maxsplit=1)[0].lower() for r in reqs}
     import_names = {"dask[distributed]": "distributed", "pyssp-standard": "pyssp_standard",
-                    "pytest-xdist": "xdist", "pytest-timeout": "pytest_timeout"}
+                    "pytest-xdist": "xdist", "pytest-timeout": "pytest_timeout",
+                    "pillow": "PIL"}
     mods = {import_names.get(n, n.replace("-", "_")) for n in names} | {"distributed"}
     return mods | {"gyrodiag", "harness"}
 
@@ -115,3 +116,46 @@ def test_a_skip_not_on_the_allow_list_fails_a_strict_run(pytester: pytest.Pytest
         assert "test_probe.py::test_skips: Skipped: no frobnicator here" in text
     else:
         assert result.ret == pytest.ExitCode.OK and "allow-list" not in text
+
+
+_FOLDERS = ("fmu_src", "models", "harness")
+
+
+def _third_party_imports(folder: Path) -> dict[str, str]:
+    """Top-level imported module -> first file importing it, for modules outside the
+    standard library and the project."""
+    import sys
+
+    local = {p.stem for f in _FOLDERS for p in (ROOT / f).rglob("*.py")}
+    local |= {p.name for f in _FOLDERS for p in (ROOT / f).rglob("*") if p.is_dir()}
+    found: dict[str, str] = {}
+    for path in sorted(folder.rglob("*.py")):
+        if ".venv" in path.parts or "build" in path.parts:
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                     [node.module] if isinstance(node, ast.ImportFrom) and node.module
+                     and node.level == 0 else [])
+            for name in names:
+                top = name.split(".")[0]
+                if top not in sys.stdlib_module_names and top not in local:
+                    found.setdefault(top, str(path.relative_to(ROOT)))
+    return found
+
+
+def test_every_runtime_import_is_a_declared_dependency() -> None:
+    """The library, the plant models and the harness import only what pyproject.toml
+    installs with `pip install -e .` (a dependency dropped from it fails here)."""
+    project = _pyproject()["project"]
+    runtime = {re.split(r"[\[<>=~!; ]", r, maxsplit=1)[0].lower().replace("-", "_")
+               for r in project["dependencies"]}
+    runtime = {"PIL" if n == "pillow" else n for n in runtime}
+    optional = _declared_modules()
+    allowed = runtime | {"gyrodiag", "harness", "fmpy", "pythonfmu", "mpl_toolkits"}
+    used = {}
+    for folder in _FOLDERS:
+        used.update(_third_party_imports(ROOT / folder))
+    # optional features import their extra's packages lazily, inside functions
+    missing = {m: f for m, f in used.items() if m not in allowed and m not in optional}
+    assert missing == {}
+    assert {"numpy", "scipy", "control"} <= set(used) <= allowed | optional
