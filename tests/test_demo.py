@@ -20,8 +20,10 @@ def test_demo_prints_expected_values_beside_results(capsys) -> None:
     text = capsys.readouterr().out
     expected, measured = _rows(text, "expected (model)"), _rows(text, "identified")
     assert len(expected) == 3 and len(measured) == 1      # θ, then η of the two faults
-    # θ identified within 10 % of the model's (the prefilter and noise bias it)
-    np.testing.assert_allclose(measured[0], expected[0], rtol=0.1)
+    # θ identified near the model's: the prefilter's and the noise's bias is 0.6, 1.2, 3.2,
+    # 3.3, 5.0 % (seeded, so fixed); a rotor without damping would move θ1 by 2 %, θ2 by 4 %
+    rel = np.abs(measured[0] / expected[0] - 1.0)
+    assert np.all(rel < [0.01, 0.02, 0.05, 0.05, 0.08]), rel
     eta_measured = _rows(text, "measured")
     for exp, got in zip(expected[1:], eta_measured, strict=True):
         np.testing.assert_allclose(got, exp, atol=0.02)
