@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.campaigns.expand import build_scenario, campaign_fmu_dir, expand_runs, select
-from harness.campaigns.records import _write_json_atomic, load_records
+from harness.campaigns.records import load_records, remove_stale_temporaries, write_plan
 from harness.campaigns.spec import DEFAULT_RUNNER, CampaignSpec, RunSpec
 from harness.campaigns.supervise import (
     REPO_ROOT,
@@ -221,66 +221,19 @@ def run_campaign(spec: CampaignSpec, base_dir: Path, out_dir: Path, *, workers: 
     runner = runner or spec.runner
     if runner == DEFAULT_RUNNER:  # another runner need not read the scenarios
         preflight_runs(runs)
-    _write_json_atomic(out_dir / "campaign.json", {
-        "spec": spec.model_dump(by_alias=True), "base_dir": str(base_dir),
-        "fraction": fraction,
-        "selection": {"groups": list(groups) if groups is not None else None,
-                      "conditions": list(conditions) if conditions is not None else None},
-        "run_ids": [r.run_id for r in runs]})
-    for stale in records_dir.glob(".*.tmp"):  # atomic writes cut short by a kill
-        if time.time() - stale.stat().st_mtime > 60.0:  # not one being written now
-            stale.unlink(missing_ok=True)
-    done = load_records(records_dir)
-    keep = {rid for rid, rec in done.items()
-            if not (retry_failed and rec.get("status") != "ok")}
-    pending = [r for r in runs if r.run_id not in keep]
-    n_skipped = len(runs) - len(pending)
-    if max_runs is not None:
-        pending = pending[:max(0, max_runs)]
+    write_plan(out_dir, spec.model_dump(by_alias=True), base_dir, fraction, groups,
+               conditions, [r.run_id for r in runs])
+    remove_stale_temporaries(records_dir)
+    pending, n_skipped = _pending(runs, records_dir, retry_failed, max_runs)
     timeout = float(timeout_s if timeout_s is not None else spec.timeout_s)
     new: list[dict[str, Any]] = []
     if pending:
         it = (_iter_pool(pending, runner, timeout, records_dir, workers) if dask is None
               else _iter_dask(pending, runner, timeout, records_dir, workers, dask))
         bar = _bar(len(pending), n_skipped, progress)
-        # a batch system's kill (SIGTERM) stops the campaign as cleanly as Ctrl-C
-        main = threading.current_thread() is threading.main_thread()
-        previous = signal.signal(signal.SIGTERM, _raise_interrupt) if main else None
-        interrupted: KeyboardInterrupt | None = None
-        try:
-            try:
-                for rec in it:
-                    new.append(rec)
-                    if bar is not None:
-                        bar.update(1)
-                        if rec.get("status") != "ok":
-                            bar.write(f"{rec['run']['run_id']}: {rec['status']}: "
-                                      f"{str(rec.get('error')).strip().splitlines()[0][:150]}")
-            except KeyboardInterrupt as exc:
-                interrupted = exc
-            finally:
-                try:
-                    # the interrupt may land outside the generator: close it here, or
-                    # its pool would wait for the runs in flight at interpreter exit
-                    it.close()
-                except KeyboardInterrupt as exc:  # a second interrupt while stopping
-                    interrupted = interrupted or exc
-        finally:
-            if main:
-                signal.signal(signal.SIGTERM,
-                              previous if previous is not None else signal.SIG_DFL)
-            if bar is not None:
-                bar.close()
+        interrupted = _consume(it, bar, new)
         if interrupted is not None:
-            ids = {r.run_id for r in runs}
-            saved = sum(1 for rid, rec in load_records(records_dir).items() if rid in ids)
-            fate = ("were stopped and will be redone" if dask in (None, "local") else
-                    "were cancelled (on a remote cluster a run already started may still "
-                    "finish and be saved)")
-            raise CampaignInterrupted(
-                f"campaign {spec.name!r} interrupted: {saved} of {len(runs)} runs are saved "
-                f"in {records_dir}; the runs in flight {fate}; run the same command again "
-                "to resume") from interrupted
+            raise _interruption(spec, runs, records_dir, dask) from interrupted
     ids = {r.run_id for r in runs}
     records = [rec for rid, rec in load_records(records_dir).items() if rid in ids]
     return CampaignOutcome(records=records, n_total=len(runs), n_skipped=n_skipped,
@@ -288,6 +241,69 @@ def run_campaign(spec: CampaignSpec, base_dir: Path, out_dir: Path, *, workers: 
                            out_dir=out_dir,
                            failed=[r["run"]["run_id"] for r in records
                                    if r.get("status") != "ok"])
+
+
+def _pending(runs: Sequence[RunSpec], records_dir: Path, retry_failed: bool,
+             max_runs: int | None) -> tuple[list[RunSpec], int]:
+    """The runs to start (resume: those without a record; ``retry_failed``: also the
+    failed ones; at most ``max_runs``) and how many are skipped as done."""
+    done = load_records(records_dir)
+    keep = {rid for rid, rec in done.items()
+            if not (retry_failed and rec.get("status") != "ok")}
+    pending = [r for r in runs if r.run_id not in keep]
+    n_skipped = len(runs) - len(pending)
+    if max_runs is not None:
+        pending = pending[:max(0, max_runs)]
+    return pending, n_skipped
+
+
+def _consume(it: Iterator[dict[str, Any]], bar: Any, new: list[dict[str, Any]]
+             ) -> KeyboardInterrupt | None:
+    """Collect the records of ``it`` into ``new`` as the runs finish; returns the
+    interrupt (Ctrl-C, or SIGTERM in the main thread) that stopped it, if any."""
+    # a batch system's kill (SIGTERM) stops the campaign as cleanly as Ctrl-C
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt) if main else None
+    interrupted: KeyboardInterrupt | None = None
+    try:
+        try:
+            for rec in it:
+                new.append(rec)
+                if bar is not None:
+                    bar.update(1)
+                    if rec.get("status") != "ok":
+                        bar.write(f"{rec['run']['run_id']}: {rec['status']}: "
+                                  f"{str(rec.get('error')).strip().splitlines()[0][:150]}")
+        except KeyboardInterrupt as exc:
+            interrupted = exc
+        finally:
+            try:
+                # the interrupt may land outside the generator: close it here, or
+                # its pool would wait for the runs in flight at interpreter exit
+                it.close()
+            except KeyboardInterrupt as exc:  # a second interrupt while stopping
+                interrupted = interrupted or exc
+    finally:
+        if main:
+            signal.signal(signal.SIGTERM,
+                          previous if previous is not None else signal.SIG_DFL)
+        if bar is not None:
+            bar.close()
+    return interrupted
+
+
+def _interruption(spec: CampaignSpec, runs: Sequence[RunSpec], records_dir: Path,
+                  dask: str | None) -> CampaignInterrupted:
+    """What an interrupted campaign says: the runs saved, the fate of those in flight."""
+    ids = {r.run_id for r in runs}
+    saved = sum(1 for rid, rec in load_records(records_dir).items() if rid in ids)
+    fate = ("were stopped and will be redone" if dask in (None, "local") else
+            "were cancelled (on a remote cluster a run already started may still "
+            "finish and be saved)")
+    return CampaignInterrupted(
+        f"campaign {spec.name!r} interrupted: {saved} of {len(runs)} runs are saved "
+        f"in {records_dir}; the runs in flight {fate}; run the same command again "
+        "to resume")
 
 
 def _bar(total: int, initial: int, enabled: bool) -> Any:

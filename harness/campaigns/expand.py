@@ -11,7 +11,7 @@ import os
 import tomllib
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from harness.campaigns.spec import (
     AIRCRAFT_SENSORS,
@@ -20,7 +20,9 @@ from harness.campaigns.spec import (
     MAGNITUDE_PARAMETER,
     SYSTEM_WITNESSES,
     CampaignSpec,
+    FaultClass,
     RunSpec,
+    Sweep,
     WitnessCopy,
 )
 from harness.cosim.scenario import FMU_DIR_ENV
@@ -66,99 +68,123 @@ def expand_runs(spec: CampaignSpec, base_dir: Path, out_dir: Path | None = None,
         results_dir: str | None = str((base_dir / spec.results_dir).resolve())
     else:
         results_dir = str(out_dir.resolve()) if out_dir is not None else None
-
-    def make(cls_name: str, kind: str, duration: float, replicate: str, fault: dict | None,
-             condition: str | None = None, **meta: Any) -> RunSpec:
-        c = spec.classes[cls_name]
-        scenario = (base_dir / c.scenario).resolve()
-        ident = {"class": cls_name, "scenario": os.path.relpath(scenario, base_dir),
-                 "kind": kind, "duration_s": duration, "fault": fault,
-                 "replicate": replicate, "base_seed": spec.base_seed}
-        if meta.get("also"):
-            ident["also"] = meta["also"]
-        # the seed does not depend on the condition (unless the class says "disjoint"): a
-        # fault under every condition is flown with the same noise (a paired comparison)
-        seed = _seed(spec.base_seed, json.dumps(ident, sort_keys=True))
-        parameters = {inst: dict(v) for inst, v in c.parameters.items()}
-        manoeuvres = None
-        group = None
-        if condition is not None:  # only then: runs without conditions keep their ids
-            cond = spec.conditions[condition]
-            ident["condition"] = {"name": condition, **cond.model_dump()}
-            for inst, values in cond.parameters.items():
-                parameters.setdefault(inst, {}).update(values)
-            manoeuvres = [dict(m) for m in cond.manoeuvres]
-            group = cond.group
-            if c.condition_seeds == "disjoint":
-                seed = _seed(spec.base_seed, json.dumps(ident, sort_keys=True))
-        thresholds = list(c.thresholds or DEFAULT_THRESHOLDS[c.channel])
-        ident.update(seed_parameters=c.seed_parameters, thresholds=thresholds,
-                     diagnoser=c.diagnoser, parameters=c.parameters)
-        witnesses = (list(c.witnesses or [c.diagnoser]) if c.channel == "grey"
-                     else list(c.witnesses))
-        if witnesses:  # only then: the ids of the other channels' runs stay as they were
-            ident["witnesses"] = witnesses
-        if c.witness_copies:  # the seed (above) stays: same noise with or without them
-            ident["witness_copies"] = {w: v.model_dump() for w, v in c.witness_copies.items()}
-        tag = f"{meta.get('fault_type') or 'nominal'}" + (f"-{condition}" if condition else "")
-        return RunSpec(run_id=f"{cls_name}-{tag}-{_run_id(ident)}",
-                       campaign=spec.name, cls=cls_name, channel=c.channel, kind=kind,
-                       scenario=str(scenario), duration_s=duration, seed=seed,
-                       seed_parameters=c.seed_parameters, parameters=parameters,
-                       diagnoser=c.diagnoser,
-                       fault=fault, thresholds=thresholds, witnesses=witnesses,
-                       witness_copies=dict(c.witness_copies),
-                       fmu_dir=fmu_dir,
-                       results_dir=results_dir, condition=condition, group=group,
-                       manoeuvres=manoeuvres, **meta)
+    where = _Where(spec, base_dir, fmu_dir, results_dir)
 
     for sw in spec.sweeps:
         c = spec.classes[sw.cls]
         for mag in sw.magnitudes:
             for onset in sw.onsets_s:
                 for ch in sw.channels:
-                    fault: dict[str, Any]
-                    if sw.set is not None:
-                        fault = {"name": "campaign_fault", "set": sw.set, "value": mag,
-                                 "start_s": onset, **sw.extra}
-                    else:
-                        fault = {"name": "campaign_fault", "injector": c.injector,
-                                 "channel": ch, "type": sw.type, "start_s": onset, **sw.extra}
-                        if not math.isnan(mag):
-                            fault[MAGNITUDE_PARAMETER[sw.type]] = mag
+                    fault = _sweep_fault(sw, c, mag, onset, ch)
                     duration = (onset + sw.post_onset_s if sw.post_onset_s is not None
                                 else sw.duration_s or _base_duration(base_dir / c.scenario))
                     label = sw.label or sw.type or sw.set.partition(".")[2]
                     also = [{"name": f"campaign_fault_{j + 2}", "injector": c.injector,
                              "start_s": onset, **other} for j, other in enumerate(sw.also)]
-                    if c.channel == "system":
-                        injected = sw.expected or "q"
-                    elif c.channel == "df":
-                        chans = sorted({ch, *(int(o["channel"]) for o in sw.also)})
-                        injected = "+".join(AIRCRAFT_SENSORS[k - 1]
-                                            if k <= len(AIRCRAFT_SENSORS) else str(k)
-                                            for k in chans)
-                    else:
-                        injected = label
+                    injected = _injected(sw, c, ch, label)
                     for cond in sw.conditions or [None]:
                         for r in range(sw.seeds):
-                            runs.append(make(sw.cls, "fault", duration, str(r), fault, cond,
-                                             fault_type=label,
-                                             magnitude=None if math.isnan(mag) else mag,
-                                             onset_s=onset,
-                                             target=None if sw.set is not None else ch,
-                                             injected=injected, accepted=list(sw.accept),
-                                             also=also))
+                            runs.append(_make_run(where, sw.cls, "fault", duration, str(r),
+                                                  fault, cond, fault_type=label,
+                                                  magnitude=None if math.isnan(mag) else mag,
+                                                  onset_s=onset,
+                                                  target=None if sw.set is not None else ch,
+                                                  injected=injected,
+                                                  accepted=list(sw.accept), also=also))
     for nom in spec.nominal:
         for cond in nom.conditions or [None]:
             for r in range(nom.runs):
-                runs.append(make(nom.cls, "nominal", nom.duration_s, str(r), None, cond))
+                runs.append(_make_run(where, nom.cls, "nominal", nom.duration_s, str(r), None,
+                                      cond))
     ids = [r.run_id for r in runs]
     if len(set(ids)) != len(ids):
         dup = next(i for i in ids if ids.count(i) > 1)
         raise ValueError(f"campaign {spec.name!r}: two runs are identical ({dup}); "
                          "remove the duplicate sweep entry")
     return runs
+
+
+class _Where(NamedTuple):
+    """What every run of one expansion shares (:func:`expand_runs`)."""
+
+    spec: CampaignSpec
+    base_dir: Path
+    fmu_dir: str | None
+    results_dir: str | None
+
+
+def _sweep_fault(sw: Sweep, c: FaultClass, mag: float, onset: float, ch: int
+                 ) -> dict[str, Any]:
+    """The ``[[faults]]`` entry of one point of a sweep."""
+    fault: dict[str, Any]
+    if sw.set is not None:
+        fault = {"name": "campaign_fault", "set": sw.set, "value": mag,
+                 "start_s": onset, **sw.extra}
+    else:
+        fault = {"name": "campaign_fault", "injector": c.injector,
+                 "channel": ch, "type": sw.type, "start_s": onset, **sw.extra}
+        if not math.isnan(mag):
+            fault[MAGNITUDE_PARAMETER[sw.type]] = mag
+    return fault
+
+
+def _injected(sw: Sweep, c: FaultClass, ch: int, label: str) -> str:
+    """The diagnosis that counts as right for a sweep's runs on injector channel ``ch``."""
+    if c.channel == "system":
+        return sw.expected or "q"
+    if c.channel == "df":
+        chans = sorted({ch, *(int(o["channel"]) for o in sw.also)})
+        return "+".join(AIRCRAFT_SENSORS[k - 1] if k <= len(AIRCRAFT_SENSORS) else str(k)
+                        for k in chans)
+    return label
+
+
+def _make_run(where: _Where, cls_name: str, kind: str, duration: float, replicate: str,
+              fault: dict | None, condition: str | None = None, **meta: Any) -> RunSpec:
+    """One run of class ``cls_name``, its id and seed hashed from what it computes."""
+    spec, base_dir = where.spec, where.base_dir
+    c = spec.classes[cls_name]
+    scenario = (base_dir / c.scenario).resolve()
+    ident = {"class": cls_name, "scenario": os.path.relpath(scenario, base_dir),
+             "kind": kind, "duration_s": duration, "fault": fault,
+             "replicate": replicate, "base_seed": spec.base_seed}
+    if meta.get("also"):
+        ident["also"] = meta["also"]
+    # the seed does not depend on the condition (unless the class says "disjoint"): a
+    # fault under every condition is flown with the same noise (a paired comparison)
+    seed = _seed(spec.base_seed, json.dumps(ident, sort_keys=True))
+    parameters = {inst: dict(v) for inst, v in c.parameters.items()}
+    manoeuvres = None
+    group = None
+    if condition is not None:  # only then: runs without conditions keep their ids
+        cond = spec.conditions[condition]
+        ident["condition"] = {"name": condition, **cond.model_dump()}
+        for inst, values in cond.parameters.items():
+            parameters.setdefault(inst, {}).update(values)
+        manoeuvres = [dict(m) for m in cond.manoeuvres]
+        group = cond.group
+        if c.condition_seeds == "disjoint":
+            seed = _seed(spec.base_seed, json.dumps(ident, sort_keys=True))
+    thresholds = list(c.thresholds or DEFAULT_THRESHOLDS[c.channel])
+    ident.update(seed_parameters=c.seed_parameters, thresholds=thresholds,
+                 diagnoser=c.diagnoser, parameters=c.parameters)
+    witnesses = (list(c.witnesses or [c.diagnoser]) if c.channel == "grey"
+                 else list(c.witnesses))
+    if witnesses:  # only then: the ids of the other channels' runs stay as they were
+        ident["witnesses"] = witnesses
+    if c.witness_copies:  # the seed (above) stays: same noise with or without them
+        ident["witness_copies"] = {w: v.model_dump() for w, v in c.witness_copies.items()}
+    tag = f"{meta.get('fault_type') or 'nominal'}" + (f"-{condition}" if condition else "")
+    return RunSpec(run_id=f"{cls_name}-{tag}-{_run_id(ident)}",
+                   campaign=spec.name, cls=cls_name, channel=c.channel, kind=kind,
+                   scenario=str(scenario), duration_s=duration, seed=seed,
+                   seed_parameters=c.seed_parameters, parameters=parameters,
+                   diagnoser=c.diagnoser,
+                   fault=fault, thresholds=thresholds, witnesses=witnesses,
+                   witness_copies=dict(c.witness_copies),
+                   fmu_dir=where.fmu_dir,
+                   results_dir=where.results_dir, condition=condition, group=group,
+                   manoeuvres=manoeuvres, **meta)
 
 
 def _base_duration(path: Path) -> float:

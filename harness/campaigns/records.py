@@ -7,12 +7,15 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 
-def _write_json_atomic(path: Path, data: dict[str, Any]) -> None:
+def write_json_atomic(path: Path, data: dict[str, Any]) -> None:
+    """Write ``data`` as JSON to ``path`` atomically (a temporary file renamed)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=".tmp", dir=path.parent)
     try:
@@ -75,3 +78,23 @@ def load_campaign_output(out_dir: Path | str) -> CampaignOutput:
                           records=[done[rid] for rid in ids if rid in done],
                           selection=selection)
 
+
+def write_plan(out_dir: Path, spec: dict[str, Any], base_dir: Path, fraction: float,
+               groups: Sequence[str] | None, conditions: Sequence[str] | None,
+               run_ids: list[str]) -> None:
+    """``<out_dir>/campaign.json``: the spec (as a dict), the runs planned and the
+    selection (:func:`load_campaign_output` reads it back)."""
+    write_json_atomic(out_dir / "campaign.json", {
+        "spec": spec, "base_dir": str(base_dir),
+        "fraction": fraction,
+        "selection": {"groups": list(groups) if groups is not None else None,
+                      "conditions": list(conditions) if conditions is not None else None},
+        "run_ids": run_ids})
+
+
+def remove_stale_temporaries(records_dir: Path) -> None:
+    """Remove the temporary files of atomic writes cut short by a kill (older than a
+    minute: not one being written now)."""
+    for stale in records_dir.glob(".*.tmp"):  # atomic writes cut short by a kill
+        if time.time() - stale.stat().st_mtime > 60.0:  # not one being written now
+            stale.unlink(missing_ok=True)

@@ -22,7 +22,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from harness.campaigns.records import _write_json_atomic
+from harness.campaigns.records import write_json_atomic
 
 #: The repository: the run processes' working folder and first entry of their path.
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -90,7 +90,7 @@ def execute_run(run_dict: dict[str, Any], runner: str, timeout_s: float,
                 record.update(status="error", error=f"run process died with exit status "
                                                     f"{proc.returncode}: {tail}")
     record["wall_s"] = time.perf_counter() - t0
-    _write_json_atomic(Path(records_dir) / f"{run_dict['run_id']}.json", record)
+    write_json_atomic(Path(records_dir) / f"{run_dict['run_id']}.json", record)
     return record
 
 
@@ -182,7 +182,7 @@ def _child_main(runner: str, inp: str, out: str) -> int:
         payload: dict[str, Any] = {"error": None, "result": result}
     except BaseException as exc:  # everything is recorded, even SystemExit
         payload = {"error": f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"}
-    _write_json_atomic(Path(out), payload)
+    write_json_atomic(Path(out), payload)
     return 0
 
 
