@@ -31,6 +31,7 @@ from harness.cosim.scenario import ScenarioError
 
 log = logging.getLogger(__name__)
 
+
 class CampaignInterrupted(KeyboardInterrupt):
     """A campaign stopped by Ctrl-C or SIGTERM; finished runs are saved (the message
     says where), runs in flight were killed."""
@@ -47,7 +48,6 @@ class CampaignOutcome:
     wall_s: float
     out_dir: Path
     failed: list[str] = field(default_factory=list)
-
 
 
 def _iter_pool(runs: Sequence[RunSpec], runner: str, timeout_s: float, records_dir: Path,

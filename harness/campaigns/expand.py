@@ -191,7 +191,6 @@ def _base_duration(path: Path) -> float:
     return float(tomllib.loads(path.read_text(encoding="utf-8"))["duration_s"])
 
 
-
 def _signals(run: RunSpec) -> list[str]:
     d = run.diagnoser
     if run.witnesses and run.channel in ("df", "dtg"):
@@ -261,7 +260,6 @@ def build_scenario(run: RunSpec) -> Any:
                              f"{path}")
         data["fmus"][inst].setdefault("parameters", {})[par] = run.seed + j
     return parse_scenario(data, source=f"{path} (run {run.run_id})", path=path)
-
 
 
 def add_witness_copies(data: dict[str, Any], diagnoser: str,

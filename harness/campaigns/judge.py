@@ -144,6 +144,8 @@ def _pattern_statistic(scenario: Any, d: str, t: np.ndarray, sig: dict[str, np.n
     ready = np.flatnonzero(ready_mask)
     t_ready = float(t[ready[0]]) if ready.size else float(t[-1])
     return s, t_ready, 1.0
+
+
 def _df_sequential(scenario: Any, diagnoser: str) -> bool:
     """The detection-filter channel decides sequentially (``df.decision`` = 1, or 2 -
     auto, the default - without a read-out model) rather than by the paper's rule (0,
@@ -300,7 +302,6 @@ def judge_diagnoser(run: RunSpec, scenario: Any, t: np.ndarray,
 
 def _dtg_classifier(scenario: Any, diagnoser: str) -> str:
     return str(_param(scenario, diagnoser, "dtg.classifier", "pattern"))
-
 
 
 def _judge_witnesses(run: RunSpec, scenario: Any, t: np.ndarray, sig: dict[str, np.ndarray],
