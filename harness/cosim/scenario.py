@@ -40,6 +40,7 @@ from pydantic import (
 )
 
 from harness.verification import expectations
+from harness.verification.strict_model import StrictModel
 
 #: FaultInjector fault codes (parameter ``fault_type_<channel>``), copied from the
 #: FaultInjector FMU's documentation (``FaultType`` in models/fault_injector); a test
@@ -140,11 +141,10 @@ class ScenarioError(ValueError):
         super().__init__("\n".join(lines))
 
 
-class _Strict(BaseModel):
+class _Strict(StrictModel):
     # attribute docstrings are the field descriptions of the JSON Schema and of
-    # docs/scenarios.md (python -m harness schema)
-    model_config = ConfigDict(extra="forbid", populate_by_name=True,
-                              use_attribute_docstrings=True)
+    # docs/scenarios.md (python -m harness schema); extra="forbid" from StrictModel
+    model_config = ConfigDict(populate_by_name=True, use_attribute_docstrings=True)
 
 
 class FmuInstance(_Strict):

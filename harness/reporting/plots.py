@@ -26,8 +26,9 @@ Figures: :func:`plot_dtg_channel` (θ1..θ5 and/or η1..η5 panels, the DTG pape
 (measurement and prediction, |error| with the threshold; alarm lane),
 :func:`plot_df_channel` (residuals with ± thresholds; detection, isolation and alarm
 lanes), :func:`plot_alarm_timeline` (the flags of no channel, e.g. fault injection).
-The older single-purpose plots (:func:`plot_theta`, :func:`plot_signals_with_faults`,
-:func:`plot_grey_prediction`) remain for scripts.
+The older single-purpose plots (:func:`plot_theta`, :func:`plot_signals_with_faults`)
+remain for scripts, and :func:`plot_grey_prediction`, the grey channel's figure without
+its lanes.
 Independent witnesses of one root cause (``witnesses_agree`` expectations) share
 one timeline (:func:`plot_witnesses`).
 
@@ -615,15 +616,24 @@ def plot_grey_channel(
     measured: str | None = None,
     threshold: float | None = None,
     title: str | None = None,
+    predicted: str | None = None,
+    error: str | None = None,
+    lanes: bool = True,
 ) -> Figure:
     """The grey-prediction channel of ``inst``: measurement and prediction, |error| with
-    the threshold, the alarm lane (whichever are recorded)."""
+    the threshold, the alarm lane (whichever are recorded).
+
+    ``predicted`` / ``error`` name the prediction ŷ and the error ``y − ŷ`` (default
+    ``<inst>.grey.prediction`` / ``<inst>.grey.error``); the error panel is
+    ``|measured − ŷ|``, or ``|error|`` without ``measured``.  ``lanes=False`` draws the
+    two prediction panels alone (:func:`plot_grey_prediction`)."""
     t = np.asarray(result.time, dtype=float)
     sig = result.signals
-    predicted = f"{inst}.grey.prediction"
-    error = f"{inst}.grey.error" if f"{inst}.grey.error" in sig else None
+    predicted = predicted or f"{inst}.grey.prediction"
+    if error is None:
+        error = f"{inst}.grey.error" if f"{inst}.grey.error" in sig else None
     lanes = _lane_rows([n for n in sig if n.startswith(f"{inst}.grey.")
-                        and _is_lane(n, sig[n])], sig)
+                        and _is_lane(n, sig[n])], sig) if lanes else []
     has_pred = predicted in sig and (measured is not None or error is not None)
     if not has_pred and not lanes:
         raise ValueError(f"no {predicted} with its measurement, nor a grey alarm, recorded")
@@ -869,7 +879,8 @@ def plot_grey_prediction(
     threshold: float | None = None,
     title: str | None = None,
 ) -> Figure:
-    """Measurement vs. one-step grey prediction, and the prediction error below.
+    """Measurement vs. one-step grey prediction, and the prediction error below: the two
+    prediction panels of :func:`plot_grey_channel` without its lanes (kept for scripts).
 
     Parameters
     ----------
@@ -892,36 +903,15 @@ def plot_grey_prediction(
     Figure
         Two panels: y and ŷ; |y − ŷ| with the threshold.
     """
-    t = np.asarray(result.time, dtype=float)
-    p = np.asarray(result.signal(predicted), dtype=float)
-    fig, (top, bottom) = _new_figure(2, 2.3)
-    for k, ax in enumerate((top, bottom)):
-        _shade(ax, result, (), label=k == 0)
-    if measured is not None:
-        y = np.asarray(result.signal(measured), dtype=float)
-        _plot(top, t, y, lw=0.9, color="tab:blue", label=f"measured ({measured})")
-        err = np.abs(y - p)
-    elif error is not None:
-        err = np.abs(np.asarray(result.signal(error), dtype=float))
-    else:
+    if measured is None and error is None:
         raise ValueError("give measured or error: the error panel needs one of them")
-    _plot(top, t, p, lw=0.9, ls="--", color="tab:orange", label=f"prediction ({predicted})")
-    if measured is not None:
-        _limit_to_reference(top, y, p)
-    top.set_ylabel("signal")
-    _plot(bottom, t, err, lw=0.8, color="tab:red", label="|y − ŷ|")
-    if threshold is not None:
-        bottom.axhline(threshold, ls="--", color="k", lw=0.8, label=f"threshold {threshold:g}")
-    positive = err[np.isfinite(err) & (err > 0.0)]
-    if positive.size and positive.max() > 1e3 * np.median(positive):
-        bottom.set_yscale("log")  # errors spanning decades: keep the threshold readable
-    bottom.set_ylabel("|error|")
-    bottom.set_xlabel("time (s)")
-    for ax in (top, bottom):
-        ax.grid(alpha=0.3)
-    _legend_below(fig, (top, bottom))
-    fig.suptitle(title or "grey prediction", fontsize=10)
-    return fig
+    for name in (predicted, measured, error):
+        if name is not None:
+            result.signal(name)  # a missing signal raises, naming it
+    inst = predicted.removesuffix(".grey.prediction")
+    return plot_grey_channel(result, inst, measured=measured, threshold=threshold,
+                             title=title or "grey prediction", predicted=predicted,
+                             error=error, lanes=False)
 
 
 def plot_alarm_timeline(

@@ -57,6 +57,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
 
 from harness.verification import metrics
+from harness.verification.strict_model import StrictModel
 
 if TYPE_CHECKING:
     from harness.cosim.results import RunResult
@@ -160,10 +161,10 @@ class ScenarioLike(Protocol):
 
 
 # -------------------------------------------------------------------- models
-class _Base(BaseModel):
+class _Base(StrictModel):
     # attribute docstrings are the field descriptions of the JSON Schema and of
-    # docs/scenarios.md (python -m harness schema)
-    model_config = ConfigDict(extra="forbid", frozen=True, use_attribute_docstrings=True)
+    # docs/scenarios.md (python -m harness schema); extra="forbid" from StrictModel
+    model_config = ConfigDict(frozen=True, use_attribute_docstrings=True)
 
     name: str | None = Field(default=None, description="Label in reports")
     known_limitation: str | None = Field(
