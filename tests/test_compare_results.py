@@ -1,4 +1,5 @@
-"""``python -m harness compare-results A B`` (harness/cli/compare.py).
+"""``python -m harness compare-results A B`` (harness/cli/compare.py) and the ``gyrodiag``
+console script.
 
 The results folders are written by the harness's own writers (RunResult.save,
 drop_signals, write_report, run_campaign with the fake runner of
@@ -10,8 +11,12 @@ changed at a time.
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
+import subprocess
+import sys
+from importlib.metadata import entry_points
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +30,8 @@ from harness.cli.compare import IGNORED, ResultsFolderError, compare_results
 from harness.cosim.results import FaultWindow, RunResult, drop_signals
 from harness.reporting.report import write_report
 from harness.verification.expectations import ExpectationResult, ScenarioVerdict
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 # ---------------------------------------------------------------------------- helpers
@@ -285,3 +292,31 @@ def test_a_campaign_summary_folder_compares_its_summary(campaign_pair, tmp_path)
     assert cmp.kind == "campaign-summary"
     # run_hours (wall times) differ and are ignored; every other figure is the same
     assert cmp.identical, cmp.render()
+
+
+# ------------------------------------------------------------------- the console script
+def test_console_script_is_the_harness_main():
+    (ep,) = [e for e in entry_points(group="console_scripts") if e.name == "gyrodiag"]
+    assert ep.value == "harness.cli:main"
+    assert ep.load() is main
+
+
+def _commands(help_text: str) -> list[str]:
+    block = help_text.split("positional arguments:")[1].split("options:")[0]
+    return re.findall(r"^    (\S[\w-]*)", block, flags=re.MULTILINE)
+
+
+def test_gyrodiag_help_lists_the_same_commands_as_python_m_harness():
+    script = Path(sys.executable).with_name("gyrodiag")
+    if not script.is_file():
+        script = Path(shutil.which("gyrodiag") or "gyrodiag")
+    env = {**os.environ, "COLUMNS": "100"}
+    mine = subprocess.run([str(script), "--help"], capture_output=True, text=True, env=env,
+                          timeout=60, check=True).stdout
+    theirs = subprocess.run([sys.executable, "-m", "harness", "--help"], capture_output=True,
+                            text=True, env=env, cwd=ROOT, timeout=60, check=True).stdout
+    assert mine.startswith("usage: gyrodiag ")
+    assert theirs.startswith("usage: python -m harness ")
+    commands = _commands(theirs)
+    assert "all" in commands and "compare-results" in commands and len(commands) >= 12
+    assert _commands(mine) == commands

@@ -68,6 +68,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -116,8 +117,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _parser() -> argparse.ArgumentParser:
+    # the console script gyrodiag (pyproject.toml) runs this same parser
+    prog = "gyrodiag" if Path(sys.argv[0]).name == "gyrodiag" else "python -m harness"
     parser = argparse.ArgumentParser(
-        prog="python -m harness",
+        prog=prog,
         description="Run gyrodiag co-simulation scenarios (fmpy master), verify their "
                     "expectations and report.")
     add_verbosity(parser, top=True)
