@@ -190,6 +190,12 @@ def test_a_changed_verdict_is_a_difference(runs_pair, tmp_path, capsys):
     assert cmp.differences == [
         "alpha: expectation 'detects the bias': pass in both; A: measured delay 0.2 s | "
         "B: measured delay 0.21 s"]
+    # an expectation less
+    verdicts = _verdicts()
+    del verdicts[0].expectations[1]
+    write_report(verdicts, _runs(3.5), b, workers=1)
+    assert compare_results(a, b).differences == [
+        "alpha: 'q stays small': testcase in junit.xml only in A"]
 
 
 def test_a_changed_library_or_fault_window_is_a_difference(runs_pair, tmp_path):

@@ -371,8 +371,8 @@ class _Comparer:
         for scenario in [s for s in va if s in vb]:
             self.cmp.count("verdicts")
             ca, cb = va[scenario], vb[scenario]
-            self.only(f"expectation of {scenario} in {JUNIT_FILE}",
-                      {f"{scenario}: {c}": 0 for c in ca}, {f"{scenario}: {c}": 0 for c in cb})
+            self.only(f"testcase in {JUNIT_FILE}", {f"{scenario}: {c!r}": 0 for c in ca},
+                      {f"{scenario}: {c!r}": 0 for c in cb})
             for case in [c for c in ca if c in cb]:
                 self.cmp.count("expectations" if case != "run" else "run outcomes")
                 (sa, ma), (sb, mb) = ca[case], cb[case]
