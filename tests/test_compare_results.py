@@ -270,6 +270,20 @@ def test_two_runs_of_a_campaign_fraction_are_identical(campaign_pair, capsys):
     assert code == 0 and "runs/*.json: wall_s" in out and out.rstrip().endswith("IDENTICAL")
 
 
+def test_the_wall_times_of_real_run_records_are_ignored(campaign_pair, tmp_path):
+    """A real run's record also holds sim_wall_s (the fake runner's does not)."""
+    a, b = campaign_pair
+    b = copy(b, tmp_path)
+    for path in (b / "runs").glob("*.json"):
+        record = json.loads(path.read_text())
+        record.update(sim_wall_s=12.5, wall_s=13.0)
+        path.write_text(json.dumps(record, indent=1), encoding="utf-8")
+    assert compare_results(a, b).identical
+    record["seed"] = 3
+    path.write_text(json.dumps(record, indent=1), encoding="utf-8")
+    assert compare_results(a, b).differences == [f"runs/{path.name}: seed: only in B"]
+
+
 def test_a_changed_run_record_or_summary_is_a_difference(campaign_pair, tmp_path, capsys):
     a, b = campaign_pair
     b = copy(b, tmp_path)

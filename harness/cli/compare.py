@@ -87,6 +87,7 @@ IGNORED: tuple[Ignored, ...] = (
                                 "table shows wall-time run hours"),
     Ignored(CAMPAIGN_FILE, "base_dir", "absolute path of the spec's folder"),
     Ignored(f"{RUNS_DIR}/*.json", "wall_s", "wall-clock time of the run"),
+    Ignored(f"{RUNS_DIR}/*.json", "sim_wall_s", "wall-clock time of the co-simulation"),
     Ignored(f"{RUNS_DIR}/*.json", "run.scenario", "absolute path of the base scenario "
                                                   "(the run id holds its relative path)"),
     Ignored(f"{RUNS_DIR}/*.json", "run.fmu_dir", "absolute path of the FMU folder"),
