@@ -14,6 +14,7 @@
                                [--timeout S] [--fraction F] [--group NAME]
                                [--condition NAME] [--report-only]
     python -m harness campaign-summary DIR... --out DIR [--title TEXT]
+    python -m harness compare-results A B [--rtol R] [--atol A] [--max-diffs N]
     python -m harness isolability [--out FILE] [--format text|json|html]
     python -m harness learn-signatures SCENARIO... [--out FILE.json] [--runs-out DIR]
                                        [--window-s S] [--saved] [--fmu-dir DIR]
@@ -42,7 +43,9 @@ which sensor faults of the seed aircraft are detectable and isolable
 (:mod:`harness.verification.isolability`, analysis only).  ``learn-signatures`` runs DTG
 training scenarios and writes the fault-signature library that verification scenarios
 load through a ``files`` parameter (:mod:`harness.campaigns.signatures`).
-``export-csv`` writes a saved run's signals as CSV.  ``export-ssp`` writes a scenario as
+``export-csv`` writes a saved run's signals as CSV.  ``compare-results`` compares two
+results folders (verdicts, signals bit for bit, campaign summaries; exit 0 identical, 1
+different: :mod:`harness.cli.compare`).  ``export-ssp`` writes a scenario as
 an SSP package for other SSP tools (:mod:`harness.cosim.ssp`).  ``schema`` prints the JSON Schema
 of scenario files (for editors), or with ``--markdown`` the reference of
 ``docs/scenarios.md``.
@@ -65,10 +68,11 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from harness.cli import campaign, learn_signatures, pipeline, ssp
+from harness.cli import campaign, compare, learn_signatures, pipeline, ssp
 from harness.cli.common import (
     DEFAULT_RESULTS_ROOT,
     EXIT_FAILED,
@@ -113,8 +117,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _parser() -> argparse.ArgumentParser:
+    # the console script gyrodiag (pyproject.toml) runs this same parser
+    prog = "gyrodiag" if Path(sys.argv[0]).name == "gyrodiag" else "python -m harness"
     parser = argparse.ArgumentParser(
-        prog="python -m harness",
+        prog=prog,
         description="Run gyrodiag co-simulation scenarios (fmpy master), verify their "
                     "expectations and report.")
     add_verbosity(parser, top=True)
@@ -196,6 +202,7 @@ def _parser() -> argparse.ArgumentParser:
     pipeline.add_parser(sub)
     campaign.add_parser(sub)
     campaign.add_summary_parser(sub)
+    compare.add_parser(sub)
     ssp.add_parser(sub)
     for p in sub.choices.values():
         add_verbosity(p)
