@@ -9,13 +9,7 @@ fmu_src/shim/fmi2_status_shim.c); ``os._exit`` stays so that FMUs built without 
 (no C compiler) cannot turn a passing run into exit status 134.
 """
 
-import os
-import sys
-
-from harness.cli import main
+from harness.cli import console
 
 if __name__ == "__main__":
-    code = main()
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)
+    console()
