@@ -17,8 +17,8 @@ Modes
   shim then has no table of variables; the Python facades refuse the wrong calls).
 * ``states``: calls in the wrong state (doStep before initialisation, setupExperiment or
   enterInitializationMode twice, set of a fixed parameter or an output after
-  initialisation, doStep after terminate, terminate twice), NULL arrays with n > 0 and
-  NULL strings, then free.
+  initialisation, doStep after terminate, terminate twice), NULL arrays with n > 0,
+  NULL or non-UTF-8 strings, NULL pointers to the FMU-state functions, then free.
 * ``instantiate``: fmi2Instantiate with a NULL or wrong GUID, NULL instance name, NULL
   resource location, model exchange; then a good instance that runs.
 * ``single ACCESSOR get|set TYPE``: one wrong-typed call (ACCESSOR on a variable of
@@ -110,6 +110,9 @@ class RawFmu:
             "fmi2ExitInitializationMode": [c_void_p],
             "fmi2Terminate": [c_void_p], "fmi2Reset": [c_void_p],
             "fmi2DoStep": [c_void_p, c_double, c_double, c_int],
+            "fmi2GetFMUstate": [c_void_p, c_void_p], "fmi2FreeFMUstate": [c_void_p, c_void_p],
+            "fmi2SerializedFMUstateSize": [c_void_p, c_void_p, c_void_p],
+            "fmi2SerializeFMUstate": [c_void_p, c_void_p, c_void_p, c_size_t],
             **{f"fmi2{a}{t}": [c_void_p, c_void_p, c_size_t, c_void_p]
                for a in ("Get", "Set") for t in TYPES},
         }.items():
@@ -260,6 +263,11 @@ def mode_states(fmu: RawFmu) -> None:
     fmu.set("Real", [real["vr"]], values=None, label="set Real values NULL")
     fmu.get("Real", None, n=0, values=False, label="get Real n 0 NULL")
     fmu.step("fmi2DoStep after")
+    state = c_void_p()
+    fmu.call("fmi2GetFMUstate", "fmi2GetFMUstate", fmu.c, byref(state))
+    fmu.call("state size NULL", "fmi2SerializedFMUstateSize", fmu.c, state, None)
+    fmu.call("serialize NULL bytes", "fmi2SerializeFMUstate", fmu.c, state, None, 1 << 20)
+    fmu.call("fmi2FreeFMUstate", "fmi2FreeFMUstate", fmu.c, byref(state))
     fmu.call("fmi2Terminate", "fmi2Terminate", fmu.c)
     fmu.step("doStep after terminate")
     fmu.call("terminate twice", "fmi2Terminate", fmu.c)

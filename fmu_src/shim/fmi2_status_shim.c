@@ -1034,6 +1034,10 @@ fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate st, size_t *
 {
     SHIM(c)
     s->worst = fmi2OK;
+    if (!size) {
+        shim_log(s, fmi2Error, "fmi2SerializedFMUstateSize: the size pointer is NULL");
+        return merge(s, fmi2OK);
+    }
     ShimState *mine = own_state(s, st, "fmi2SerializedFMUstateSize");
     if (!mine) return merge(s, fmi2OK);
     size_t payload = 0;
@@ -1046,6 +1050,10 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate st, fmi2Byte b[],
 {
     SHIM(c)
     s->worst = fmi2OK;
+    if (!b) {
+        shim_log(s, fmi2Error, "fmi2SerializeFMUstate: the byte array is NULL");
+        return merge(s, fmi2OK);
+    }
     ShimState *mine = own_state(s, st, "fmi2SerializeFMUstate");
     if (!mine) return merge(s, fmi2OK);
     size_t payload = 0;
