@@ -398,7 +398,14 @@ in separate processes.</li>
 <li><b>Errors</b>: a bad parameter (named, with its range), a refused step or an
 unexpected problem is logged through the FMU logger and the call returns fmi2Error, never
 fmi2Fatal; the instance keeps its state. Messages of status warning and error reach the
-logger whatever the debug-logging setting.</li>
+logger whatever the debug-logging setting. Wrong calls from a host are refused the same
+way before any Python runs (Linux): a get/set of an unknown value reference or through
+the accessor of another type (the message names the value reference and its type), a set
+of a fixed parameter or an output after initialisation, a call in the wrong state, NULL
+arrays; fmi2Terminate and fmi2FreeInstance work after any error.</li>
+<li><b>Time events</b> (fault windows, manoeuvres) are compared within half a
+communication step: a master that adds h each step sees them at the same step as one
+that computes k&middot;h.</li>
 <li><b>FMU states</b>: get/set/serialize hold every internal filter state, covariance and
 window. Serialized states are framed (<code>GDFMUST1</code>, the FMU's GUID, length,
 FNV-1a 64 checksum): truncated, corrupt or foreign bytes, and states of other FMUs, give

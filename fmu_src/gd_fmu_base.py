@@ -202,44 +202,81 @@ class GuardedSlave(Fmi2Slave):
         """Bring outputs computed lazily up to date before they are read or saved
         (facades that defer their output copying override this)."""
 
+    def _wrong_vrs(self, kind: str, vrs: list[int], call: str) -> bool:
+        """True (with an error logged) if a value reference is unknown or of another type.
+
+        The status shim refuses such calls before they reach Python (from the model
+        description); this is the same check for a binary without the shim or without a
+        readable model description: pythonfmu would raise, i.e. return fmi2Fatal and
+        release the instance. Only the slow path (not every value in the fast map) runs it.
+        """
+        problems = []
+        for i, vr in enumerate(vrs):
+            var = self.vars.get(vr)
+            if var is None:
+                problems.append(f"unknown value reference {vr} (vr[{i}]): this FMU has no "
+                                "such variable")
+            elif not isinstance(var, _KINDS[kind]):
+                real = type(var).__name__
+                article = "an" if kind == "Integer" else "a"
+                problems.append(f"value reference {vr} (vr[{i}]) is the {real} variable "
+                                f"'{var.name}', not {article} {kind}: use {call[:7]}{real}")
+        for problem in problems[:5]:
+            self.report_error(f"{call}: {problem}; nothing was "
+                              f"{'set' if call.startswith('fmi2Set') else 'read'}")
+        return bool(problems)
+
+    def _slow_get(self, kind: str, vrs: list[int], default: Any) -> list[Any]:
+        if self._wrong_vrs(kind, vrs, f"fmi2Get{kind}"):
+            return [default] * len(vrs)
+        return getattr(super(), f"get_{kind.lower()}")(vrs)
+
     def get_real(self, vrs: list[int]) -> list[float]:
         self._refresh_initial_outputs(vrs)
         self._sync_outputs()
         fast = self._fast_get("Real", vrs, float)
-        return super().get_real(vrs) if fast is None else fast
+        return self._slow_get("Real", vrs, 0.0) if fast is None else fast
 
     def get_integer(self, vrs: list[int]) -> list[int]:
         self._refresh_initial_outputs(vrs)
         self._sync_outputs()
         fast = self._fast_get("Integer", vrs, int)
-        return super().get_integer(vrs) if fast is None else fast
+        return self._slow_get("Integer", vrs, 0) if fast is None else fast
 
     def get_boolean(self, vrs: list[int]) -> list[bool]:
         self._refresh_initial_outputs(vrs)
         self._sync_outputs()
         fast = self._fast_get("Boolean", vrs, bool)
-        return super().get_boolean(vrs) if fast is None else fast
+        return self._slow_get("Boolean", vrs, False) if fast is None else fast
 
     def set_real(self, vrs: list[int], values: list[float]) -> None:
         if not self._fast_set("Real", vrs, values):
+            if self._wrong_vrs("Real", vrs, "fmi2SetReal"):
+                return
             super().set_real(vrs, values)
         self._mark_inputs_changed(vrs)
 
     def set_integer(self, vrs: list[int], values: list[int]) -> None:
         if not self._fast_set("Integer", vrs, values):
+            if self._wrong_vrs("Integer", vrs, "fmi2SetInteger"):
+                return
             super().set_integer(vrs, values)
         self._mark_inputs_changed(vrs)
 
     def set_boolean(self, vrs: list[int], values: list[bool]) -> None:
         if not self._fast_set("Boolean", vrs, values):
+            if self._wrong_vrs("Boolean", vrs, "fmi2SetBoolean"):
+                return
             super().set_boolean(vrs, values)
         self._mark_inputs_changed(vrs)
 
     def get_string(self, vrs: list[int]) -> list[str]:
         self._sync_outputs()
-        return super().get_string(vrs)
+        return self._slow_get("String", vrs, "")
 
     def set_string(self, vrs: list[int], values: list[str]) -> None:
+        if self._wrong_vrs("String", vrs, "fmi2SetString"):
+            return
         super().set_string(vrs, values)
         self._mark_inputs_changed(vrs)
 

@@ -9,8 +9,29 @@
  * sits in binaries/<platform>/<modelIdentifier>.so, loads the real pythonfmu library
  * (renamed pythonfmu-export.so next to it), forwards every call, watches the log
  * messages emitted during the call, and returns the worst status logged (capped at
- * fmi2Error) when the call itself returned fmi2OK. A real fmi2Fatal from the bridge
- * (an exception that escaped a facade) stays fatal.
+ * fmi2Error) when the call itself returned fmi2OK.
+ *
+ * Wrong calls from a host (issue 32; docs/fmu.md "Errors"): no call of these FMUs returns
+ * fmi2Fatal. pythonfmu turns an exception into fmi2Fatal and releases the instance's
+ * Python objects on the way (later calls then use freed memory: the Diagnoser crashed
+ * in the next call), so the shim refuses, before any Python runs, with fmi2Error and a
+ * message naming the problem, leaving the instance as it was:
+ *   - a get/set of a value reference this FMU does not have, or of another type (the
+ *     table of modelDescription.xml, read at fmi2Instantiate from the directory above
+ *     the resources location: it is the interface the host was given);
+ *   - a set of a constant, or after fmi2ExitInitializationMode of anything but an input
+ *     or a tunable parameter; any set after fmi2Terminate;
+ *   - NULL value-reference or value arrays with nvr > 0, a NULL string to set;
+ *   - calls in the wrong state: fmi2SetupExperiment or fmi2EnterInitializationMode after
+ *     initialisation began, fmi2ExitInitializationMode outside initialisation mode,
+ *     fmi2DoStep outside step mode, fmi2Terminate before initialisation or twice;
+ *   - fmi2Instantiate with a NULL or empty name, NULL GUID or resources, another GUID
+ *     than modelDescription.xml's, or model exchange (NULL, with a message).
+ * Without a readable model description the facades check types and value references
+ * themselves (gd_fmu_base.py). Should an exception still reach pythonfmu (a bug), the
+ * call returns fmi2Error and the instance is marked unusable: every later call except
+ * fmi2FreeInstance is refused with fmi2Error, and fmi2FreeInstance frees only the shim's
+ * part (pythonfmu's destructor would release the Python objects a second time).
  *
  * The inner library only delivers log messages while debug logging is on, so the shim
  * keeps it on and filters itself: messages of status warning and worse always reach the
@@ -42,6 +63,7 @@
  * and the instance is left as it was.
  */
 #define _GNU_SOURCE
+#include <ctype.h>
 #include <dlfcn.h>
 #include <pthread.h>
 #include <spawn.h>
@@ -57,6 +79,19 @@
 
 #define REAL_LIB_NAME "pythonfmu-export.so"
 
+/* One variable of modelDescription.xml (the interface the host was given). */
+typedef struct {
+    fmi2ValueReference vr;
+    char type;          /* 'R' Real, 'I' Integer or Enumeration, 'B' Boolean, 'S' String */
+    char causality;     /* 'p' parameter, 'c' calculatedParameter, 'i' input, 'o' output,
+                         * 'l' local, 'n' independent */
+    char variability;   /* 'k' constant, 'f' fixed, 't' tunable, 'd' discrete, 'c' continuous */
+    char *name;
+} VarInfo;
+
+/* Where the instance is in the FMI 2.0 co-simulation state machine. */
+typedef enum { MODE_INSTANTIATED, MODE_INIT, MODE_STEP, MODE_TERMINATED, MODE_DEAD } Mode;
+
 typedef struct {
     fmi2Component inner;
     fmi2CallbackFunctions host;  /* copy of the host's callbacks */
@@ -65,6 +100,9 @@ typedef struct {
     int host_logging;            /* host asked for debug logging */
     char *guid;                  /* the FMU's GUID, written into serialized states */
     char *name;                  /* instance name, for the shim's own messages */
+    VarInfo *vars;               /* modelDescription.xml's variables sorted by vr, or NULL */
+    size_t n_vars;
+    Mode mode;
 } Shim;
 
 /* The shim's own messages: through the host's logger, counted like the inner ones. */
@@ -77,7 +115,7 @@ static void shim_log(Shim *s, fmi2Status status, const char *fmt, ...)
     va_end(ap);
     if (status > s->worst) s->worst = status;
     if (s->host.logger)
-        s->host.logger(s->host.componentEnvironment, s->name, status,
+        s->host.logger(s->host.componentEnvironment, s->name ? s->name : "", status,
                        status == fmi2Error ? "logStatusError" : "logStatusWarning", "%s", text);
 }
 
@@ -329,21 +367,376 @@ static void shim_logger(fmi2ComponentEnvironment env, fmi2String instance_name,
     if ((counted == fmi2Warning || counted == fmi2Error) && counted > s->worst)
         s->worst = counted;
     if (status < fmi2Warning && !s->host_logging) return;
+    /* no call of this FMU returns fmi2Fatal (see merge), nor does its log say so */
     if (s->host.logger)
-        s->host.logger(s->host.componentEnvironment, instance_name, status, category,
+        s->host.logger(s->host.componentEnvironment, instance_name, counted, category,
                        "%s", message ? message : "");
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Wrong calls (see the top of this file): the variables of modelDescription.xml, the
+ * state machine, and an instance that pythonfmu has given up.
+ * ------------------------------------------------------------------------------------- */
+static const char *mode_name(Mode m)
+{
+    switch (m) {
+    case MODE_INSTANTIATED: return "instantiated (before fmi2EnterInitializationMode)";
+    case MODE_INIT: return "initialisation mode";
+    case MODE_STEP: return "step mode (after fmi2ExitInitializationMode)";
+    case MODE_TERMINATED: return "terminated";
+    default: return "unusable after an internal error";
+    }
 }
 
 static fmi2Status merge(Shim *s, fmi2Status real)
 {
     fmi2Status worst = s->worst;
     s->worst = fmi2OK;
+    if (real == fmi2Fatal && s->mode != MODE_DEAD) {
+        /* A Python exception reached pythonfmu, which then released the instance's Python
+         * objects: any further call into it would use freed memory. The instance is
+         * refused from now on (fmi2Error); fmi2FreeInstance only frees the shim. Other
+         * instances are unaffected, so this is no fmi2Fatal. */
+        s->mode = MODE_DEAD;
+        shim_log(s, fmi2Error, "internal error (see the message above): pythonfmu has "
+                 "released this instance's Python object, so the instance cannot continue; "
+                 "every further call except fmi2FreeInstance is refused with fmi2Error");
+        s->worst = fmi2OK;
+        return fmi2Error;
+    }
+    if (real == fmi2Fatal) return fmi2Error;
     if (real == fmi2OK && worst > fmi2OK) return worst;
     return real;
 }
 
 #define CALL(expr) do { s->worst = fmi2OK; fmi2Status _st = (expr); return merge(s, _st); } while (0)
 #define SHIM(c) Shim *s = (Shim *)(c); if (!s) return fmi2Error;
+/* refuse every call to an instance pythonfmu has given up (see merge) */
+#define LIVE(call) if (s->mode == MODE_DEAD) return refuse(s, "%s: refused: this instance is " \
+    "unusable since an earlier internal error; call fmi2FreeInstance", call);
+
+/* Log an error for a refused call; the instance is unchanged. */
+static fmi2Status refuse(Shim *s, const char *fmt, ...)
+{
+    char text[2048];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(text, sizeof text, fmt, ap);
+    va_end(ap);
+    s->worst = fmi2OK;
+    shim_log(s, fmi2Error, "%s", text);
+    s->worst = fmi2OK;
+    return fmi2Error;
+}
+
+/* -- modelDescription.xml -------------------------------------------------------------- */
+/* The file next to the resources directory given at fmi2Instantiate (a file URI, as
+ * pythonfmu reads it, or a plain path). malloc'd, or NULL. */
+static char *model_description_path(const char *location)
+{
+    const char *p = location;
+    if (strncmp(p, "file://", 7) == 0) {
+        p += 7;
+        if (strncmp(p, "localhost/", 10) == 0) p += 9;
+    } else if (strncmp(p, "file:", 5) == 0) {
+        p += 5;
+    }
+    size_t n = strlen(p);
+    char *path = malloc(n + sizeof "/modelDescription.xml");
+    if (!path) return NULL;
+    size_t k = 0;
+    for (size_t i = 0; i < n; i++) {  /* percent-decoding */
+        unsigned int byte;
+        if (p[i] == '%' && i + 2 < n && isxdigit((unsigned char)p[i + 1]) &&
+            isxdigit((unsigned char)p[i + 2]) && sscanf(p + i + 1, "%2x", &byte) == 1) {
+            path[k++] = (char)byte;
+            i += 2;
+        } else {
+            path[k++] = p[i];
+        }
+    }
+    while (k > 1 && path[k - 1] == '/') k--;       /* .../resources/ */
+    while (k > 0 && path[k - 1] != '/') k--;       /* drop "resources" */
+    strcpy(path + k, "modelDescription.xml");
+    return path;
+}
+
+static char *read_file(const char *path)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f) return NULL;
+    size_t cap = 1 << 16, len = 0, got;
+    char *buf = malloc(cap);
+    while (buf && (got = fread(buf + len, 1, cap - len - 1, f)) > 0) {
+        len += got;
+        if (len + 1 == cap) {
+            char *more = realloc(buf, cap *= 2);
+            if (!more) { free(buf); buf = NULL; } else buf = more;
+        }
+    }
+    fclose(f);
+    if (buf) buf[len] = '\0';
+    return buf;
+}
+
+/* Attribute `name` of the start tag beginning at `tag` (up to its '>'), unescaped into
+ * `out` (size `size`); 1 if found. */
+static int xml_attribute(const char *tag, const char *end, const char *name, char *out, size_t size)
+{
+    size_t nlen = strlen(name);
+    const char *p = tag;
+    while (p < end && *p != ' ' && *p != '\t' && *p != '\n' && *p != '\r') p++;  /* tag name */
+    while (p < end) {
+        while (p < end && (*p == ' ' || *p == '\t' || *p == '\n' || *p == '\r')) p++;
+        const char *a = p;
+        while (p < end && *p != '=' && *p != ' ' && *p != '>' && *p != '/') p++;
+        size_t alen = (size_t)(p - a);
+        while (p < end && *p == ' ') p++;
+        if (p >= end || *p != '=') { if (p < end) p++; continue; }
+        p++;
+        while (p < end && *p == ' ') p++;
+        if (p >= end || (*p != '"' && *p != '\'')) return 0;
+        char q = *p++;
+        const char *v = p;
+        while (p < end && *p != q) p++;
+        if (alen == nlen && strncmp(a, name, nlen) == 0) {
+            size_t k = 0;
+            for (const char *x = v; x < p && k + 1 < size; x++) {
+                static const struct { const char *ent; char ch; } ents[] = {
+                    {"&amp;", '&'}, {"&lt;", '<'}, {"&gt;", '>'}, {"&quot;", '"'}, {"&apos;", '\''}};
+                int done = 0;
+                for (size_t e = 0; e < sizeof ents / sizeof ents[0] && !done; e++) {
+                    size_t el = strlen(ents[e].ent);
+                    if ((size_t)(p - x) >= el && strncmp(x, ents[e].ent, el) == 0) {
+                        out[k++] = ents[e].ch;
+                        x += el - 1;
+                        done = 1;
+                    }
+                }
+                if (!done) out[k++] = *x;
+            }
+            out[k] = '\0';
+            return 1;
+        }
+        if (p < end) p++;
+    }
+    return 0;
+}
+
+static int by_vr(const void *a, const void *b)
+{
+    fmi2ValueReference x = ((const VarInfo *)a)->vr, y = ((const VarInfo *)b)->vr;
+    return x < y ? -1 : x > y;
+}
+
+static void free_vars(VarInfo *vars, size_t n)
+{
+    for (size_t i = 0; vars && i < n; i++) free(vars[i].name);
+    free(vars);
+}
+
+/* The variables of the model description `xml`; its GUID into `guid`. 1 on success. */
+static int parse_model_description(const char *xml, char *guid, size_t guid_size,
+                                   VarInfo **vars_out, size_t *n_out)
+{
+    size_t cap = 256, n = 0;
+    VarInfo *vars = calloc(cap, sizeof *vars);
+    int open_var = 0;   /* the last ScalarVariable still lacks its type element */
+    guid[0] = '\0';
+    if (!vars) return 0;
+    for (const char *p = strchr(xml, '<'); p; p = strchr(p + 1, '<')) {
+        if (strncmp(p, "<!--", 4) == 0) { p = strstr(p, "-->"); if (!p) break; continue; }
+        if (p[1] == '?' || p[1] == '/' || p[1] == '!') continue;
+        const char *end = p + 1;
+        char q = 0;
+        while (*end && (q || *end != '>')) {   /* the tag's end, quotes respected */
+            if (q && *end == q) q = 0;
+            else if (!q && (*end == '"' || *end == '\'')) q = *end;
+            end++;
+        }
+        if (!*end) break;
+        const char *tag = p + 1;
+        size_t tlen = strcspn(tag, " \t\r\n/>");
+        char value[1024];
+#define IS(lit) (tlen == sizeof lit - 1 && strncmp(tag, lit, tlen) == 0)
+        if (IS("fmiModelDescription")) {
+            xml_attribute(tag, end, "guid", guid, guid_size);
+        } else if (IS("ScalarVariable")) {
+            if (n == cap) {
+                VarInfo *more = realloc(vars, (cap *= 2) * sizeof *vars);
+                if (!more) { free_vars(vars, n); return 0; }
+                vars = more;
+            }
+            VarInfo *v = &vars[n];
+            memset(v, 0, sizeof *v);
+            if (!xml_attribute(tag, end, "valueReference", value, sizeof value)) continue;
+            v->vr = (fmi2ValueReference)strtoul(value, NULL, 10);
+            v->causality = 'l';
+            if (xml_attribute(tag, end, "causality", value, sizeof value))
+                v->causality = strcmp(value, "calculatedParameter") == 0 ? 'c'
+                             : strcmp(value, "independent") == 0 ? 'n' : value[0];
+            v->variability = 'c';
+            if (xml_attribute(tag, end, "variability", value, sizeof value))
+                v->variability = strcmp(value, "constant") == 0 ? 'k' : value[0];
+            v->name = strdup(xml_attribute(tag, end, "name", value, sizeof value) ? value : "?");
+            if (!v->name) { free_vars(vars, n); return 0; }
+            n++;
+            open_var = 1;
+        } else if (open_var && (IS("Real") || IS("Integer") || IS("Boolean") || IS("String") ||
+                                IS("Enumeration"))) {
+            vars[n - 1].type = IS("Enumeration") ? 'I' : tag[0];
+            open_var = 0;
+        }
+#undef IS
+        p = end;
+    }
+    size_t k = 0;   /* keep the variables whose type was found */
+    for (size_t i = 0; i < n; i++) {
+        if (vars[i].type) vars[k++] = vars[i];
+        else free(vars[i].name);
+    }
+    if (k == 0 || !guid[0]) { free_vars(vars, k); return 0; }
+    qsort(vars, k, sizeof *vars, by_vr);
+    *vars_out = vars;
+    *n_out = k;
+    return 1;
+}
+
+static const VarInfo *find_var(const Shim *s, fmi2ValueReference vr)
+{
+    VarInfo key = {0};
+    key.vr = vr;
+    return bsearch(&key, s->vars, s->n_vars, sizeof key, by_vr);
+}
+
+static const char *type_name(char t)
+{
+    return t == 'R' ? "Real" : t == 'I' ? "Integer" : t == 'B' ? "Boolean" : "String";
+}
+
+static const char *causality_name(char c)
+{
+    switch (c) {
+    case 'p': return "parameter";
+    case 'c': return "calculatedParameter";
+    case 'i': return "input";
+    case 'o': return "output";
+    case 'n': return "independent";
+    default: return "local";
+    }
+}
+
+static const char *variability_name(char v)
+{
+    switch (v) {
+    case 'k': return "constant";
+    case 'f': return "fixed";
+    case 't': return "tunable";
+    case 'd': return "discrete";
+    default: return "continuous";
+    }
+}
+
+/* "a" or "an" before a type name */
+static const char *article(char t) { return t == 'I' ? "an" : "a"; }
+
+/* 1 if `text` is well-formed UTF-8 (pythonfmu decodes set strings as UTF-8; a failure
+ * there would hand Python a NULL list item) */
+static int utf8_ok(const char *text)
+{
+    const unsigned char *p = (const unsigned char *)text;
+    while (*p) {
+        int more = *p < 0x80 ? 0 : (*p & 0xE0) == 0xC0 && *p >= 0xC2 ? 1
+                 : (*p & 0xF0) == 0xE0 ? 2 : (*p & 0xF8) == 0xF0 && *p <= 0xF4 ? 3 : -1;
+        if (more < 0) return 0;
+        unsigned cp = more ? *p & (0x3F >> more) : *p;
+        p++;
+        for (int k = 0; k < more; k++, p++) {
+            if ((*p & 0xC0) != 0x80) return 0;
+            cp = (cp << 6) | (*p & 0x3F);
+        }
+        if ((more == 2 && (cp < 0x800 || (cp >= 0xD800 && cp <= 0xDFFF))) ||
+            (more == 3 && (cp < 0x10000 || cp > 0x10FFFF)))
+            return 0;
+    }
+    return 1;
+}
+
+/* 1 if a get (`set` 0) or set (`set` 1) of type `type` on vr[0..n) may reach Python;
+ * else 0 with an error naming each offending value reference logged. */
+static int check_access(Shim *s, const char *call, char type, int set,
+                        const fmi2ValueReference vr[], size_t n, const void *values)
+{
+    if (s->mode == MODE_DEAD) {
+        refuse(s, "%s: refused: this instance is unusable since an earlier internal error; "
+               "call fmi2FreeInstance", call);
+        return 0;
+    }
+    if (set && s->mode == MODE_TERMINATED) {
+        refuse(s, "%s: refused: the instance is terminated (fmi2Reset or fmi2FreeInstance "
+               "only); nothing was set", call);
+        return 0;
+    }
+    if (n == 0) return 1;
+    if (!vr || !values) {
+        refuse(s, "%s: the %s array is NULL with nvr = %zu; nothing was %s", call,
+               !vr ? "value reference" : "value", n, set ? "set" : "read");
+        return 0;
+    }
+    if (!s->vars) return 1;   /* no table: the Python facade checks (gd_fmu_base.py) */
+    size_t bad = 0;
+    for (size_t i = 0; i < n; i++) {
+        const VarInfo *v = find_var(s, vr[i]);
+        char problem[1024] = "";
+        if (!v) {
+            snprintf(problem, sizeof problem, "unknown value reference %u (vr[%zu]): this "
+                     "FMU has no such variable", vr[i], i);
+        } else if (v->type != type) {
+            snprintf(problem, sizeof problem, "value reference %u (vr[%zu]) is the %s "
+                     "variable '%s' (%s, %s), not %s %s: use fmi2%s%s", vr[i], i,
+                     type_name(v->type), v->name, causality_name(v->causality),
+                     variability_name(v->variability), article(type), type_name(type),
+                     set ? "Set" : "Get",
+                     type_name(v->type));
+        } else if (set && v->variability == 'k') {
+            snprintf(problem, sizeof problem, "value reference %u (vr[%zu]) is the constant "
+                     "'%s': a constant cannot be set", vr[i], i, v->name);
+        } else if (set && s->mode == MODE_STEP && !(v->causality == 'i' ||
+                   (v->causality == 'p' && v->variability == 't'))) {
+            snprintf(problem, sizeof problem, "value reference %u (vr[%zu]) is the %s %s %s "
+                     "'%s': after fmi2ExitInitializationMode only inputs and tunable "
+                     "parameters can be set", vr[i], i, variability_name(v->variability),
+                     type_name(v->type), causality_name(v->causality), v->name);
+        } else if (set && type == 'S' && !((const fmi2String *)values)[i]) {
+            snprintf(problem, sizeof problem, "value[%zu] for value reference %u ('%s') is "
+                     "a NULL string", i, vr[i], v->name);
+        } else if (set && type == 'S' && !utf8_ok(((const fmi2String *)values)[i])) {
+            snprintf(problem, sizeof problem, "value[%zu] for value reference %u ('%s') is "
+                     "not valid UTF-8", i, vr[i], v->name);
+        }
+        if (!problem[0]) continue;
+        if (++bad <= 5) shim_log(s, fmi2Error, "%s: %s; nothing was %s", call, problem,
+                                 set ? "set" : "read");
+    }
+    if (bad > 5) shim_log(s, fmi2Error, "%s: %zu value references refused in all (the first "
+                          "5 are reported above)", call, bad);
+    if (bad) s->worst = fmi2OK;
+    return bad == 0;
+}
+
+/* 1 if the instance is in one of `allowed` (a bit set of modes), else 0 with an error. */
+static int check_mode(Shim *s, const char *call, unsigned allowed, const char *rule)
+{
+    if (allowed & (1u << s->mode)) return 1;
+    if (s->mode == MODE_DEAD)
+        refuse(s, "%s: refused: this instance is unusable since an earlier internal error; "
+               "call fmi2FreeInstance", call);
+    else
+        refuse(s, "%s: refused in %s: %s; the instance is unchanged", call,
+               mode_name(s->mode), rule);
+    return 0;
+}
+#define M(x) (1u << (x))
 
 const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
 const char *fmi2GetVersion(void) { return fmi2Version; }
@@ -353,28 +746,58 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
                               const fmi2CallbackFunctions *functions, fmi2Boolean visible,
                               fmi2Boolean loggingOn)
 {
+    char problem_text[1200];
     const char *problem = NULL;
-    if (!python_ready()) problem = python_error;
-    else if (!load_real()) problem = "cannot load " REAL_LIB_NAME " next to the FMU binary";
+    VarInfo *vars = NULL;
+    size_t n_vars = 0;
+    if (!functions) return NULL;   /* no logger to say why: FMI requires the callbacks */
+    if (!instanceName || !*instanceName) problem = "fmi2Instantiate: the instance name is "
+        "NULL or empty (FMI requires a non-empty name)";
+    else if (fmuType != fmi2CoSimulation) problem = "fmi2Instantiate: this FMU supports "
+        "co-simulation only (fmuType must be fmi2CoSimulation)";
+    else if (!fmuGUID) problem = "fmi2Instantiate: fmuGUID is NULL";
+    else if (!fmuResourceLocation || !*fmuResourceLocation) problem = "fmi2Instantiate: "
+        "fmuResourceLocation is NULL or empty: the FMU needs its resources directory";
+    if (!problem) {
+        char *md_path = model_description_path(fmuResourceLocation);
+        char *xml = md_path ? read_file(md_path) : NULL;
+        char md_guid[256];
+        if (xml && parse_model_description(xml, md_guid, sizeof md_guid, &vars, &n_vars) &&
+            strcmp(md_guid, fmuGUID) != 0) {
+            snprintf(problem_text, sizeof problem_text, "fmi2Instantiate: fmuGUID %.300s is "
+                     "not this FMU's GUID %.300s (modelDescription.xml); instantiate the FMU "
+                     "with the GUID of its own model description", fmuGUID, md_guid);
+            problem = problem_text;
+        }
+        free(xml);
+        free(md_path);
+    }
+    if (!problem && !python_ready()) problem = python_error;
+    else if (!problem && !load_real()) problem = "cannot load " REAL_LIB_NAME " next to the FMU binary";
     if (problem) {
-        if (functions && functions->logger)
-            functions->logger(functions->componentEnvironment, instanceName, fmi2Error,
-                              "logStatusError", "%s", problem);
+        free_vars(vars, n_vars);
+        if (functions->logger)
+            functions->logger(functions->componentEnvironment, instanceName ? instanceName : "",
+                              fmi2Error, "logStatusError", "%s", problem);
         return NULL;
     }
     Shim *s = (Shim *)calloc(1, sizeof(Shim));
-    if (!s) return NULL;
-    if (functions) s->host = *functions;
+    if (!s) { free_vars(vars, n_vars); return NULL; }
+    s->host = *functions;
     s->mine = s->host;
     s->mine.logger = shim_logger;
     s->mine.componentEnvironment = s;
     s->host_logging = loggingOn == fmi2True;
-    s->guid = strdup(fmuGUID ? fmuGUID : "");
-    s->name = strdup(instanceName ? instanceName : "");
+    s->guid = strdup(fmuGUID);
+    s->name = strdup(instanceName);
+    s->vars = vars;
+    s->n_vars = n_vars;
+    s->mode = MODE_INSTANTIATED;
     s->inner = real_fmi2Instantiate(instanceName, fmuType, fmuGUID, fmuResourceLocation,
                                     &s->mine, visible, fmi2True);
     if (!s->inner || !s->guid || !s->name) {
         if (s->inner) real_fmi2FreeInstance(s->inner);
+        free_vars(s->vars, s->n_vars);
         free(s->guid);
         free(s->name);
         free(s);
@@ -387,7 +810,10 @@ void fmi2FreeInstance(fmi2Component c)
 {
     Shim *s = (Shim *)c;
     if (!s) return;
-    real_fmi2FreeInstance(s->inner);
+    /* an instance pythonfmu gave up is not freed by it again: its destructor would release
+     * the Python objects a second time (a use after free); its few bytes are leaked */
+    if (s->mode != MODE_DEAD) real_fmi2FreeInstance(s->inner);
+    free_vars(s->vars, s->n_vars);
     free(s->guid);
     free(s->name);
     free(s);
@@ -399,33 +825,77 @@ fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean on, size_t n, const 
     SHIM(c)
     (void)n; (void)cats;
     s->host_logging = on == fmi2True;
+    if (s->mode == MODE_DEAD) return fmi2OK;
     CALL(real_fmi2SetDebugLogging(s->inner, fmi2True, 0, NULL));
 }
 fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean td, fmi2Real tol, fmi2Real t0,
                                fmi2Boolean sd, fmi2Real t1)
-{ SHIM(c) CALL(real_fmi2SetupExperiment(s->inner, td, tol, t0, sd, t1)); }
+{
+    SHIM(c)
+    if (!check_mode(s, "fmi2SetupExperiment", M(MODE_INSTANTIATED), "call it after "
+                    "fmi2Instantiate or fmi2Reset, before fmi2EnterInitializationMode"))
+        return fmi2Error;
+    CALL(real_fmi2SetupExperiment(s->inner, td, tol, t0, sd, t1));
+}
 fmi2Status fmi2EnterInitializationMode(fmi2Component c)
-{ SHIM(c) CALL(real_fmi2EnterInitializationMode(s->inner)); }
+{
+    SHIM(c)
+    if (!check_mode(s, "fmi2EnterInitializationMode", M(MODE_INSTANTIATED), "call it once, "
+                    "after fmi2Instantiate (or fmi2Reset) and fmi2SetupExperiment"))
+        return fmi2Error;
+    s->mode = MODE_INIT;
+    CALL(real_fmi2EnterInitializationMode(s->inner));
+}
 fmi2Status fmi2ExitInitializationMode(fmi2Component c)
-{ SHIM(c) CALL(real_fmi2ExitInitializationMode(s->inner)); }
-fmi2Status fmi2Terminate(fmi2Component c) { SHIM(c) CALL(real_fmi2Terminate(s->inner)); }
-fmi2Status fmi2Reset(fmi2Component c) { SHIM(c) CALL(real_fmi2Reset(s->inner)); }
+{
+    SHIM(c)
+    if (!check_mode(s, "fmi2ExitInitializationMode", M(MODE_INIT), "call it once, after "
+                    "fmi2EnterInitializationMode"))
+        return fmi2Error;
+    s->mode = MODE_STEP;   /* a refused initialisation is reported by each fmi2DoStep */
+    CALL(real_fmi2ExitInitializationMode(s->inner));
+}
+fmi2Status fmi2Terminate(fmi2Component c)
+{
+    SHIM(c)
+    if (!check_mode(s, "fmi2Terminate", M(MODE_INIT) | M(MODE_STEP), "fmi2Terminate ends a "
+                    "simulation that was initialised, once (then fmi2Reset or "
+                    "fmi2FreeInstance)"))
+        return fmi2Error;
+    s->mode = MODE_TERMINATED;
+    CALL(real_fmi2Terminate(s->inner));
+}
+fmi2Status fmi2Reset(fmi2Component c)
+{
+    SHIM(c)
+    LIVE("fmi2Reset")
+    s->mode = MODE_INSTANTIATED;
+    CALL(real_fmi2Reset(s->inner));
+}
+#define GET_SET(kind, letter, set, ...) \
+    SHIM(c) \
+    if (!check_access(s, "fmi2" #kind, letter, set, vr, n, v)) return fmi2Error; \
+    CALL(real_fmi2##kind(s->inner, vr, n, v));
 fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Real v[])
-{ SHIM(c) CALL(real_fmi2GetReal(s->inner, vr, n, v)); }
+{ GET_SET(GetReal, 'R', 0) }
 fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Integer v[])
-{ SHIM(c) CALL(real_fmi2GetInteger(s->inner, vr, n, v)); }
+{ GET_SET(GetInteger, 'I', 0) }
 fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Boolean v[])
-{ SHIM(c) CALL(real_fmi2GetBoolean(s->inner, vr, n, v)); }
+{ GET_SET(GetBoolean, 'B', 0) }
 fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2String v[])
-{ SHIM(c) CALL(real_fmi2GetString(s->inner, vr, n, v)); }
+{ GET_SET(GetString, 'S', 0) }
 fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Real v[])
-{ SHIM(c) CALL(real_fmi2SetReal(s->inner, vr, n, v)); }
+{ GET_SET(SetReal, 'R', 1) }
 fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Integer v[])
-{ SHIM(c) CALL(real_fmi2SetInteger(s->inner, vr, n, v)); }
+{ GET_SET(SetInteger, 'I', 1) }
 fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Boolean v[])
-{ SHIM(c) CALL(real_fmi2SetBoolean(s->inner, vr, n, v)); }
+{ GET_SET(SetBoolean, 'B', 1) }
 fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2String v[])
-{ SHIM(c) CALL(real_fmi2SetString(s->inner, vr, n, v)); }
+{ GET_SET(SetString, 'S', 1) }
+
+/* From here on every call to an instance pythonfmu has given up is refused. */
+#undef SHIM
+#define SHIM(c) Shim *s = (Shim *)(c); if (!s) return fmi2Error; LIVE(__func__)
 /* ---------------------------------------------------------------------------------------
  * FMU states (see the top of this file)
  * ------------------------------------------------------------------------------------- */
@@ -564,6 +1034,10 @@ fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate st, size_t *
 {
     SHIM(c)
     s->worst = fmi2OK;
+    if (!size) {
+        shim_log(s, fmi2Error, "fmi2SerializedFMUstateSize: the size pointer is NULL");
+        return merge(s, fmi2OK);
+    }
     ShimState *mine = own_state(s, st, "fmi2SerializedFMUstateSize");
     if (!mine) return merge(s, fmi2OK);
     size_t payload = 0;
@@ -576,6 +1050,10 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate st, fmi2Byte b[],
 {
     SHIM(c)
     s->worst = fmi2OK;
+    if (!b) {
+        shim_log(s, fmi2Error, "fmi2SerializeFMUstate: the byte array is NULL");
+        return merge(s, fmi2OK);
+    }
     ShimState *mine = own_state(s, st, "fmi2SerializeFMUstate");
     if (!mine) return merge(s, fmi2OK);
     size_t payload = 0;
@@ -680,7 +1158,13 @@ fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReferenc
                                         const fmi2Integer order[], fmi2Real v[])
 { SHIM(c) CALL(real_fmi2GetRealOutputDerivatives(s->inner, vr, n, order, v)); }
 fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noPrior)
-{ SHIM(c) CALL(real_fmi2DoStep(s->inner, t, h, noPrior)); }
+{
+    SHIM(c)
+    if (!check_mode(s, "fmi2DoStep", M(MODE_STEP), "fmi2DoStep is allowed between "
+                    "fmi2ExitInitializationMode and fmi2Terminate; the step was not taken"))
+        return fmi2Error;
+    CALL(real_fmi2DoStep(s->inner, t, h, noPrior));
+}
 fmi2Status fmi2CancelStep(fmi2Component c) { SHIM(c) CALL(real_fmi2CancelStep(s->inner)); }
 fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind k, fmi2Status *v)
 { SHIM(c) CALL(real_fmi2GetStatus(s->inner, k, v)); }

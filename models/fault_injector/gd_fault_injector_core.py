@@ -1,8 +1,10 @@
 """Sensor fault injection on N independent channels (no FMI knowledge).
 
 Fault codes (``fault_type``), applied while the fault is *active*, i.e. for sample times
-``t_start <= t < t_end`` (STEP ignores ``t_end``).  ``u`` is the channel input, ``t`` the
-sample time (s), ``m`` the channel's ``magnitude``:
+``t_start <= t < t_end`` (STEP ignores ``t_end``), each time compared within the
+tolerance ``t_tol`` of :meth:`FaultInjectorCore.update` (the FMU: half a communication
+step).  ``u`` is the channel input, ``t`` the sample time (s), ``m`` the channel's
+``magnitude``:
 
 ====  ============  ======================================================================
 code  name          output while active
@@ -14,7 +16,7 @@ code  name          output while active
 4     STUCK_LAST    u at the first active sample, held until the window ends
 5     FAILURE       0.0 (complete failure)
 6     STEP          u + m for every t >= t_start (latching bias jump, t_end ignored)
-7     RAMP          u + m · (t − t_start)  (drift; m in units per second)
+7     RAMP          u + m · max(t − t_start, 0)  (drift; m in units per second)
 8     NOISE         u + noise_std · n,  n ~ N(0, 1)
 9     SIGNAL_LOSS   noise_std · n  (zero-mean random replacement of the signal)
 10    INTERMITTENT  u + m while ((t − t_start) mod period) < duty · period, else u
@@ -136,8 +138,8 @@ class FaultInjectorCore:
             raise ValueError(f"sat_min of {ch} must be <= sat_max, got {p['sat_min']} > "
                              f"{p['sat_max']}")
 
-    def update(self, t: float,
-               u: NDArray[np.float64] | list[float]) -> tuple[list[float], list[bool]]:
+    def update(self, t: float, u: NDArray[np.float64] | list[float],
+               t_tol: float = 0.0) -> tuple[list[float], list[bool]]:
         """Apply each channel's fault to one input sample.
 
         Parameters
@@ -146,6 +148,12 @@ class FaultInjectorCore:
             Sample time (s).
         u : array_like, shape (n_channels,)
             Channel inputs (any unit).
+        t_tol : float
+            Time tolerance (s, >= 0) of the time events (t_start, t_end, the
+            intermittent edges): an event at T happens at the first sample with
+            t >= T - t_tol. The FMU passes half its communication step, so that a master
+            whose time drifts by rounding (t += h) sees the event at the same step as
+            one with t = k·h (docs/fmu.md, "Time events").
 
         Returns
         -------
@@ -166,12 +174,12 @@ class FaultInjectorCore:
         y: list[float] = []
         active: list[bool] = []
         for i in range(self.n_channels):
-            out, act = self._apply(i, t, u[i])
+            out, act = self._apply(i, t, u[i], t_tol)
             y.append(out)
             active.append(act)
         return y, active
 
-    def _apply(self, i: int, t: float, u: float) -> tuple[float, bool]:
+    def _apply(self, i: int, t: float, u: float, t_tol: float) -> tuple[float, bool]:
         code = int(self.fault_type[i])
         if code == FaultType.NONE:
             self._holding[i] = False
@@ -181,13 +189,13 @@ class FaultInjectorCore:
         p = self.params
         t_start = float(p["t_start"][i])
         if code == FaultType.STEP:
-            if t >= t_start:
+            if t >= t_start - t_tol:
                 self._step_latched[i] = True
             if self._step_latched[i]:
                 return u + float(p["magnitude"][i]), True
             return u, False
         self._step_latched[i] = False
-        in_window = t_start <= t < float(p["t_end"][i])
+        in_window = t_start - t_tol <= t < float(p["t_end"][i]) - t_tol
         if not in_window:
             self._holding[i] = False
             return u, False
@@ -206,14 +214,14 @@ class FaultInjectorCore:
         if code == FaultType.FAILURE:
             return 0.0, True
         if code == FaultType.RAMP:
-            return u + m * (t - t_start), True
+            return u + m * max(t - t_start, 0.0), True
         if code == FaultType.NOISE:
             return u + float(p["noise_std"][i]) * float(self._rngs[i].standard_normal()), True
         if code == FaultType.SIGNAL_LOSS:
             return float(p["noise_std"][i]) * float(self._rngs[i].standard_normal()), True
         if code == FaultType.INTERMITTENT:
             period = float(p["period"][i])
-            if (t - t_start) % period < float(p["duty"][i]) * period:
+            if (t - t_start + t_tol) % period < float(p["duty"][i]) * period:
                 return u + m, True
             return u, False
         if code == FaultType.SATURATION:

@@ -17,9 +17,12 @@ sine sweep   4   A·sin φ(τ), τ = t − start, frequency rising exponentially
 The exponential sweep spends equal time per octave, as flight-test frequency sweeps do.
 Its start is smooth (sin 0 = 0); at its end the command drops from A·sin φ(D) to 0.
 
-Switching instants are judged with a tolerance of ``TIME_TOL`` (1 ns): masters compute
-communication points as k·h, so "t = start + pulse" arrives as 0.15000000000000002 or
-0.1499999999; both count as the instant itself (the new value applies).
+Switching instants (start, end, edges) are judged with a tolerance ``tol``: a switch at T
+applies from the first t >= T - tol. Masters compute communication points as k·h or
+add h each step (t += h), so "t = start + pulse" arrives as 0.15000000000000002 or
+0.1499999999, and after many steps several ulps away; all count as the instant itself
+(the new value applies). The FMU passes half its communication step (docs/fmu.md,
+"Time events"); the default ``TIME_TOL`` (1 ns) is for callers without a step.
 """
 
 from __future__ import annotations
@@ -107,21 +110,21 @@ class PitchCommand:
             if not self.duration > 0.0:
                 raise ValueError(f"duration must be > 0 s for a sine sweep, got {self.duration!r}")
 
-    def active(self, t: float) -> bool:
-        """True inside the manoeuvre window (never for kind 0)."""
-        tau = t - self.start + TIME_TOL
+    def active(self, t: float, tol: float = TIME_TOL) -> bool:
+        """True inside the manoeuvre window (never for kind 0); switches within ``tol``."""
+        tau = t - self.start + tol
         if self.kind == COMMAND_INPUT or tau < 0.0:
             return False
         return self.duration == 0.0 or tau < self.duration
 
-    def value(self, t: float) -> float:
-        """ϑ_cmd(t) (rad); 0 outside the window and for kind 0."""
-        if not self.active(t):
+    def value(self, t: float, tol: float = TIME_TOL) -> float:
+        """ϑ_cmd(t) (rad); 0 outside the window and for kind 0; switches within ``tol``."""
+        if not self.active(t, tol):
             return 0.0
         a = self.amplitude
         if self.kind == COMMAND_SINE_SWEEP:
             return a * math.sin(self.sweep_phase(t - self.start))
-        tau = t - self.start + TIME_TOL
+        tau = t - self.start + tol
         if self.kind == COMMAND_SQUARE_WAVE:
             return a if (tau % self.period) < 0.5 * self.period else -a
         if self.kind == COMMAND_STEP:

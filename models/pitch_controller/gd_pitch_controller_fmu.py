@@ -19,7 +19,13 @@ import traceback
 from typing import Any
 
 from gd_fmu_base import GuardedSlave
-from gd_pitch_commands import COMMAND_INPUT, COMMAND_SINE_SWEEP, KIND_NAMES, PitchCommand
+from gd_pitch_commands import (
+    COMMAND_INPUT,
+    COMMAND_SINE_SWEEP,
+    KIND_NAMES,
+    TIME_TOL,
+    PitchCommand,
+)
 from gd_pitch_controller_design import (
     PitchController as PitchLaw,
 )
@@ -159,12 +165,13 @@ class PitchController(GuardedSlave):
             raise ValueError(f"cmd_* parameters of command_source {self.command_source}: "
                              f"{exc}") from None
 
-    def _command(self, t: float) -> float:
+    def _command(self, t: float, tol: float = TIME_TOL) -> float:
+        # switching instants within ``tol`` (do_step: half a step, docs/fmu.md)
         shape = self._shape()
-        self.cmd_active = int(shape.active(t))
+        self.cmd_active = int(shape.active(t, tol))
         if shape.kind == COMMAND_INPUT:
             return self.theta_cmd_in
-        return shape.value(t)
+        return shape.value(t, tol)
 
     def setup_experiment(self, start_time: float, stop_time: float | None = None,
                          tolerance: float | None = None) -> None:
@@ -188,7 +195,7 @@ class PitchController(GuardedSlave):
         if not self.check_step(step_size):
             return True
         try:
-            cmd = self._command(current_time)
+            cmd = self._command(current_time, 0.5 * step_size)
             self.elevator = self.law.update(step_size, self.alpha_meas, self.q_meas,
                                             self.theta_meas, cmd)
             self.theta_cmd = cmd
