@@ -203,9 +203,9 @@ def _reference(p, inputs: np.ndarray, h: float, loop: bool):
 
 def _identify(rec: np.ndarray, start: float, stop: float) -> np.ndarray:
     """θ by batch LS on both axes after the library's 6th-order 50 Hz prefilter."""
-    from gyrodiag.dtg import dtg_regression
-    from gyrodiag.estimators import batch_ls
-    from gyrodiag.prefilter import ButterworthPrefilter
+    from gyrodiag.common.estimators import batch_ls
+    from gyrodiag.common.prefilter import ButterworthPrefilter
+    from gyrodiag.dtg.model import dtg_regression
 
     t = rec[:, 0]
     sel = (t >= start - 1e-9) & (t < stop - 1e-9)
@@ -216,7 +216,7 @@ def _identify(rec: np.ndarray, start: float, stop: float) -> np.ndarray:
 
 
 def _theta_physical(p) -> np.ndarray:
-    from gyrodiag.dtg import DTGParameters, theta_from_physical
+    from gyrodiag.dtg.model import DTGParameters, theta_from_physical
 
     return theta_from_physical(DTGParameters(**_coefficients(p)), T)
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from _dtg_patterns import learned_library_dict
 
-from gyrodiag.dtg_patterns import PatternLibrary
+from gyrodiag.dtg.patterns import PatternLibrary
 from harness.campaigns.pattern_learning import PatternRun, learn_patterns
 
 TRUE = PatternLibrary.from_dict(learned_library_dict())

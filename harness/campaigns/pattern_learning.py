@@ -23,7 +23,7 @@ is classified is what was learned:
 1. **Noise model**: the spread of ``dtg.level[i]`` and ``dtg.log_var_ratio[i]`` over the
    fault-free part of every run after learning (RMS about 0), and of log10 of the
    short-window mean η. The window of those statistics (``dtg.stat_window_s``) is the
-   reference window of :class:`gyrodiag.dtg_patterns.NoiseModel`.
+   reference window of :class:`gyrodiag.dtg.patterns.NoiseModel`.
 2. **Responses** at each run's last sample (the classification window, up to the long
    window): step level/size, drift level/(rate·age at the window centre), noise
    (ratio − 1)/size², loss: the other channels' ratio − 1 (``base``) plus the noise
@@ -228,7 +228,7 @@ def _rolling_log_eta(eta: NDArray[np.float64], n: int, step: int) -> NDArray[np.
 def learn_patterns(runs: Sequence[PatternRun], codes: dict[str, int], *,
                    sample_period_s: float, block_s: float, short_window_s: float,
                    long_window_s: float) -> tuple[Any, dict[str, Any]]:
-    """Learn a :class:`gyrodiag.dtg_patterns.PatternLibrary` (module docstring).
+    """Learn a :class:`gyrodiag.dtg.patterns.PatternLibrary` (module docstring).
 
     Parameters
     ----------
@@ -251,13 +251,13 @@ def learn_patterns(runs: Sequence[PatternRun], codes: dict[str, int], *,
         A class without runs, inconsistent runs of a class, a signal-fault run that does
         not end in residual alarm, no fault-free data for the noise model.
     """
-    from gyrodiag.dtg_patterns import (
+    from gyrodiag.dtg.patterns import (
         NoiseModel,
         PatternClass,
         PatternClassifier,
         PatternLibrary,
     )
-    from gyrodiag.dtg_reference import ClassificationStatistics, NominalPrior
+    from gyrodiag.dtg.reference import ClassificationStatistics, NominalPrior
 
     # 1. noise model
     lev, lvr, leta = [], [], []

@@ -4,13 +4,13 @@ Placing an observer's poles (``scipy.signal.place_poles``) takes milliseconds, b
 importing ``scipy.signal`` takes 0.7-1.0 s of CPU (it imports ``scipy.stats``): most of
 a Diagnoser's start-up with the detection filter, and a stall of the step that ends
 its calibration window (the bank is designed there). So
-:func:`gyrodiag.isolation.place_observer_gain` looks a design up here first:
+:func:`gyrodiag.df.isolation.place_observer_gain` looks a design up here first:
 
 * every gain it computes is remembered for the rest of the process (a process that
   builds the same bank twice designs it once);
 * ``observer_gains.npz`` beside this module, when present and of this
   :data:`FORMAT`, seeds the memo. build_fmu.py
-  writes it into the Diagnoser FMU (``resources/gyrodiag/observer_gains.npz``) with
+  writes it into the Diagnoser FMU (``resources/gyrodiag/df/observer_gains.npz``) with
   ``python fmu_src/tools/observer_gains.py --out FILE``: the bank designs of the
   detection-filter channel with its default model and eigenvalues, both decision
   rules, at the sample periods of :data:`DEFAULT_PERIODS_S`. It is a build output,
@@ -132,7 +132,7 @@ def default_designs(periods_s: Sequence[float] = DEFAULT_PERIODS_S
     Each channel is built and calibrated on a short window of synthetic noise, the
     path a Diagnoser takes, and its designs are collected from the memo.
     """
-    from gyrodiag.df_channel import DFChannel, DFChannelConfig
+    from gyrodiag.df.channel import DFChannel, DFChannelConfig
 
     forget()
     global _memo
