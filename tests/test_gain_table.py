@@ -10,10 +10,12 @@ every observer sample by sample to rounding.
 
 from __future__ import annotations
 
+import importlib.util
 import subprocess
 import sys
 import zipfile
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 import pytest
@@ -27,6 +29,16 @@ from gyrodiag.df.plant import seed_aircraft
 ROOT = Path(__file__).resolve().parents[1]
 RUNNER = Path(__file__).with_name("_gain_table_runner.py")
 
+
+def _tool(name: str) -> ModuleType:
+    """A build-time generator of fmu_src/tools/ (not part of the runtime package)."""
+    spec = importlib.util.spec_from_file_location(name, ROOT / "fmu_src" / "tools" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+observer_gains = _tool("observer_gains")
 
 
 @pytest.fixture
@@ -78,7 +90,7 @@ def _bank_inputs(period: float = 0.01):
 
 def _table_with(tmp_path, entry) -> Path:
     phi, c, poles, _ = _bank_inputs()
-    return gains.save(tmp_path / "t.npz", {gains.design_key(phi, c, poles): entry})
+    return observer_gains.save(tmp_path / "t.npz", {gains.design_key(phi, c, poles): entry})
 
 
 @pytest.mark.parametrize("damage", ["empty", "npy", "text", "other format",
@@ -120,7 +132,7 @@ def test_a_sound_table_is_used_and_the_memo_is_bounded(empty_memo, monkeypatch, 
     np.testing.assert_array_equal(place_observer_gain(phi, c, poles), right)
     assert calls[0] == 0
     with pytest.raises(ValueError, match="__format__"):
-        gains.save(tmp_path / "x.npz", {gains.FORMAT_KEY: right})
+        observer_gains.save(tmp_path / "x.npz", {gains.FORMAT_KEY: right})
     monkeypatch.setattr(gains, "MAX_REMEMBERED", 2)
     for k in range(3):
         place_observer_gain(phi, c, poles ** (k + 2))
@@ -131,7 +143,7 @@ def test_a_sound_table_is_used_and_the_memo_is_bounded(empty_memo, monkeypatch, 
 
 def test_default_designs_hold_the_bank_of_either_rule(empty_memo):
     ac = seed_aircraft()
-    table = gains.default_designs([0.01])
+    table = observer_gains.default_designs([0.01])
     assert len(table) == 21  # 6 single-sensor observers and 15 sensor pairs
     assert gains.designs() == {}  # the process goes on with its own (no) table
     computed = design_observer_bank(ac.A, ac.B, ac.C, 0.01)
@@ -178,8 +190,8 @@ def _library_thresholds(rule: str) -> np.ndarray:
 
 @pytest.mark.parametrize("rule", ["paper", "sequential"])
 def test_a_process_with_the_table_never_imports_scipy_signal(empty_memo, tmp_path, rule):
-    table = gains.save(tmp_path / "observer_gains.npz",
-                            gains.default_designs([0.01]))
+    table = observer_gains.save(tmp_path / "observer_gains.npz",
+                            observer_gains.default_designs([0.01]))
     gains.forget()
     imported, figures = _fresh_process_thresholds(table, rule)
     assert not imported
@@ -215,7 +227,7 @@ def test_fmu_ships_the_table_once(fmu_dir):
         assert len(names) == len(set(names))
         with zf.open("resources/gyrodiag/df/observer_gains.npz") as fh:
             table = np.load(fh)
-            assert len(table.files) == 21 * len(gains.DEFAULT_PERIODS_S) + 1
+            assert len(table.files) == 21 * len(observer_gains.DEFAULT_PERIODS_S) + 1
 
 
 @pytest.mark.parametrize(("rule", "period", "a23_scale", "designed"), [
