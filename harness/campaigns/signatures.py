@@ -322,9 +322,10 @@ def learn_pattern_library(scenarios: Sequence[Scenario], results: Sequence[RunRe
     ------
     ScenarioError, ValueError, KeyError
         See :func:`check_training_scenarios` and
-        :func:`harness.campaigns.pattern_learning.learn_patterns`.
+        :func:`gyrodiag.dtg.learning.learn_patterns`.
     """
-    from harness.campaigns.pattern_learning import learn_patterns, pattern_run
+    from gyrodiag.dtg.learning import learn_patterns
+    from harness.campaigns.pattern_learning import pattern_run
 
     if len(scenarios) != len(results):
         raise ValueError(f"{len(scenarios)} scenarios but {len(results)} runs")

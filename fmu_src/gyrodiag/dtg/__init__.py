@@ -12,6 +12,8 @@ reference
     Learned nominal reference, residual monitors and classification statistics.
 patterns
     Response-pattern library and classifier of DTG faults.
+learning
+    Learning the pattern library from training runs (numpy only).
 decision
     The paper's decision: ratio thresholds, log10 features, nearest signature.
 channel
@@ -69,6 +71,8 @@ _EXPORTS = {
     "PatternClassifier": "patterns",
     "PatternLibrary": "patterns",
     "PatternResult": "patterns",
+    "PatternRun": "learning",
+    "learn_patterns": "learning",
     "UNKNOWN_CODE": "decision",
     "Classification": "decision",
     "DecisionOutput": "decision",
