@@ -31,9 +31,9 @@ starts the interpreter in hosts that are not Python processes and guards FMU sta
 pythonfmu library is kept next to it as ``pythonfmu-export.so``. Without a C compiler
 the FMU is built unwrapped, with a warning (errors then surface as fmi2OK + log).
 
-A shipped package with C kernels (``gyrodiag/_ckernels.c``) gets them compiled here for
+A shipped package with C kernels (``gyrodiag/common/_ckernels.c``) gets them compiled here for
 the building Python (CPython stable ABI: any CPython >= 3.11 on the platform) as
-``resources/gyrodiag/_ckernels.abi3.so``; extension modules and caches the builder copied
+``resources/gyrodiag/common/_ckernels.abi3.so``; extension modules and caches the builder copied
 from the source tree are dropped. Without a compiler the FMU runs the plain-Python kernels.
 
 Generated resources (:data:`GENERATED_RESOURCES`): data files an FMU ships that are
@@ -43,7 +43,7 @@ rate read-out dynamics (``models/dtg/gd_dtg_readout.py``) as
 ``resources/sensor_dynamics/dtg_paper_y_q3_1ms.json``, which a system scenario names with
 ``df.sensor_dynamics_file = "sensor_dynamics/dtg_paper_y_q3_1ms.json"`` (relative to the
 resources), and the detection filter's default observer designs
-(``resources/gyrodiag/observer_gains.npz``, :mod:`gyrodiag.gain_table`), so that its
+(``resources/gyrodiag/df/observer_gains.npz``, :mod:`gyrodiag.df.gains`), so that its
 start-up does not import ``scipy.signal``.
 
 Finally every FMU is checked with ``fmpy.validation.validate_fmu``; any problem makes
@@ -88,9 +88,9 @@ GENERATED_RESOURCES: dict[str, list[tuple[str, str, tuple[str, ...]]]] = {
         # sensor 3 (q), at the 1 kHz of the system scenarios (docs/readout_dynamics.md)
         ("sensor_dynamics/dtg_paper_y_q3_1ms.json", "models/dtg/gd_dtg_readout.py",
          ("--set", "1", "--axis", "y", "--sensor", "3", "--step", "0.001")),
-        # the detection filter's default observer designs (gyrodiag.gain_table): a
+        # the detection filter's default observer designs (gyrodiag.df.gains): a
         # Diagnoser that finds its bank here never imports scipy.signal (0.7-1 s)
-        ("gyrodiag/observer_gains.npz", "fmu_src/tools/observer_gains.py", ()),
+        ("gyrodiag/df/observer_gains.npz", "fmu_src/tools/observer_gains.py", ()),
     ],
 }
 
@@ -411,7 +411,7 @@ window. Serialized states are framed (<code>GDFMUST1</code>, the FMU's GUID, len
 FNV-1a 64 checksum): truncated, corrupt or foreign bytes, and states of other FMUs, give
 fmi2Error naming the problem and leave the instance unchanged.</li>
 <li><b>Speed</b>: per-sample kernels are compiled
-(<code>resources/gyrodiag/_ckernels.abi3.so</code>,
+(<code>resources/gyrodiag/common/_ckernels.abi3.so</code>,
 Linux x86-64, any CPython &ge; 3.11, any numpy; no JIT, no cache folder, nothing written
 at run time). Where it does not load (another platform or Python) the FMU runs the same
 kernels in plain Python, with the same outputs to 1e-12, slower; the environment

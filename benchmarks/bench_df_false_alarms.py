@@ -6,9 +6,9 @@ Usage::
         [--parallel 1000] [--calibrations 10] [--rate 1e-3] [--period 0.01]
 
 The residual of an observer whose model is exact depends on the sensor noise only
-(gyrodiag.residual_model), so the detection path of the Diagnoser's default decision
+(gyrodiag.df.residual), so the detection path of the Diagnoser's default decision
 (main detection filter, whitening, scales, CUSUM charts with their cap and release) is
-run on white sensor noise, ``--parallel`` runs at a time (gyrodiag.sequential_diagnosis.
+run on white sensor noise, ``--parallel`` runs at a time (gyrodiag.df.sequential_diagnosis.
 simulate_fault_free), for the seed aircraft (noise 1 σ: v 0.05 m/s, α/ϑ/γ 1e-3 rad,
 q 1e-3 rad/s, h 0.2 m).
 
@@ -38,10 +38,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from _aircraft_loop import NOISE_STD, simulate
 
-from gyrodiag.aircraft import seed_aircraft
-from gyrodiag.detection_filter import design_detection_filter
-from gyrodiag.df_channel import DFChannel, DFChannelConfig
-from gyrodiag.sequential_diagnosis import (
+from gyrodiag.df.channel import DFChannel, DFChannelConfig
+from gyrodiag.df.filter import design_detection_filter
+from gyrodiag.df.plant import seed_aircraft
+from gyrodiag.df.sequential_diagnosis import (
     SequentialDiagnoser,
     SequentialSettings,
     simulate_fault_free,

@@ -8,8 +8,8 @@ Usage::
 For each decision rule (paper, sequential) and sample period (1 ms as the system chain,
 10 ms as the aircraft seeds), in a fresh process each (imports are part of the cost),
 with and without the table of default observer designs that build_fmu.py ships in the
-Diagnoser (:mod:`gyrodiag.gain_table`; written to a temporary file here): process CPU
-seconds for ``import gyrodiag.df_channel``, the channel's construction, the step that
+Diagnoser (:mod:`gyrodiag.df.gains`; written to a temporary file here): process CPU
+seconds for ``import gyrodiag.df.channel``, the channel's construction, the step that
 ends the calibration window, and everything (200 monitoring steps included), and
 whether ``scipy.signal`` was imported.  Prints medians over ``--repeat`` processes; no
 assertions (timings depend on the machine and its load).
@@ -32,10 +32,10 @@ import json, sys, time
 t0 = time.process_time()
 sys.path.insert(0, {src!r})
 from pathlib import Path
-from gyrodiag import gain_table
-gain_table.TABLE_FILE = Path({table!r})
+from gyrodiag.df import gains
+gains.TABLE_FILE = Path({table!r})
 import numpy as np
-from gyrodiag.df_channel import DFChannel, DFChannelConfig
+from gyrodiag.df.channel import DFChannel, DFChannelConfig
 t1 = time.process_time()
 ch = DFChannel(DFChannelConfig(sample_period_s={period!r}, decision={rule!r},
                                calibrate_s={window!r}, align_auto=False))

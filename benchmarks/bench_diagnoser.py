@@ -82,9 +82,9 @@ def make_records(n: int, seed: int = 1) -> np.ndarray:
     import scipy.linalg
     import scipy.signal
 
-    from gyrodiag.aircraft import seed_aircraft
     from gyrodiag.demo import NOMINAL
     from gyrodiag.demo import simulate as simulate_dtg
+    from gyrodiag.df.plant import seed_aircraft
 
     rng = np.random.default_rng(seed)
     rec = np.zeros((n, len(IN_NAMES)))
@@ -185,7 +185,7 @@ def measure_fmus(specs: dict[str, dict], warmup: int, steps: int) -> dict:
     for k in range(n):
         for name, inst in instances.items():
             times[name][k] = inst.step(k)
-    accel = sys.modules.get("gyrodiag._accel")
+    accel = sys.modules.get("gyrodiag.common._accel")
     out: dict = {"accelerated": None if accel is None else bool(accel.ACCELERATED)}
     timed = slice(warmup, None)
     for name, inst in instances.items():
@@ -245,12 +245,12 @@ def built_fmus(names: list[str]) -> Path:
 # ------------------------------------------------------------------ library measurement
 def measure_library(rec: np.ndarray, warmup: int, kernels: str) -> dict:
     """Per-step times of the three channels called directly, same settings as BASE_PARAMS."""
-    from gyrodiag import _accel
+    from gyrodiag.common import _accel
 
     previous = _accel.use(kernels)
     try:
-        from gyrodiag.df_channel import DFChannel, DFChannelConfig
-        from gyrodiag.dtg_channel import DTGChannel, DTGChannelConfig
+        from gyrodiag.df.channel import DFChannel, DFChannelConfig
+        from gyrodiag.dtg.channel import DTGChannel, DTGChannelConfig
         from gyrodiag.grey import GreyFaultDetector, ImprovedGreyPredictor
 
         dtg = DTGChannel(DTGChannelConfig(sample_period_s=H, learn_start_s=0.2,
@@ -397,7 +397,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _compiled() -> bool:
-    from gyrodiag import _accel
+    from gyrodiag.common import _accel
 
     try:
         _accel.use("c")

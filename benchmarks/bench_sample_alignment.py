@@ -32,8 +32,8 @@ sys.path.insert(0, str(ROOT / "fmu_src"))
 
 from _system_chain import PitchCommand, run_chain  # noqa: E402
 
-from gyrodiag.df_channel import DFChannel, DFChannelConfig  # noqa: E402
-from gyrodiag.dtg_channel import DTGChannel, DTGChannelConfig  # noqa: E402
+from gyrodiag.df.channel import DFChannel, DFChannelConfig  # noqa: E402
+from gyrodiag.dtg.channel import DTGChannel, DTGChannelConfig  # noqa: E402
 
 T = 1e-3
 DTG = dict(classifier="paper", forgetting=0.9998, learn_start_s=2.0, learn_end_s=10.0,

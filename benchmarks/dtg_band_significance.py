@@ -32,7 +32,7 @@ sys.path.insert(0, str(ROOT / "fmu_src"))
 
 from _system_chain import PitchCommand, run_chain  # noqa: E402
 
-from gyrodiag.dtg_channel import DTGChannel, DTGChannelConfig  # noqa: E402
+from gyrodiag.dtg.channel import DTGChannel, DTGChannelConfig  # noqa: E402
 
 T = 1e-3
 GYRO2_STD = 2e-4

@@ -43,8 +43,8 @@ sys.path.insert(0, str(ROOT / "models" / "dtg"))
 from gd_dtg_sets import paper_set  # noqa: E402
 from gd_dtg_sim import DTGSimulator  # noqa: E402
 
-from gyrodiag.dtg_reference import regression_residuals  # noqa: E402
-from gyrodiag.prefilter import ButterworthPrefilter  # noqa: E402
+from gyrodiag.common.prefilter import ButterworthPrefilter  # noqa: E402
+from gyrodiag.dtg.reference import regression_residuals  # noqa: E402
 
 T = 1e-3
 

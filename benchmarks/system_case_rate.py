@@ -28,8 +28,8 @@ sys.path.insert(0, str(ROOT / "fmu_src"))
 
 from _system_chain import PitchCommand, run_chain  # noqa: E402
 
-from gyrodiag.dtg import dtg_regression  # noqa: E402
-from gyrodiag.dtg_case_rate import dtg_case_rate_regression  # noqa: E402
+from gyrodiag.dtg.case_rate import dtg_case_rate_regression  # noqa: E402
+from gyrodiag.dtg.model import dtg_regression  # noqa: E402
 
 T = 1e-3
 SOS = signal.butter(6, 50.0, fs=1.0 / T, output="sos")

@@ -31,8 +31,8 @@ import gd_dtg_readout as readout  # noqa: E402
 import gd_dtg_sets as sets  # noqa: E402
 from _system_chain import PitchCommand, run_chain  # noqa: E402
 
-from gyrodiag.df_channel import DFChannel, DFChannelConfig  # noqa: E402
-from gyrodiag.sensor_dynamics import SensorDynamics  # noqa: E402
+from gyrodiag.df.channel import DFChannel, DFChannelConfig  # noqa: E402
+from gyrodiag.df.sensor_dynamics import SensorDynamics  # noqa: E402
 
 T = 1e-3
 SENSORS = ("v", "alpha", "q", "theta", "gamma", "h")

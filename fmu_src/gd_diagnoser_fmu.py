@@ -7,11 +7,11 @@ in the FMU's resources.
 
 Channels (each can be switched off):
 
-* DTG: parameter identification of a dynamically tuned gyro (``gyrodiag.dtg_channel``).
+* DTG: parameter identification of a dynamically tuned gyro (``gyrodiag.dtg.channel``).
 * Grey: grey-prediction fault detection of one signal, e.g. an HRG output
   (``gyrodiag.grey``).
 * Detection filter: sensor-fault detection and isolation on a linear plant, by default
-  the seed aircraft (``gyrodiag.df_channel``).
+  the seed aircraft (``gyrodiag.df.channel``).
 
 Sampled-data contract: a ``doStep`` of n sample periods (h = n·``sample_period_s``,
 n ≥ 1, relative tolerance 1e−6) makes every enabled channel process n samples, at the
@@ -48,11 +48,9 @@ import numpy as np
 from gd_fmu_base import STEP_RTOL, FacadeBase, samples_in_step
 from pythonfmu import DefaultExperiment
 
-from gyrodiag.aircraft import seed_aircraft
-from gyrodiag.decision import UNKNOWN_CODE
-from gyrodiag.dtg import N_THETA
-from gyrodiag.dtg_case_rate import CASE_RATE_SCHEMES
-from gyrodiag.dtg_channel import (
+from gyrodiag.df.plant import seed_aircraft
+from gyrodiag.dtg.case_rate import CASE_RATE_SCHEMES
+from gyrodiag.dtg.channel import (
     BAND_SIGMA,
     CLASSIFIERS,
     ESTIMATOR_KINDS,
@@ -60,12 +58,14 @@ from gyrodiag.dtg_channel import (
     DTGChannelConfig,
     DTGChannelOutput,
 )
-from gyrodiag.dtg_patterns import PatternLibrary
-from gyrodiag.dtg_reference import ALLOWANCE_SIGMA, CHANNELS, N_CHANNELS, POWER_THRESHOLD
+from gyrodiag.dtg.decision import UNKNOWN_CODE
+from gyrodiag.dtg.model import N_THETA
+from gyrodiag.dtg.patterns import PatternLibrary
+from gyrodiag.dtg.reference import ALLOWANCE_SIGMA, CHANNELS, N_CHANNELS, POWER_THRESHOLD
 from gyrodiag.grey import ClassicGreyPredictor, GreyFaultDetector, ImprovedGreyPredictor
 
 if TYPE_CHECKING:  # imported when the channel is built: it needs SciPy (design time)
-    from gyrodiag.df_channel import DFChannel, DFChannelConfig, DFChannelOutput
+    from gyrodiag.df.channel import DFChannel, DFChannelConfig, DFChannelOutput
 
 #: Signatures that fit in the parameter table (more: use ``dtg.signature_file``).
 MAX_SIGNATURES = 8
@@ -77,7 +77,7 @@ DF_NOT_ISOLATED, DF_MULTIPLE = -1, -2
 SEED = seed_aircraft()
 #: Detection-filter dimensions: states, inputs, sensors (those of the seed aircraft).
 DF_N, DF_P, DF_M = SEED.A.shape[0], SEED.B.shape[1], SEED.C.shape[0]
-#: df.decision code of the automatic choice (the default; gyrodiag.df_channel's).
+#: df.decision code of the automatic choice (the default; gyrodiag.df.channel's).
 DF_DECISION_AUTO = 2
 
 PHYSICAL_NAMES = ("c_over_J", "k_over_J", "L_over_J", "lambda_over_J", "Ku_over_KT_J")
@@ -778,9 +778,9 @@ class Diagnoser(FacadeBase):
         p("df.valid", "Boolean", "output", True, "Last u, y sample was finite")
 
     def _df_sensor_dynamics(self, period: float) -> Any:
-        """The :class:`~gyrodiag.sensor_dynamics.SensorDynamics` of
+        """The :class:`~gyrodiag.df.sensor_dynamics.SensorDynamics` of
         df.sensor_dynamics_file, or None when it is empty."""
-        from gyrodiag.sensor_dynamics import SensorDynamics
+        from gyrodiag.df.sensor_dynamics import SensorDynamics
 
         text = str(self.values["df.sensor_dynamics_file"]).strip()
         if not text:
@@ -794,7 +794,7 @@ class Diagnoser(FacadeBase):
             raise ValueError(f"df.sensor_dynamics_file: {exc}") from None
 
     def _df_config(self, period: float) -> DFChannelConfig:
-        from gyrodiag.df_channel import DFChannelConfig
+        from gyrodiag.df.channel import DFChannelConfig
 
         v = self.values
 
@@ -806,7 +806,7 @@ class Diagnoser(FacadeBase):
             return np.array([float(v[f"df.{name}[{i + 1}]"]) for i in range(size)])
 
         noise = vector("noise_std", DF_M)
-        from gyrodiag.df_channel import decision_rule
+        from gyrodiag.df.channel import decision_rule
 
         decision = _named_int(v, "df.decision")
         if decision not in (0, 1, DF_DECISION_AUTO):
@@ -932,7 +932,7 @@ class Diagnoser(FacadeBase):
             self._grey = self._grey_detector(period) if v["grey.enabled"] else None
         self._guard_outputs_of(tuple(c for c in ("dtg", "grey", "df") if v[f"{c}.enabled"]))
         if v["df.enabled"]:
-            df_channel = _import_or_explain("gyrodiag.df_channel", "df.enabled")
+            df_channel = _import_or_explain("gyrodiag.df.channel", "df.enabled")
             with _channel_context("df"):
                 config = self._df_config(period)
                 self._df = df_channel.DFChannel(config)

@@ -14,7 +14,7 @@ import control
 import numpy as np
 import scipy.signal
 
-from gyrodiag.aircraft import seed_aircraft
+from gyrodiag.df.plant import seed_aircraft
 
 MODEL = seed_aircraft()
 A, B, C = MODEL.A, MODEL.B, MODEL.C

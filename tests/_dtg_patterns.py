@@ -5,8 +5,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from gyrodiag.dtg_channel import BLOCK_S
-from gyrodiag.dtg_patterns import FORMAT
+from gyrodiag.dtg.channel import BLOCK_S
+from gyrodiag.dtg.patterns import FORMAT
 
 
 def pattern_library_dict(sample_period_s: float, *, prior: bool = False) -> dict[str, Any]:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import expm
 
-from gyrodiag.dtg import DTGParameters, rotor_state_space
+from gyrodiag.dtg.model import DTGParameters, rotor_state_space
 
 #: A stable open-loop rotor, J-normalised, with the paper's order of magnitude for
 #: L/J and k/J (θ_nom inverted at T = 1 ms gives L/J ≈ −30 rad/s, k/J ≈ 800 1/s²);

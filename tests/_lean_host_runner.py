@@ -41,7 +41,7 @@ def main(fmu_dir: Path, out: Path, inp: Path, kernels: str) -> None:
     assert d.init_status == 0, d.log
     rows = d.run(record)
     d.close()
-    accel = sys.modules["gyrodiag._accel"]
+    accel = sys.modules["gyrodiag.common._accel"]
     kernel_file = getattr(accel.kernels, "__file__", "")
     full = Diag(unzipdir, md, "with_df", {})
     init_log = "\n".join(f"[{s}] {m}" for s, m in full.log)

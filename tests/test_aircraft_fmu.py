@@ -255,7 +255,7 @@ def test_plant_and_library_matrices_are_one_aircraft():
     sys.path.insert(0, str(ROOT / "models" / "aircraft"))
     import gd_aircraft_core as core
 
-    from gyrodiag.aircraft import seed_aircraft
+    from gyrodiag.df.plant import seed_aircraft
 
     lib = seed_aircraft()
     for name in ("A", "B", "C"):

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from gyrodiag.decision import (
+from gyrodiag.dtg.decision import (
     UNKNOWN_CODE,
     SignatureClassifier,
     ThresholdDecision,
@@ -148,7 +148,7 @@ def test_bad_arguments_name_the_argument(call, name):
 
 
 def test_median_feature_rounds_half_away_from_zero():
-    from gyrodiag.decision import median_feature
+    from gyrodiag.dtg.decision import median_feature
 
     np.testing.assert_array_equal(
         median_feature([[0, -2, 1], [0, -3, 1], [1, -3, 2]]), [0, -3, 1])
@@ -162,7 +162,7 @@ def test_median_feature_rounds_half_away_from_zero():
 
 
 def test_windowed_median_feature_equals_the_batch_median_at_every_sample():
-    from gyrodiag.decision import WindowedMedianFeature, median_feature
+    from gyrodiag.dtg.decision import WindowedMedianFeature, median_feature
 
     rng = np.random.default_rng(7)
     feats = rng.integers(-4, 3, size=(400, 5))
@@ -197,7 +197,7 @@ def test_windowed_median_feature_equals_the_batch_median_at_every_sample():
 def test_feature_floats_equals_feature_vector_on_every_decade_and_edge():
     """The channel's plain-float features are the checked function's, including η = 0
     (the floor), exact decades and half decades (rounding half away from zero)."""
-    from gyrodiag.decision import feature_floats
+    from gyrodiag.dtg.decision import feature_floats
 
     rng = np.random.default_rng(3)
     cases = [10.0 ** rng.uniform(-14, 14, 5) for _ in range(2000)]

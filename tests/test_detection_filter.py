@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from gyrodiag.aircraft import PAPER_EIGENVALUES, PAPER_PRINTED_K, seed_aircraft
-from gyrodiag.detection_filter import (
+from gyrodiag.df.filter import (
     DetectionFilter,
     ResidualEvaluator,
     ResidualThresholds,
@@ -17,6 +16,7 @@ from gyrodiag.detection_filter import (
     parity_space,
     zoh_discretise,
 )
+from gyrodiag.df.plant import PAPER_EIGENVALUES, PAPER_PRINTED_K, seed_aircraft
 
 MODEL = seed_aircraft()
 A, B, C = MODEL.A, MODEL.B, MODEL.C

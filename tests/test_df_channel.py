@@ -9,9 +9,9 @@ from _aircraft_loop import Fault as F
 from _aircraft_loop import simulate as simulate_loop
 from test_isolation_closed_loop import T_FAULT, simulate
 
-from gyrodiag.df_channel import DFChannel, DFChannelConfig
-from gyrodiag.isolation import FaultType
-from gyrodiag.sequential_diagnosis import FaultKind
+from gyrodiag.df.channel import DFChannel, DFChannelConfig
+from gyrodiag.df.isolation import FaultType
+from gyrodiag.df.sequential_diagnosis import FaultKind
 
 CFG = DFChannelConfig(sample_period_s=DT, calibrate_s=8.0, burn_in_s=2.0, k_sigma=6.0,
                       decision="paper")
@@ -194,7 +194,7 @@ def test_update_floats_equals_update_through_calibration_faults_and_nan():
     update: calibrating, nominal, a 5 σ q bias (episode, isolation), a NaN sample."""
     import dataclasses
 
-    from gyrodiag.aircraft import seed_aircraft
+    from gyrodiag.df.plant import seed_aircraft
 
     rng = np.random.default_rng(4)
     model = seed_aircraft()

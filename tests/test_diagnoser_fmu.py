@@ -41,13 +41,13 @@ from conftest import load_builder
 from fmpy.validation import validate_fmu
 from test_isolation_closed_loop import T_FAULT, simulate
 
-from gyrodiag.decision import UNKNOWN_CODE
-from gyrodiag.df_channel import DFChannel, DFChannelConfig
-from gyrodiag.dtg import N_THETA, theta_from_physical
-from gyrodiag.dtg_channel import DTGChannel, DTGChannelConfig
-from gyrodiag.dtg_patterns import PatternLibrary
+from gyrodiag.df.channel import DFChannel, DFChannelConfig
+from gyrodiag.df.isolation import FaultType
+from gyrodiag.dtg.channel import DTGChannel, DTGChannelConfig
+from gyrodiag.dtg.decision import UNKNOWN_CODE
+from gyrodiag.dtg.model import N_THETA, theta_from_physical
+from gyrodiag.dtg.patterns import PatternLibrary
 from gyrodiag.grey import ClassicGreyPredictor, GreyFaultDetector, ImprovedGreyPredictor
-from gyrodiag.isolation import FaultType
 
 RUNNER = Path(__file__).resolve().parent / "_diagnoser_runner.py"
 PHYSICAL = ("c_over_J", "k_over_J", "L_over_J", "lambda_over_J", "Ku_over_KT_J")

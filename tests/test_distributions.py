@@ -1,4 +1,4 @@
-"""The diagnoser's quantiles (gyrodiag._distributions) are scipy.stats' to the bit, and
+"""The diagnoser's quantiles (gyrodiag.common._distributions) are scipy.stats' to the bit, and
 the Diagnoser's run-time import chain no longer loads scipy.stats (1.5 s per process)."""
 
 import subprocess
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from gyrodiag._distributions import chi2_ppf, normal_isf
+from gyrodiag.common._distributions import chi2_ppf, normal_isf
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -38,8 +38,8 @@ def test_known_values_and_bad_input():
 
 
 def test_the_diagnosers_channels_do_not_import_scipy_stats():
-    code = ("import sys; import gd_diagnoser_fmu, gyrodiag.df_channel, gyrodiag.grey, "
-            "gyrodiag.dtg_channel, gyrodiag.sequential_diagnosis; "
+    code = ("import sys; import gd_diagnoser_fmu, gyrodiag.df.channel, gyrodiag.grey, "
+            "gyrodiag.dtg.channel, gyrodiag.df.sequential_diagnosis; "
             "print('scipy.stats' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], cwd=str(ROOT / "fmu_src"),
                          capture_output=True, text=True, check=True, timeout=600).stdout

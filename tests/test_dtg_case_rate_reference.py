@@ -1,5 +1,5 @@
 """The case-rate reference of the pattern classifier refines θ0 with the fault-free blocks
-and allows for θ0's remaining uncertainty (gyrodiag.dtg_reference, docs/dtg_case_rate.md
+and allows for θ0's remaining uncertainty (gyrodiag.dtg.reference, docs/dtg_case_rate.md
 §8): known answers on the central-scheme difference equation and on constructed normal
 matrices."""
 
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from _dtg_sim import STABLE_ROTOR
 
-from gyrodiag.dtg import N_THETA
-from gyrodiag.dtg_case_rate import dtg_case_rate_regression, theta_central_from_physical
-from gyrodiag.dtg_reference import (
+from gyrodiag.dtg.case_rate import dtg_case_rate_regression, theta_central_from_physical
+from gyrodiag.dtg.model import N_THETA
+from gyrodiag.dtg.reference import (
     POWER_KAPPA,
     NominalReference,
     ReferenceLearner,
@@ -287,7 +287,7 @@ def test_allowance_sigma_scales_the_learning_guards_ratio() -> None:
     ref_vars = np.full((nref, 6), 1e-4)
     seg_means = np.zeros((k_seg, 6))
     seg_vars = np.full((k_seg, 6), 1e-3)
-    from gyrodiag.dtg_reference import _window_reference_variance, window_moments
+    from gyrodiag.dtg.reference import _window_reference_variance, window_moments
     res = [4, 5]
     v_ref = _window_reference_variance(ref_means[:, res], ref_vars[:, res], k_seg)
     v_seg = window_moments(seg_means[:, res], seg_vars[:, res])[1]

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from _dtg_sim import STABLE_ROTOR, simulate_difference_equation
 
-from gyrodiag.decision import UNKNOWN_CODE, median_feature
-from gyrodiag.dtg import theta_from_physical
-from gyrodiag.dtg_channel import DTGChannel, DTGChannelConfig
+from gyrodiag.dtg.channel import DTGChannel, DTGChannelConfig
+from gyrodiag.dtg.decision import UNKNOWN_CODE, median_feature
+from gyrodiag.dtg.model import theta_from_physical
 
 T = 1e-3
 

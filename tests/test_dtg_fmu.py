@@ -217,9 +217,9 @@ def _reference(p, inputs: np.ndarray, h: float, loop: bool):
 
 def _identify(rec: np.ndarray, start: float, stop: float) -> np.ndarray:
     """θ by batch LS on both axes after the library's 6th-order 50 Hz prefilter."""
-    from gyrodiag.dtg import dtg_regression
-    from gyrodiag.estimators import batch_ls
-    from gyrodiag.prefilter import ButterworthPrefilter
+    from gyrodiag.common.estimators import batch_ls
+    from gyrodiag.common.prefilter import ButterworthPrefilter
+    from gyrodiag.dtg.model import dtg_regression
 
     t = rec[:, 0]
     sel = (t >= start - 1e-9) & (t < stop - 1e-9)

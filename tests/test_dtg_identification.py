@@ -6,15 +6,15 @@ import pytest
 from _dtg_sim import STABLE_ROTOR, simulate_continuous, simulate_difference_equation
 from scipy import signal
 
-from gyrodiag.dtg import (
+from gyrodiag.common.estimators import RLS, batch_ls
+from gyrodiag.common.prefilter import ButterworthPrefilter
+from gyrodiag.dtg.model import (
     DTGParameters,
     DTGRegressor,
     dtg_regression,
     physical_from_theta,
     theta_from_physical,
 )
-from gyrodiag.estimators import RLS, batch_ls
-from gyrodiag.prefilter import ButterworthPrefilter
 
 T = 1e-3
 THETA_NOM_PAPER = np.array([1.9951, 0.9959, -0.0288, -0.0303, 0.0002])

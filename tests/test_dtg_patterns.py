@@ -1,4 +1,4 @@
-"""Pattern classification of DTG faults (gyrodiag.dtg_patterns): magnitude-free fits,
+"""Pattern classification of DTG faults (gyrodiag.dtg.patterns): magnitude-free fits,
 merged classes, physical classes, library validation."""
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from _dtg_patterns import learned_library_dict
 
-from gyrodiag.decision import UNKNOWN_CODE
-from gyrodiag.dtg_patterns import PatternClassifier, PatternLibrary
-from gyrodiag.dtg_reference import ClassificationStatistics
+from gyrodiag.dtg.decision import UNKNOWN_CODE
+from gyrodiag.dtg.patterns import PatternClassifier, PatternLibrary
+from gyrodiag.dtg.reference import ClassificationStatistics
 
 LIB = PatternLibrary.from_dict(learned_library_dict())
 CLF = PatternClassifier(LIB)

@@ -1,5 +1,5 @@
 """Frozen reference of the DTG pattern classifier: moments, guarded learning, residual
-tests with alarm memory (gyrodiag.dtg_reference)."""
+tests with alarm memory (gyrodiag.dtg.reference)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 from _dtg_sim import STABLE_ROTOR, simulate_difference_equation
 
-from gyrodiag.dtg import dtg_regression, theta_from_physical
-from gyrodiag.dtg_reference import (
+from gyrodiag.common.estimators import batch_ls
+from gyrodiag.dtg.model import dtg_regression, theta_from_physical
+from gyrodiag.dtg.reference import (
     REFERENCE_STATUS,
     NominalPrior,
     ReferenceLearner,
@@ -20,7 +21,6 @@ from gyrodiag.dtg_reference import (
     regression_residuals,
     window_moments,
 )
-from gyrodiag.estimators import batch_ls
 
 T = 1e-3
 NB = 25          # samples per block (25 ms)

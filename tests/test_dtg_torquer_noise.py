@@ -1,5 +1,5 @@
 """Torquer read-out noise on the seed DTG chain: the residuals' low-frequency power CUSUM
-(gyrodiag.dtg_reference) is its witness.
+(gyrodiag.dtg.reference) is its witness.
 
 The chain is the plant of the DTG campaign (models/dtg simulator, paper set, rebalance
 loop, 1 V dither, 1 mV pick-off noise) at 1 kHz, diagnosed by the library channel with
@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gyrodiag.dtg_channel import DTGChannel, DTGChannelConfig
-from gyrodiag.dtg_reference import POWER_KAPPA, POWER_Q_CAP, POWER_THRESHOLD
+from gyrodiag.dtg.channel import DTGChannel, DTGChannelConfig
+from gyrodiag.dtg.reference import POWER_KAPPA, POWER_Q_CAP, POWER_THRESHOLD
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT / "models" / "dtg") not in sys.path:

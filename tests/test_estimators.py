@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from gyrodiag.estimators import RLS, ForgettingRLS, SlidingWindowLS, batch_ls
+from gyrodiag.common.estimators import RLS, ForgettingRLS, SlidingWindowLS, batch_ls
 
 THETA_A = np.array([1.96, 0.96, -0.0288, -0.0288, 0.00096])
 

@@ -1,4 +1,4 @@
-"""Observer designs made once (gyrodiag.gain_table) and the calibration window run as
+"""Observer designs made once (gyrodiag.df.gains) and the calibration window run as
 one stacked recursion (SensorFaultIsolator.calibrate).
 
 Known answers: a remembered or shipped gain is bit-for-bit the gain scipy's pole
@@ -10,31 +10,44 @@ every observer sample by sample to rounding.
 
 from __future__ import annotations
 
+import importlib.util
 import subprocess
 import sys
 import zipfile
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 import pytest
 
-from gyrodiag import gain_table, isolation
-from gyrodiag.aircraft import seed_aircraft
-from gyrodiag.detection_filter import design_detection_filter
-from gyrodiag.df_channel import DFChannel, DFChannelConfig
-from gyrodiag.isolation import SensorFaultIsolator, design_observer_bank, place_observer_gain
+from gyrodiag.df import gains, isolation
+from gyrodiag.df.channel import DFChannel, DFChannelConfig
+from gyrodiag.df.filter import design_detection_filter
+from gyrodiag.df.isolation import SensorFaultIsolator, design_observer_bank, place_observer_gain
+from gyrodiag.df.plant import seed_aircraft
 
 ROOT = Path(__file__).resolve().parents[1]
 RUNNER = Path(__file__).with_name("_gain_table_runner.py")
 
 
+def _tool(name: str) -> ModuleType:
+    """A build-time generator of fmu_src/tools/ (not part of the runtime package)."""
+    spec = importlib.util.spec_from_file_location(name, ROOT / "fmu_src" / "tools" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+observer_gains = _tool("observer_gains")
+
+
 @pytest.fixture
 def empty_memo(monkeypatch, tmp_path):
     """No table file, an empty memo; the process's memo is dropped afterwards."""
-    monkeypatch.setattr(gain_table, "TABLE_FILE", tmp_path / "absent.npz")
-    gain_table.forget()
+    monkeypatch.setattr(gains, "TABLE_FILE", tmp_path / "absent.npz")
+    gains.forget()
     yield
-    gain_table.forget()
+    gains.forget()
 
 
 def _counted(monkeypatch) -> list[int]:
@@ -77,7 +90,7 @@ def _bank_inputs(period: float = 0.01):
 
 def _table_with(tmp_path, entry) -> Path:
     phi, c, poles, _ = _bank_inputs()
-    return gain_table.save(tmp_path / "t.npz", {gain_table.design_key(phi, c, poles): entry})
+    return observer_gains.save(tmp_path / "t.npz", {gains.design_key(phi, c, poles): entry})
 
 
 @pytest.mark.parametrize("damage", ["empty", "npy", "text", "other format",
@@ -95,16 +108,16 @@ def test_a_damaged_table_costs_speed_never_a_result(empty_memo, monkeypatch, tmp
         path.write_text("observer gains")
     elif damage == "other format":
         with path.open("wb") as fh:
-            np.savez(fh, **{gain_table.FORMAT_KEY: np.array("gyrodiag observer designs 0"),
-                            gain_table.design_key(phi, c, poles): right * 2.0})
+            np.savez(fh, **{gains.FORMAT_KEY: np.array("gyrodiag observer designs 0"),
+                            gains.design_key(phi, c, poles): right * 2.0})
     elif damage == "wrong values":
         _table_with(tmp_path, right * 2.0)
     elif damage == "wrong shape":
         _table_with(tmp_path, right[:, :2])
     else:
         _table_with(tmp_path, np.full_like(right, np.nan))
-    monkeypatch.setattr(gain_table, "TABLE_FILE", path)
-    gain_table.forget()  # read the table at the next design
+    monkeypatch.setattr(gains, "TABLE_FILE", path)
+    gains.forget()  # read the table at the next design
     calls = _counted(monkeypatch)
     for _ in range(2):  # the same answer every time, designed once
         np.testing.assert_array_equal(place_observer_gain(phi, c, poles), right)
@@ -113,30 +126,30 @@ def test_a_damaged_table_costs_speed_never_a_result(empty_memo, monkeypatch, tmp
 
 def test_a_sound_table_is_used_and_the_memo_is_bounded(empty_memo, monkeypatch, tmp_path):
     phi, c, poles, right = _bank_inputs()
-    monkeypatch.setattr(gain_table, "TABLE_FILE", _table_with(tmp_path, right))
-    gain_table.forget()
+    monkeypatch.setattr(gains, "TABLE_FILE", _table_with(tmp_path, right))
+    gains.forget()
     calls = _counted(monkeypatch)
     np.testing.assert_array_equal(place_observer_gain(phi, c, poles), right)
     assert calls[0] == 0
     with pytest.raises(ValueError, match="__format__"):
-        gain_table.save(tmp_path / "x.npz", {gain_table.FORMAT_KEY: right})
-    monkeypatch.setattr(gain_table, "MAX_REMEMBERED", 2)
+        observer_gains.save(tmp_path / "x.npz", {gains.FORMAT_KEY: right})
+    monkeypatch.setattr(gains, "MAX_REMEMBERED", 2)
     for k in range(3):
         place_observer_gain(phi, c, poles ** (k + 2))
-    assert len(gain_table.designs()) == 2  # the table's and one more
+    assert len(gains.designs()) == 2  # the table's and one more
     place_observer_gain(phi, c, poles ** 4)
     assert calls[0] == 4  # the third new design was not kept
 
 
 def test_default_designs_hold_the_bank_of_either_rule(empty_memo):
     ac = seed_aircraft()
-    table = gain_table.default_designs([0.01])
+    table = observer_gains.default_designs([0.01])
     assert len(table) == 21  # 6 single-sensor observers and 15 sensor pairs
-    assert gain_table.designs() == {}  # the process goes on with its own (no) table
+    assert gains.designs() == {}  # the process goes on with its own (no) table
     computed = design_observer_bank(ac.A, ac.B, ac.C, 0.01)
     for b in computed:
         o = b.observer
-        key = gain_table.design_key(o._phi, o._c,
+        key = gains.design_key(o._phi, o._c,
                                     np.exp(-np.arange(1.0, b.n_observable + 1.0) * 0.01))
         np.testing.assert_array_equal(table[key], o._l)
 
@@ -147,9 +160,9 @@ import sys
 sys.path.insert(0, {str(ROOT / 'fmu_src')!r})
 import numpy as np
 from pathlib import Path
-from gyrodiag import gain_table
-gain_table.TABLE_FILE = Path({str(table)!r})
-from gyrodiag.df_channel import DFChannel, DFChannelConfig
+from gyrodiag.df import gains
+gains.TABLE_FILE = Path({str(table)!r})
+from gyrodiag.df.channel import DFChannel, DFChannelConfig
 ch = DFChannel(DFChannelConfig(sample_period_s=0.01, decision={rule!r}, calibrate_s=2.0,
                                burn_in_s=0.2, align_auto=False))
 rng = np.random.default_rng(3)
@@ -177,9 +190,9 @@ def _library_thresholds(rule: str) -> np.ndarray:
 
 @pytest.mark.parametrize("rule", ["paper", "sequential"])
 def test_a_process_with_the_table_never_imports_scipy_signal(empty_memo, tmp_path, rule):
-    table = gain_table.save(tmp_path / "observer_gains.npz",
-                            gain_table.default_designs([0.01]))
-    gain_table.forget()
+    table = observer_gains.save(tmp_path / "observer_gains.npz",
+                            observer_gains.default_designs([0.01]))
+    gains.forget()
     imported, figures = _fresh_process_thresholds(table, rule)
     assert not imported
     np.testing.assert_array_equal(figures, _library_thresholds(rule))
@@ -201,7 +214,7 @@ def test_generator_command_writes_the_table(tmp_path):
     assert "42 observer designs" in proc.stdout
     with np.load(out) as table:
         assert len(table.files) == 42 + 1  # and the format entry
-        assert str(table[gain_table.FORMAT_KEY]) == gain_table.FORMAT
+        assert str(table[gains.FORMAT_KEY]) == gains.FORMAT
     bad = subprocess.run([sys.executable, str(ROOT / "fmu_src" / "tools" / "observer_gains.py"),
                           "--out", str(out), "--periods", "0"], capture_output=True, text=True,
                          timeout=600)
@@ -211,11 +224,11 @@ def test_generator_command_writes_the_table(tmp_path):
 def test_fmu_ships_the_table_once(fmu_dir):
     with zipfile.ZipFile(fmu_dir / "Diagnoser.fmu") as zf:
         names = zf.namelist()
-        assert names.count("resources/gyrodiag/observer_gains.npz") == 1
+        assert names.count("resources/gyrodiag/df/observer_gains.npz") == 1
         assert len(names) == len(set(names))
-        with zf.open("resources/gyrodiag/observer_gains.npz") as fh:
+        with zf.open("resources/gyrodiag/df/observer_gains.npz") as fh:
             table = np.load(fh)
-            assert len(table.files) == 21 * len(gain_table.DEFAULT_PERIODS_S) + 1
+            assert len(table.files) == 21 * len(observer_gains.DEFAULT_PERIODS_S) + 1
 
 
 @pytest.mark.parametrize(("rule", "period", "a23_scale", "designed"), [

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gyrodiag.aircraft import PAPER_EIGENVALUES, seed_aircraft
-from gyrodiag.detection_filter import design_detection_filter
-from gyrodiag.isolation import (
+from gyrodiag.df.filter import design_detection_filter
+from gyrodiag.df.isolation import (
     design_observer_bank,
     isolability_analysis,
     place_observer_gain,
 )
+from gyrodiag.df.plant import PAPER_EIGENVALUES, seed_aircraft
 
 MODEL = seed_aircraft()
 A, B, C = MODEL.A, MODEL.B, MODEL.C

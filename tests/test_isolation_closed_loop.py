@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from gyrodiag.aircraft import PAPER_EIGENVALUES, seed_aircraft
-from gyrodiag.detection_filter import design_detection_filter
-from gyrodiag.isolation import AMBIGUOUS, NO_FAULT, FaultType, SensorFaultIsolator
+from gyrodiag.df.filter import design_detection_filter
+from gyrodiag.df.isolation import AMBIGUOUS, NO_FAULT, FaultType, SensorFaultIsolator
+from gyrodiag.df.plant import PAPER_EIGENVALUES, seed_aircraft
 
 MODEL = seed_aircraft()
 A, B, C = MODEL.A, MODEL.B, MODEL.C

@@ -21,7 +21,8 @@ import pytest
 from reference import ref_dtg, ref_estimators, ref_grey, ref_prefilter
 from scipy import signal
 
-from gyrodiag import _accel, _pykernels, dtg, estimators, grey, prefilter
+from gyrodiag import dtg, grey
+from gyrodiag.common import _accel, _pykernels, estimators, prefilter
 from gyrodiag.demo import NOMINAL, simulate
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -39,7 +40,7 @@ def backend(request: pytest.FixtureRequest) -> Iterator[str]:
 
 def _has_compiled() -> bool:
     try:
-        from gyrodiag import _ckernels  # noqa: F401
+        from gyrodiag.common import _ckernels  # noqa: F401
     except ImportError:
         return False
     return True
@@ -53,11 +54,11 @@ def test_compiled_kernels_are_built_where_a_compiler_exists() -> None:
 
 
 def test_environment_variable_forces_the_fallback() -> None:
-    code = "import gyrodiag._accel as a; print(a.ACCELERATED, a.kernels.__name__)"
+    code = "import gyrodiag.common._accel as a; print(a.ACCELERATED, a.kernels.__name__)"
     env = {**os.environ, "GYRODIAG_KERNELS": "python"}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
                          text=True, check=True, cwd=ROOT, timeout=600).stdout.split()
-    assert out == ["False", "gyrodiag._pykernels"]
+    assert out == ["False", "gyrodiag.common._pykernels"]
 
 
 # ------------------------------------------------------------------ prefilter
@@ -244,7 +245,7 @@ def test_grey_state_round_trip_continues_identically(backend: str, kind: str) ->
 def test_compiled_kernels_equal_the_fallback_exactly() -> None:
     if not _has_compiled():
         pytest.skip(f"compiled kernels not built: {_accel.IMPORT_ERROR}")
-    from gyrodiag import _ckernels as ck
+    from gyrodiag.common import _ckernels as ck
 
     rng = np.random.default_rng(2)
     sections = (prefilter.butterworth_sos(6, 50.0, 1000.0, "low")
@@ -274,7 +275,7 @@ def test_compiled_kernels_equal_the_fallback_exactly() -> None:
 def test_compiled_kernels_reject_wrong_lengths() -> None:
     if not _has_compiled():
         pytest.skip(f"compiled kernels not built: {_accel.IMPORT_ERROR}")
-    from gyrodiag import _ckernels as ck
+    from gyrodiag.common import _ckernels as ck
 
     rls = ck.PotterRLS(5, 1.0, math.inf)
     with pytest.raises(ValueError, match="phi must hold 5 values, got 4"):
@@ -313,7 +314,7 @@ def test_linear_observer_kernel_equals_the_matrix_products(backend: str) -> None
 def test_compiled_observer_equals_the_fallback_exactly() -> None:
     if not _has_compiled():
         pytest.skip(f"compiled kernels not built: {_accel.IMPORT_ERROR}")
-    from gyrodiag import _ckernels as ck
+    from gyrodiag.common import _ckernels as ck
 
     rng = np.random.default_rng(9)
     n, p, m = 4, 1, 3

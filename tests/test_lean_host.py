@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from gyrodiag.demo import NOMINAL, simulate
-from gyrodiag.dtg_channel import DTGChannel, DTGChannelConfig
+from gyrodiag.dtg.channel import DTGChannel, DTGChannelConfig
 from gyrodiag.grey import GreyFaultDetector, ImprovedGreyPredictor
 
 RUNNER = Path(__file__).resolve().parent / "_lean_host_runner.py"

@@ -1,5 +1,5 @@
-"""Learning the DTG pattern library from training runs (harness.campaigns.pattern_learning),
-on synthetic runs whose statistics follow a known library."""
+"""Learning the DTG pattern library from training runs (gyrodiag.dtg.learning), on
+synthetic runs whose statistics follow a known library."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from _dtg_patterns import learned_library_dict
 
-from gyrodiag.dtg_patterns import PatternLibrary
-from harness.campaigns.pattern_learning import PatternRun, learn_patterns
+from gyrodiag.dtg.learning import PatternRun, learn_patterns
+from gyrodiag.dtg.patterns import PatternLibrary
 
 TRUE = PatternLibrary.from_dict(learned_library_dict())
 DT = 0.025  # one row per block

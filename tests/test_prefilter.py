@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from gyrodiag.prefilter import ButterworthPrefilter
+from gyrodiag.common.prefilter import ButterworthPrefilter
 
 
 def test_streaming_equals_sosfilt_on_whole_record():

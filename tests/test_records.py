@@ -1,4 +1,4 @@
-"""gyrodiag._records.fast_init: the per-sample output records keep the dataclass
+"""gyrodiag.common._records.fast_init: the per-sample output records keep the dataclass
 contract (signature, defaults, factories, frozen, equality, replace)."""
 
 from __future__ import annotations
@@ -9,11 +9,11 @@ import inspect
 import numpy as np
 import pytest
 
-from gyrodiag._records import fast_init
-from gyrodiag.df_channel import DFChannelOutput
-from gyrodiag.dtg_channel import DTGChannelOutput
+from gyrodiag.common._records import fast_init
+from gyrodiag.df.channel import DFChannelOutput
+from gyrodiag.df.sequential_diagnosis import DiagnosisOutput
+from gyrodiag.dtg.channel import DTGChannelOutput
 from gyrodiag.grey import GreyDetectorOutput
-from gyrodiag.sequential_diagnosis import DiagnosisOutput
 
 
 @dataclasses.dataclass(frozen=True)

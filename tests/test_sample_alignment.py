@@ -20,9 +20,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _system_chain import PitchCommand, run_chain  # noqa: E402
 
-from gyrodiag.case_rate_alignment import CaseRateAligner  # noqa: E402
-from gyrodiag.df_channel import DFChannel, DFChannelConfig  # noqa: E402
-from gyrodiag.dtg_channel import DTGChannel, DTGChannelConfig  # noqa: E402
+from gyrodiag.df.channel import DFChannel, DFChannelConfig  # noqa: E402
+from gyrodiag.dtg.alignment import CaseRateAligner  # noqa: E402
+from gyrodiag.dtg.channel import DTGChannel, DTGChannelConfig  # noqa: E402
 from harness.cosim.master import plan_coupling  # noqa: E402
 from harness.cosim.scenario import Connection, load_scenario  # noqa: E402
 from harness.cosim.timing import timing_parameters  # noqa: E402
@@ -123,7 +123,7 @@ def test_aligner_rss_prefers_the_right_pairing_after_an_edge(chain) -> None:
     """Known answer of the model selection: after the first edge the right pairing's
     residual sum of squares is the least, the neighbours' above 1.2 times it (measured
     1.32 and 1.28 50 ms after the edge, 3.6 and 2.2 two samples off)."""
-    from gyrodiag.prefilter import ButterworthPrefilter
+    from gyrodiag.common.prefilter import ButterworthPrefilter
 
     rows = _dtg_rows(chain, 1)
     f = ButterworthPrefilter(6, 50.0, 1.0 / T, 6)

@@ -1,4 +1,4 @@
-"""Read-out dynamics in the detection filter's sensor model (gyrodiag.sensor_dynamics,
+"""Read-out dynamics in the detection filter's sensor model (gyrodiag.df.sensor_dynamics,
 models/dtg/gd_dtg_readout.py).
 
 * the DTG read-out model equals the simulated gyro's read-out to 1e−12 (both sets, both
@@ -23,10 +23,10 @@ import numpy as np
 import pytest
 from _system_chain import PitchCommand, run_chain
 
-from gyrodiag.aircraft import seed_aircraft
-from gyrodiag.detection_filter import DetectionFilter, design_detection_filter, zoh_discretise
-from gyrodiag.df_channel import DFChannel, DFChannelConfig
-from gyrodiag.sensor_dynamics import SensorDynamics, SensorDynamicsEqualiser
+from gyrodiag.df.channel import DFChannel, DFChannelConfig
+from gyrodiag.df.filter import DetectionFilter, design_detection_filter, zoh_discretise
+from gyrodiag.df.plant import seed_aircraft
+from gyrodiag.df.sensor_dynamics import SensorDynamics, SensorDynamicsEqualiser
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT / "models" / "dtg") not in sys.path:

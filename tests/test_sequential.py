@@ -1,4 +1,4 @@
-"""Sequential tests (gyrodiag.sequential) and the residual model (gyrodiag.residual_model):
+"""Sequential tests (gyrodiag.common.cusum) and the residual model (gyrodiag.df.residual):
 known answers for CUSUM run lengths, the shipped threshold table, the chart bank, and
 the whitening of the detection filter's coloured residual (docs/methods.md §4)."""
 
@@ -8,10 +8,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from gyrodiag.aircraft import seed_aircraft
-from gyrodiag.detection_filter import DetectionFilter, design_detection_filter
-from gyrodiag.residual_model import ResidualModel, estimate_sensor_variances
-from gyrodiag.sequential import (
+from gyrodiag.common.cusum import (
     TABLE_K,
     TABLE_LOG10_ARL,
     TABLE_RATIO,
@@ -23,6 +20,9 @@ from gyrodiag.sequential import (
     variance_cusum_increment,
     variance_cusum_threshold,
 )
+from gyrodiag.df.filter import DetectionFilter, design_detection_filter
+from gyrodiag.df.plant import seed_aircraft
+from gyrodiag.df.residual import ResidualModel, estimate_sensor_variances
 
 NOISE_STD = np.array([0.05, 1e-3, 1e-3, 1e-3, 1e-3, 0.2])
 T = 0.01

@@ -1,5 +1,5 @@
 """Sequential diagnosis of the closed-loop seed aircraft at library level
-(gyrodiag.sequential_diagnosis): detection of small biases, isolation of one and two
+(gyrodiag.df.sequential_diagnosis): detection of small biases, isolation of one and two
 faulty sensors, fault typing, episodes, false-alarm rate of the residual model."""
 
 import math
@@ -9,8 +9,8 @@ import pytest
 from _aircraft_loop import DT, NOISE_STD, A, B, C, simulate
 from _aircraft_loop import Fault as F
 
-from gyrodiag.detection_filter import design_detection_filter
-from gyrodiag.sequential_diagnosis import (
+from gyrodiag.df.filter import design_detection_filter
+from gyrodiag.df.sequential_diagnosis import (
     FaultKind,
     SequentialDiagnoser,
     SequentialSettings,

@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 from _system_chain import ROOT, PitchCommand, run_chain
 
-from gyrodiag.df_channel import DFChannel, DFChannelConfig
-from gyrodiag.dtg import N_THETA
-from gyrodiag.dtg_channel import DTGChannel, DTGChannelConfig
-from gyrodiag.dtg_patterns import PatternLibrary
-from gyrodiag.sensor_dynamics import SensorDynamics, SensorDynamicsEqualiser
+from gyrodiag.df.channel import DFChannel, DFChannelConfig
+from gyrodiag.df.sensor_dynamics import SensorDynamics, SensorDynamicsEqualiser
+from gyrodiag.dtg.channel import DTGChannel, DTGChannelConfig
+from gyrodiag.dtg.model import N_THETA
+from gyrodiag.dtg.patterns import PatternLibrary
 
 sys.path.insert(0, str(ROOT / "models" / "dtg"))
 import gd_dtg_readout as readout

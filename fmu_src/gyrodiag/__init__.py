@@ -1,23 +1,28 @@
 """gyrodiag: gyro and flight-control sensor fault diagnosis algorithms.
 
 Plain numpy/scipy/python-control classes with explicit state and no FMI knowledge;
-the Diagnoser FMU facade only maps variables onto them.
+the Diagnoser FMU facade only maps variables onto them. One package per method, and
+one they share (importing ``gyrodiag`` imports none of them):
+
+Packages
+--------
+dtg
+    Dynamically tuned gyro: rotor model, case rate, nominal reference, response
+    patterns and their learning, the paper's decision, the DTG channel.
+grey
+    GM(1,1), the moving-window grey predictors and the grey fault detector (HRG).
+df
+    Detection filter on the seed aircraft: plant, filter design, isolation, residual
+    model, sensor dynamics, the sequential decision rule, observer gains, the DF
+    channel.
+common
+    Shared: prefilter, estimators, CUSUM tests and their threshold table,
+    distributions, validation, records and the per-sample kernels.
 
 Modules
 -------
-prefilter
-    Streaming Butterworth low-pass (second-order sections with carried state).
-dtg
-    Dynamically tuned gyro rotor model: regressors, θ ↔ physical parameters.
-estimators
-    Sliding-window batch least squares, RLS, RLS with forgetting factor.
-decision
-    Ratio thresholds, log10 feature vectors, nearest-signature classification.
-grey
-    GM(1,1) and the improved moving-window grey predictor and detector (HRG).
-detection_filter, isolation, aircraft
-    Beard–Jones detection filter, residual thresholds, isolability analysis and sensor
-    fault isolation on the seed aircraft.
+demo
+    A short end-to-end DTG identification demo (``python -m gyrodiag.demo``).
 """
 
 __version__ = "0.1.0"

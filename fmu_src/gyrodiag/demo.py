@@ -15,16 +15,16 @@ import dataclasses
 import numpy as np
 from scipy import signal
 
-from .decision import ThresholdDecision, feature_vector
-from .dtg import (
+from .common.estimators import ForgettingRLS
+from .common.prefilter import ButterworthPrefilter
+from .dtg.decision import ThresholdDecision, feature_vector
+from .dtg.model import (
     DTGParameters,
     DTGRegressor,
     physical_from_theta,
     rotor_state_space,
     theta_from_physical,
 )
-from .estimators import ForgettingRLS
-from .prefilter import ButterworthPrefilter
 
 T_S = 1e-3
 NOMINAL = DTGParameters(J=1.0, c=40.0, k=800.0, L=-30.0, lam=50.0, Ku=500.0, KT=0.5)

@@ -150,7 +150,7 @@ def _df_sequential(scenario: Any, diagnoser: str) -> bool:
     """The detection-filter channel decides sequentially (``df.decision`` = 1, or 2 -
     auto, the default - without a read-out model) rather than by the paper's rule (0,
     or auto with ``df.sensor_dynamics_file``), as the Diagnoser chooses."""
-    from gyrodiag.df_channel import DECISION_AUTO, decision_rule
+    from gyrodiag.df.channel import DECISION_AUTO, decision_rule
 
     code = int(_param(scenario, diagnoser, "df.decision", DECISION_AUTO))
     name = "df.sensor_dynamics_file"  # a parameter, or (a path) in the instance's files

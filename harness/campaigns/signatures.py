@@ -19,8 +19,8 @@ Learning
    run must complete and end in DTG alarm (``dtg.alarm`` = 1 at the last sample):
    otherwise its feature would be the nominal one and the command fails.
 2. Feature of a run: at each sample, C = round(log10 η) per axis
-   (:func:`gyrodiag.decision.feature_vector`) and the axis with the larger Σ|C_i|
-   (x on ties) — the rule by which ``gyrodiag.dtg_channel`` picks the vector it
+   (:func:`gyrodiag.dtg.decision.feature_vector`) and the axis with the larger Σ|C_i|
+   (x on ties) — the rule by which ``gyrodiag.dtg.channel`` picks the vector it
    classifies.  The run's feature is the element-wise median of these vectors over the
    alarm samples of the final ``window_s`` seconds (``window_s`` = 0: the last sample
    only), rounded half away from zero.  A window rather than one sample, because the
@@ -127,7 +127,7 @@ def run_feature(result: RunResult, diagnoser: str, signature: str,
     KeyError
         If a needed signal was not recorded (names it).
     """
-    from gyrodiag.decision import feature_vector, median_feature
+    from gyrodiag.dtg.decision import feature_vector, median_feature
 
     if not (isinstance(window_s, (int, float)) and math.isfinite(window_s) and window_s >= 0):
         raise ValueError(f"window_s must be a finite number >= 0 s, got {window_s!r}")
@@ -288,7 +288,7 @@ def learn_signatures(scenarios: Sequence[Scenario], results: Sequence[RunResult]
     ScenarioError, ValueError, KeyError
         See :func:`check_training_scenarios` and :func:`run_feature`.
     """
-    from gyrodiag.decision import median_feature
+    from gyrodiag.dtg.decision import median_feature
 
     if len(scenarios) != len(results):
         raise ValueError(f"{len(scenarios)} scenarios but {len(results)} runs")
@@ -322,9 +322,10 @@ def learn_pattern_library(scenarios: Sequence[Scenario], results: Sequence[RunRe
     ------
     ScenarioError, ValueError, KeyError
         See :func:`check_training_scenarios` and
-        :func:`harness.campaigns.pattern_learning.learn_patterns`.
+        :func:`gyrodiag.dtg.learning.learn_patterns`.
     """
-    from harness.campaigns.pattern_learning import learn_patterns, pattern_run
+    from gyrodiag.dtg.learning import learn_patterns
+    from harness.campaigns.pattern_learning import pattern_run
 
     if len(scenarios) != len(results):
         raise ValueError(f"{len(scenarios)} scenarios but {len(results)} runs")
@@ -340,7 +341,7 @@ def learn_pattern_library(scenarios: Sequence[Scenario], results: Sequence[RunRe
                          f"dtg.long_window_s: {sorted(settings)}; learn one library per "
                          "setting")
     period, short_s, long_s = settings.pop()
-    block_s = max(1, round(0.025 / period)) * period  # gyrodiag.dtg_channel.BLOCK_S
+    block_s = max(1, round(0.025 / period)) * period  # gyrodiag.dtg.channel.BLOCK_S
     runs = [pattern_run(s, r) for s, r in zip(scenarios, results, strict=True)]
     lib, record = learn_patterns(runs, codes, sample_period_s=period, block_s=block_s,
                                  short_window_s=short_s, long_window_s=long_s)

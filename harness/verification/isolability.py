@@ -2,7 +2,7 @@
 
 Which faults on the six sensors (v, α, q, ϑ, γ, h) the detection-filter channel can
 detect and from which other sensors it can tell them apart, worked out from the model by
-:func:`gyrodiag.isolation.isolability_analysis` (docs/methods.md §4: main Beard–Jones filter with
+:func:`gyrodiag.df.isolation.isolability_analysis` (docs/methods.md §4: main Beard–Jones filter with
 F = I, eigenvalues −1 … −5, plus the bank of observers each without one sensor).
 
 This is analysis, not simulation: the harness still knows the FMUs only through fmpy;
@@ -49,10 +49,10 @@ def seed_isolability_report(eigenvalues: list[float] | None = None) -> Any:
 
     Returns
     -------
-    gyrodiag.isolation.IsolabilityReport
+    gyrodiag.df.isolation.IsolabilityReport
     """
-    from gyrodiag.aircraft import seed_aircraft
-    from gyrodiag.isolation import isolability_analysis
+    from gyrodiag.df.isolation import isolability_analysis
+    from gyrodiag.df.plant import seed_aircraft
 
     model = seed_aircraft()
     return isolability_analysis(model.A, model.C, list(model.output_names),
@@ -134,7 +134,7 @@ def render(report: Any, fmt: str = "text") -> str:
 
     Parameters
     ----------
-    report : gyrodiag.isolation.IsolabilityReport
+    report : gyrodiag.df.isolation.IsolabilityReport
         From :func:`seed_isolability_report`.
     fmt : {"text", "json", "html"}
         Output format.

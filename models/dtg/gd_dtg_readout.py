@@ -4,7 +4,7 @@ At steady state the read-out is exact (Ku·Ux = L·ωy), but the loop takes its 
 the paper set the read-out of a pitch-rate sine has gain 0.74 at 1 Hz and an 83 ms lag
 at 0.1 Hz.  This module builds the exact sampled model of that path (rotor and
 controller as ``gd_dtg_sim`` steps them, noise-free and fault-free) for a detection
-filter that must model its q sensor (gyrodiag.sensor_dynamics), and writes it in the
+filter that must model its q sensor (gyrodiag.df.sensor_dynamics), and writes it in the
 JSON format the Diagnoser reads (``df.sensor_dynamics_file``)::
 
     python models/dtg/gd_dtg_readout.py --set 1 --axis y --sensor 3 --step 0.001 --out FILE

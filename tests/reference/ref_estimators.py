@@ -16,7 +16,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gyrodiag._validation import check_finite_array, check_in_range, check_int, check_positive
+from gyrodiag.common._validation import (
+    check_finite_array,
+    check_in_range,
+    check_int,
+    check_positive,
+)
 
 __all__ = ["RLS", "ForgettingRLS", "SlidingWindowLS", "batch_ls"]
 

@@ -44,7 +44,7 @@ from typing import Any, Literal, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gyrodiag._validation import (
+from gyrodiag.common._validation import (
     check_finite_array,
     check_int,
     check_nonnegative,

@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import signal
 
-from gyrodiag._validation import check_finite_array, check_int, check_positive
+from gyrodiag.common._validation import check_finite_array, check_int, check_positive
 
 __all__ = ["ButterworthPrefilter"]
 

@@ -8,9 +8,9 @@ an initial fault-free window (or takes it as given). Two classifiers:
   axis is judged by the ratio band on η = |θ|/|θ0| and an alarm is classified by the
   nearest decade signature C = round(log10 η).
 * ``"pattern"`` (default): the learning window is checked and frozen as a nominal
-  reference (:mod:`gyrodiag.dtg_reference`); residual tests against it keep an alarm for
+  reference (:mod:`gyrodiag.dtg.reference`); residual tests against it keep an alarm for
   as long as a fault lasts; an alarm is classified by fitting the learned response
-  patterns of every fault type on every signal (:mod:`gyrodiag.dtg_patterns`), which
+  patterns of every fault type on every signal (:mod:`gyrodiag.dtg.patterns`), which
   names the fault type, the signal and axis, a distance and the fault's size. The ratio
   band on η still alarms too (physical faults move θ without changing the residuals
   much) and such an alarm is classified against the physical classes.
@@ -30,15 +30,22 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from ._records import fast_init
-from ._validation import (
+from ..common._records import fast_init
+from ..common._validation import (
     check_finite_array,
     check_in_range,
     check_int,
     check_nonnegative,
     check_positive,
 )
-from .case_rate_alignment import CaseRateAligner
+from ..common.estimators import RLS, ForgettingRLS, SlidingWindowLS
+from ..common.prefilter import ButterworthPrefilter
+from .alignment import CaseRateAligner
+from .case_rate import (
+    CASE_RATE_SCHEMES,
+    CaseRateDTGRegressor,
+    physical_from_theta_central,
+)
 from .decision import (
     UNKNOWN_CODE,
     SignatureClassifier,
@@ -46,14 +53,9 @@ from .decision import (
     WindowedMedianFeature,
     feature_floats,
 )
-from .dtg import N_THETA, DTGRegressor
-from .dtg_case_rate import (
-    CASE_RATE_SCHEMES,
-    CaseRateDTGRegressor,
-    physical_from_theta_central,
-)
-from .dtg_patterns import PatternClassifier, PatternLibrary, PatternResult
-from .dtg_reference import (
+from .model import N_THETA, DTGRegressor
+from .patterns import PatternClassifier, PatternLibrary, PatternResult
+from .reference import (
     ALLOWANCE_SIGMA,
     N_CHANNELS,
     N_TESTS,
@@ -67,8 +69,6 @@ from .dtg_reference import (
     ResidualMonitor,
     ResidualThresholds,
 )
-from .estimators import RLS, ForgettingRLS, SlidingWindowLS
-from .prefilter import ButterworthPrefilter
 
 __all__ = [
     "CLASSIFIERS",
@@ -97,12 +97,15 @@ STATUS_FAILED = 5
 OMEGA_EXCITATION_Z = 6.0
 #: Case rate in a manoeuvre: a signal-fault fit to the residuals alone worse than this
 #: (distance per library component) leaves a band alarm to the physical classes. In a
-#: manoeuvre the physical fits are poor for every fault, a signal fault's residual fit
-#: is good (docs/notes.md, DTG channel constants).
+#: manoeuvre the physical fits are poor for every fault (distance 13-18 measured, spin
+#: included), while a signal fault's residual fit is 0.04-0.08 and a spin's ~4.
 MASKED_SIGNAL_FIT = 1.0
 #: Default significance of a band violation, standard errors (:attr:`DTGChannelConfig.
-#: band_sigma`): above the calm-air wander, below a ±10 % torquer gain's shift
-#: (docs/dtg_case_rate.md §10; figures: docs/notes.md, DTG channel constants).
+#: band_sigma`). Library chain, calm level flight: largest |θ − θ0| in 4 × 600 s 3.95 of
+#: them (θ5, whose standard error is accurate; ≤ 1.9 on θ3/θ4, whose v·A⁻¹ is
+#: conservative); with 3× the pick-off noise θ5 left the band at 3.6-3.9 of them (3
+#: false-alarmed there, 5 did not); torquer gain ±10 % reaches 5 within 4-8.5 s
+#: (docs/dtg_case_rate.md §10).
 BAND_SIGMA = 5.0
 #: Smallest spread of the learning blocks' ω used for that test, rad/s (a noise-free
 #: case rate would make every rounding a manoeuvre).
@@ -150,7 +153,7 @@ class DTGChannelConfig:
         estimator): a ratio outside the band counts as a violation only where θ also
         lies more than this many standard errors from the band's θ0, the standard error
         combining the estimate's (v·P/(1 + λ), P its RLS covariance) and θ0's (v·A⁻¹,
-        :class:`~gyrodiag.dtg_reference.NominalReference`); θ0 is then refined by the
+        :class:`~gyrodiag.dtg.reference.NominalReference`); θ0 is then refined by the
         blocks quiet in the residual tests and within half this many standard errors.
         In calm level flight the fast estimate of θ3/θ4 wanders by ~1.6 % (τ ≈ 5 s)
         about a θ0 known to ~1.6 %, so a fixed 7 % band alone false-alarms within
@@ -168,7 +171,7 @@ class DTGChannelConfig:
     classify_window_s : float
         Paper classifier: an alarm is classified by the median feature of the alarm
         samples in the last ``classify_window_s`` seconds, both ends included
-        (round(w/T) + 1 samples; :func:`~gyrodiag.decision.median_feature`), the rule by
+        (round(w/T) + 1 samples; :func:`~gyrodiag.dtg.decision.median_feature`), the rule by
         which signatures are learned (``harness learn-signatures``, 0.5 s); the
         per-sample feature flickers between classes. 0: each sample's own feature (the
         paper's rule).
@@ -184,16 +187,17 @@ class DTGChannelConfig:
     long_window_s : float
         Window of the long variance test and the longest classification window, s.
     level_threshold, var_threshold, long_var_threshold : float
-        Raise thresholds of the residual tests (:class:`~gyrodiag.dtg_reference.
+        Raise thresholds of the residual tests (:class:`~gyrodiag.dtg.reference.
         ResidualThresholds`): level z, short- and long-window variance ratios.
     theta_spread_threshold : float
         Learning guard: a segment's θ spread against the segments before it.
     power_threshold : float
-        Threshold h of the residuals' low-frequency power CUSUM (:mod:`~gyrodiag.
-        dtg_reference`; the torquer read-out noise witness); 0 switches it off.
+        Threshold h of the residuals' low-frequency power CUSUM
+        (:mod:`~gyrodiag.dtg.reference`; the torquer read-out noise witness); 0 switches
+        it off.
     allowance_sigma : float
         Case rate only: the reference's error the variance-type residual tests allow
-        for, in standard deviations of its covariance (:class:`~gyrodiag.dtg_reference.
+        for, in standard deviations of its covariance (:class:`~gyrodiag.dtg.reference.
         ResidualThresholds`; 1 is the channel's first, tighter rule).
     clear_after_s : float
         An alarm of the residual tests clears this long after the last block in which a
@@ -202,7 +206,7 @@ class DTGChannelConfig:
         None (default): the paper's regression, the case at rest; ``update``'s case rates
         are ignored. Otherwise the case rates ωx, ωy given to ``update`` (rad/s, an
         estimate that does not come from the gyro under test, e.g. a second gyro) enter
-        the regression in that discretisation (:mod:`gyrodiag.dtg_case_rate`,
+        the regression in that discretisation (:mod:`gyrodiag.dtg.case_rate`,
         docs/dtg_case_rate.md): they go through the prefilter with the voltages, θ0 and
         the reference are per axis (``theta0`` of shape (5,) is used for both axes, or
         give (2, 5)), ``physical`` inverts the central scheme's θ with ``"central"``.
@@ -223,7 +227,7 @@ class DTGChannelConfig:
         Case rate only: choose d in −this … this from the data (0, the default: keep
         ``case_rate_delay_samples``). For hosts whose timing is unknown; measured limits
         in docs/dtg_case_rate.md §9 (in calm level flight the pairings' fits differ by
-        noise only, and a choice made there can bias θ0). :class:`~gyrodiag.case_rate_alignment.
+        noise only, and a choice made there can bias θ0). :class:`~gyrodiag.dtg.alignment.
         CaseRateAligner`, docs/dtg_case_rate.md §9: the first fast change of the case
         rate shows which pairing fits.
     case_rate_lookahead_s : float
@@ -418,7 +422,7 @@ class DTGDiagnosis:
     Attributes
     ----------
     reference_status : int
-        :data:`~gyrodiag.dtg_reference.REFERENCE_STATUS` code (0 learning, 1 valid,
+        :data:`~gyrodiag.dtg.reference.REFERENCE_STATUS` code (0 learning, 1 valid,
         2 change inside the learning window, 3 prior mismatch: prior in use), or
         :data:`STATUS_NOT_CHECKED` (4, paper classifier with too little data) or
         :data:`STATUS_FAILED` (5, no usable data in the learning window: no reference,
@@ -428,8 +432,8 @@ class DTGDiagnosis:
     class_name : str
         Name of the class in ``fault_code`` ("" none, "unknown").
     fault_type, fault_signal, fault_axis : int
-        Codes of :data:`~gyrodiag.dtg_patterns.FAULT_TYPES` (1 step, 2 noise, 3 loss,
-        4 drift, 5 spin, 6 torquer), :data:`~gyrodiag.dtg_patterns.SIGNALS` (1 Utx,
+        Codes of :data:`~gyrodiag.dtg.patterns.FAULT_TYPES` (1 step, 2 noise, 3 loss,
+        4 drift, 5 spin, 6 torquer), :data:`~gyrodiag.dtg.patterns.SIGNALS` (1 Utx,
         2 Uty, 3 Ux, 4 Uy; 0 physical) and axes (1 x, 2 y, 3 both); 0 no alarm, −1
         unknown.
     distance : float
@@ -1219,7 +1223,7 @@ class DTGChannel:
         self._hist_filtered = [tuple(r) for r in np.asarray(
             buffers["history"], dtype=float).reshape(2, self._width).tolist()]
         self._gap = int(buffers["gap"])
-        omega = state.get("omega")  # absent in a state saved by an older version
+        omega = state.get("omega")  # absent in a state saved before 2026-11-25
         if omega is None:
             self._omega_learn, self._omega_ref = [], None
             self._omega_dev = deque(maxlen=self._long_blocks)
@@ -1263,7 +1267,7 @@ class DTGChannel:
 
     def _set_alignment_state(self, state: dict[str, Any] | None) -> None:
         self._reset_alignment()
-        if state is None:  # a state saved by an older version: no queue, delay as configured
+        if state is None:  # a state saved before 2026-11-26: no queue, delay as configured
             return
         if (state["aligner"] is None) != (self._aligner is None):
             raise ValueError("state['alignment'] does not match case_rate_align_max")
@@ -1305,7 +1309,7 @@ def _ringing_samples(config: DTGChannelConfig, T: float) -> int:
 
 def _physical(th_x: tuple[float, ...], th_y: tuple[float, ...],
               T: float) -> NDArray[np.float64]:
-    """:func:`~gyrodiag.dtg.physical_from_theta` of the mean θ of both axes, on plain
+    """:func:`~gyrodiag.dtg.model.physical_from_theta` of the mean θ of both axes, on plain
     floats (same operations, same values); NaN where the inversion is undefined."""
     t1 = (th_x[0] + th_y[0]) / 2.0
     t2 = (th_x[1] + th_y[1]) / 2.0

@@ -1,7 +1,7 @@
 """Magnitude-free, axis-aware classification of DTG faults by response patterns.
 
 A fault class is a fault type on one signal (or a physical fault of the gyro), and its
-*signature* is how the channel statistics of :mod:`gyrodiag.dtg_reference` respond to
+*signature* is how the channel statistics of :mod:`gyrodiag.dtg.reference` respond to
 it per unit of fault size, learned from training runs (``harness learn-signatures``):
 
 =========  ===========================================================================
@@ -44,10 +44,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ._validation import check_finite_array, check_nonnegative, check_positive
+from ..common._validation import check_finite_array, check_nonnegative, check_positive
 from .decision import UNKNOWN_CODE
-from .dtg import N_THETA
-from .dtg_reference import N_CHANNELS, ClassificationStatistics, NominalPrior
+from .model import N_THETA
+from .reference import N_CHANNELS, ClassificationStatistics, NominalPrior
 
 __all__ = [
     "AXIS_CODES",
@@ -62,7 +62,7 @@ __all__ = [
 ]
 
 #: File format tag of a pattern library.
-FORMAT = "gyrodiag.dtg-patterns/1"
+FORMAT = "gyrodiag.dtg.model-patterns/1"
 #: Fault types; their codes (``dtg.fault_type``) are the 1-based positions.
 FAULT_TYPES = ("step", "noise", "loss", "drift", "spin", "torquer")
 SIGNAL_TYPES = ("step", "noise", "loss", "drift")

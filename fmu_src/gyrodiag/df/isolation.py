@@ -30,14 +30,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gyrodiag import gain_table
-from gyrodiag._validation import (
+from gyrodiag.common._validation import (
     check_finite_array,
     check_in_range,
     check_int,
     check_positive,
 )
-from gyrodiag.detection_filter import (
+from gyrodiag.df import gains
+from gyrodiag.df.filter import (
     DetectionFilter,
     DiscreteObserver,
     ResidualEvaluator,
@@ -98,24 +98,24 @@ def place_observer_gain(A: ArrayLike, C: ArrayLike, poles: ArrayLike) -> _FloatA
     stay visible in the residual.
 
     A design already made in this process, or shipped in the Diagnoser's table of
-    default designs, is not computed again (:mod:`gyrodiag.gain_table`: importing
+    default designs, is not computed again (:mod:`gyrodiag.df.gains`: importing
     ``scipy.signal`` is most of the detection filter's start-up).
     """
     a = check_finite_array("A", A, ndim=2)
     c = check_finite_array("C", C, shape=(None, a.shape[0]))
     p = np.asarray(poles)
-    key = gain_table.design_key(a, c, p)
+    key = gains.design_key(a, c, p)
     want = np.sort_complex(p.astype(complex))
-    gain = gain_table.lookup(key)
+    gain = gains.lookup(key)
     if gain is not None and not _places(a, c, gain, want):
-        gain_table.drop(key)  # a damaged table entry: design it
+        gains.drop(key)  # a damaged table entry: design it
         gain = None
     if gain is None:
         gain = _placed_gain(a, c, p)
         if not _places(a, c, gain, want):
             got = np.sort_complex(np.linalg.eigvals(a - gain @ c))
             raise ValueError(f"poles could not be placed: wanted {want}, got {got}")
-        gain_table.remember(key, gain)  # a hit is remembered already
+        gains.remember(key, gain)  # a hit is remembered already
     return gain
 
 

@@ -15,7 +15,7 @@ steady-state one-step predictor of ``r`` from its own past, whose prediction err
 ``ε = r − C ê`` is white with covariance S. The detection filter's residual is
 slightly coloured (docs/methods.md §4: lag-1 autocorrelation 0.06 on q, but a long-run variance
 5.3 times the variance, which is what a CUSUM integrates); the whitened residual makes
-the CUSUM thresholds of :mod:`gyrodiag.sequential` exact.
+the CUSUM thresholds of :mod:`gyrodiag.common.cusum` exact.
 
 Sensors that no other sensor observes (v, h of the seed aircraft) give residual channels
 with no power at frequency 0 (a constant offset of them is a state, docs/methods.md §4): their
@@ -34,7 +34,7 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
-from ._validation import check_finite_array, check_in_range
+from ..common._validation import check_finite_array, check_in_range
 
 __all__ = ["ResidualModel", "Whitening", "estimate_sensor_variances"]
 

@@ -1,8 +1,8 @@
 """Per-sample kernels in plain Python floats (the fallback of the compiled accelerator).
 
-Same classes and functions as the C extension ``gyrodiag._ckernels`` (see
+Same classes and functions as the C extension ``gyrodiag.common._ckernels`` (see
 ``_ckernels.c``), with the same arithmetic in the same order, so that both give the
-same outputs to rounding. Callers go through :mod:`gyrodiag._accel`, which picks one.
+same outputs to rounding. Callers go through :mod:`gyrodiag.common._accel`, which picks one.
 
 Nothing here checks its arguments: the algorithm classes validate once at their
 boundary and call these kernels on plain floats (a numpy call on a 5-element array

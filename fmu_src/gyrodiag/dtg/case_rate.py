@@ -53,7 +53,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._validation import check_finite_array, check_positive
+from ..common._validation import check_finite_array, check_positive
 
 __all__ = [
     "CASE_RATE_SCHEMES",

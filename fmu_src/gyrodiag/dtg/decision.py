@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._validation import check_finite_array, check_int, check_nonnegative, check_positive
+from ..common._validation import check_finite_array, check_int, check_nonnegative, check_positive
 
 __all__ = [
     "UNKNOWN_CODE",

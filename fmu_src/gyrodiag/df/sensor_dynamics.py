@@ -35,7 +35,7 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
-from ._validation import check_finite_array, check_int, check_positive
+from ..common._validation import check_finite_array, check_int, check_positive
 
 __all__ = ["SensorDynamics", "SensorDynamicsEqualiser"]
 

@@ -141,7 +141,7 @@ class RLS(_Estimator):
     Notes
     -----
     The per-sample arithmetic runs in a kernel on plain floats (compiled, or its
-    plain-Python fallback, see :mod:`gyrodiag._accel`); :meth:`step` is the unchecked
+    plain-Python fallback, see :mod:`gyrodiag.common._accel`); :meth:`step` is the unchecked
     hot path for callers that validated the sample already.
     """
 

@@ -5,12 +5,12 @@ Building blocks
 ---------------
 * A :class:`ResidualGenerator` is an observer of the plant driven by a subset of the
   sensors, followed by the filter that whitens its residual
-  (:mod:`gyrodiag.residual_model`): its output is a vector of standardised innovations,
+  (:mod:`gyrodiag.df.residual`): its output is a vector of standardised innovations,
   white N(0, 1) per channel when the sensors it uses are fault-free. The *main*
   generator is the Beard–Jones detection filter on all sensors; generator ``¬S`` leaves
   out the sensors of S (one or two) and so cannot see their faults.
 * :class:`ObserverStack` runs any set of generators as one linear system
-  (one matrix–vector product per sample), :class:`~gyrodiag.sequential.CusumBank`
+  (one matrix–vector product per sample), :class:`~gyrodiag.common.cusum.CusumBank`
   tests their outputs.
 
 Decision (:class:`SequentialDiagnoser`)
@@ -57,25 +57,25 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
-from ._distributions import chi2_ppf
-from ._records import fast_init
-from ._validation import (
+from ..common._distributions import chi2_ppf
+from ..common._records import fast_init
+from ..common._validation import (
     check_finite_array,
     check_in_range,
     check_int,
     check_nonnegative,
     check_positive,
 )
-from .detection_filter import DetectionFilter, observable_subspace, zoh_discretise
-from .isolation import place_observer_gain
-from .residual_model import ResidualModel, Whitening
-from .sequential import (
+from ..common.cusum import (
     CusumBank,
     arl_for_rate,
     mean_cusum_threshold,
     variance_cusum_increment,
     variance_cusum_threshold,
 )
+from .filter import DetectionFilter, observable_subspace, zoh_discretise
+from .isolation import place_observer_gain
+from .residual import ResidualModel, Whitening
 
 __all__ = [
     "MULTIPLE",
@@ -209,7 +209,7 @@ def design_residual_generator(
     """Design one generator (inputs are assumed validated by the caller).
 
     The main generator (``excluded = ()``) takes the Beard–Jones gain ``main_gain``
-    discretised as :class:`~gyrodiag.detection_filter.DetectionFilter` does; the others
+    discretised as :class:`~gyrodiag.df.filter.DetectionFilter` does; the others
     place the poles exp(λ T) of their observable subspace, λ = ``eigenvalues`` (default
     −1, −2, …).
     """
@@ -389,7 +389,7 @@ class SequentialSettings:
     memory_s : float
         The hypothesis generators stop this long after the last episode ended, s.
     regularisation : float
-        Whitening regularisation (see :mod:`gyrodiag.residual_model`).
+        Whitening regularisation (see :mod:`gyrodiag.df.residual`).
     bank_eigenvalues : tuple of float or None
         Continuous eigenvalues of the hypothesis observers, 1/s (default −1, −2, …).
     type_min_s : float
@@ -1379,7 +1379,7 @@ def simulate_fault_free(diagnoser: SequentialDiagnoser, hours: float, *,
     """False alarms of the detection over ``hours`` of simulated fault-free operation.
 
     The residual of an observer whose model is exact depends on the sensor noise only
-    (:mod:`gyrodiag.residual_model`), so the detection path (main filter, whitening,
+    (:mod:`gyrodiag.df.residual`), so the detection path (main filter, whitening,
     scales, CUSUM bank with its cap and release) is run on white sensor noise alone,
     ``n_parallel`` independent runs at a time as one matrix product per sample. An
     alarm is a rising edge of "any channel in alarm".

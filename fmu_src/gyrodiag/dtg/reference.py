@@ -58,9 +58,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ._validation import check_finite_array, check_int, check_positive
-from .dtg import N_THETA
-from .dtg_case_rate import CASE_RATE_SCHEMES, dtg_case_rate_regression
+from ..common._validation import check_finite_array, check_int, check_positive
+from .case_rate import CASE_RATE_SCHEMES, dtg_case_rate_regression
+from .model import N_THETA
 
 __all__ = [
     "ALLOWANCE_SIGMA",
@@ -119,7 +119,7 @@ class RegressionModel:
     case_rate_scheme : {"central", "paper"} or None
         None: the paper's regression of docs/methods.md §2 on (Utx, Uty, Ux, Uy), one θ0 (5,) for
         both axes (pooled). Otherwise the case-rate regression of
-        :mod:`gyrodiag.dtg_case_rate` on (Utx, Uty, Ux, Uy, ωx, ωy) in that scheme, with
+        :mod:`gyrodiag.dtg.case_rate` on (Utx, Uty, Ux, Uy, ωx, ωy) in that scheme, with
         a θ0 per axis (10,: x then y): the two lines see the case rate differently
         (docs/dtg_case_rate.md §5).
     sample_period_s : float

@@ -36,8 +36,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ._validation import check_finite_array, check_in_range, check_int, check_positive
-from .dtg_case_rate import CaseRateDTGRegressor, CaseRateScheme
+from ..common._validation import check_finite_array, check_in_range, check_int, check_positive
+from .case_rate import CaseRateDTGRegressor, CaseRateScheme
 
 __all__ = ["CaseRateAligner"]
 

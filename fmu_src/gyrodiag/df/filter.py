@@ -40,8 +40,8 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
-from gyrodiag._distributions import normal_isf
-from gyrodiag._validation import (
+from gyrodiag.common._distributions import normal_isf
+from gyrodiag.common._validation import (
     check_finite_array,
     check_in_range,
     check_int,

@@ -5,14 +5,14 @@ designs the Beard–Jones gain from (A, C, eigenvalues) with fault directions F 
 decides in one of two ways:
 
 ``decision="sequential"`` (default)
-    :class:`~gyrodiag.sequential_diagnosis.SequentialDiagnoser`: whitened residuals,
+    :class:`~gyrodiag.df.sequential_diagnosis.SequentialDiagnoser`: whitened residuals,
     CUSUM tests with thresholds for a stated false-alarm rate, isolation of one or two
     faulty sensors by hypothesis observers, fault typing by a likelihood ratio on the
     residual, episodes that end when the fault does.
 ``decision="paper"``
     The paper's rule: per-sample k·σ thresholds with k-of-n persistence on the
     detection filter's residual, isolation by the generalised observer scheme,
-    detection latched (:class:`~gyrodiag.isolation.SensorFaultIsolator`).
+    detection latched (:class:`~gyrodiag.df.isolation.SensorFaultIsolator`).
 
 Calibration and alignment
 -------------------------
@@ -35,7 +35,7 @@ whitest. It looks at the data only, not at the master: any host works. If the in
 not move in the window, every d scores the same; the configured d is kept then.
 
 Noise: ``noise_std`` if given, else the sensor variances that explain the residual
-variances of the window (:func:`~gyrodiag.residual_model.estimate_sensor_variances`).
+variances of the window (:func:`~gyrodiag.df.residual.estimate_sensor_variances`).
 """
 
 from __future__ import annotations
@@ -49,18 +49,18 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._records import fast_init
-from ._validation import (
+from ..common._records import fast_init
+from ..common._validation import (
     check_finite_array,
     check_in_range,
     check_int,
     check_nonnegative,
     check_positive,
 )
-from .aircraft import seed_aircraft
-from .detection_filter import DetectionFilter, ResidualThresholds, design_detection_filter
+from .filter import DetectionFilter, ResidualThresholds, design_detection_filter
 from .isolation import ENERGY_MIN_SAMPLES, FaultType, SensorFaultIsolator
-from .residual_model import ResidualModel, estimate_sensor_variances
+from .plant import seed_aircraft
+from .residual import ResidualModel, estimate_sensor_variances
 from .sensor_dynamics import SensorDynamics, SensorDynamicsEqualiser
 from .sequential_diagnosis import FaultKind, SequentialDiagnoser, SequentialSettings
 
@@ -136,7 +136,7 @@ class DFChannelConfig:
     isolation_window_s : float
         Paper rule: when the alarm pattern does not isolate, isolate by the bank's
         residual energy within this time after detection, s (0: off, the pattern
-        alone as the paper's filter; :class:`~gyrodiag.isolation.SensorFaultIsolator`
+        alone as the paper's filter; :class:`~gyrodiag.df.isolation.SensorFaultIsolator`
         ``energy_window_s``).
     isolation_baseline_s : float
         Paper rule: time constant of the bank's fault-free energy baseline, s; the
@@ -144,7 +144,7 @@ class DFChannelConfig:
         ~``isolation_baseline_s`` before detection, so turbulence stronger than in the
         calibration window does not make it isolate the least gust-sensitive observer's
         sensor (0: off, against the calibration alone; ``energy_baseline_s`` of
-        :class:`~gyrodiag.isolation.SensorFaultIsolator`).
+        :class:`~gyrodiag.df.isolation.SensorFaultIsolator`).
     false_alarms_per_h : float
         Sequential rule: design false-alarm rate of the detection, 1/h.
     cusum_k : float
@@ -167,7 +167,7 @@ class DFChannelConfig:
     sensor_dynamics : SensorDynamics, optional
         Read-out dynamics G(z) of one sensor (e.g. the DTG's rebalance loop on q), at
         ``sample_period_s``: every input and every other sensor are passed through the
-        same G before the filter (matched filtering, :mod:`gyrodiag.sensor_dynamics`,
+        same G before the filter (matched filtering, :mod:`gyrodiag.df.sensor_dynamics`,
         docs/readout_dynamics.md), so that a manoeuvre seen through the sensor's lag is
         not a fault of it. None (default): every sensor is y = Cx.
     sensor_delay_samples : sequence of m ints ≥ 0, optional
@@ -383,7 +383,7 @@ class DFChannel:
     ----------
     config : DFChannelConfig
         Settings; validated here (ValueError naming the setting, or the failed design
-        condition of :func:`~gyrodiag.detection_filter.design_detection_filter`).
+        condition of :func:`~gyrodiag.df.filter.design_detection_filter`).
     """
 
     def __init__(self, config: DFChannelConfig) -> None:

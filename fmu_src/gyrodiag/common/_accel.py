@@ -1,8 +1,8 @@
 """Choice of the per-sample kernels: compiled accelerator or plain-Python fallback.
 
-``gyrodiag._ckernels`` is a small C extension (``_ckernels.c``, CPython stable ABI 3.11,
+``gyrodiag.common._ckernels`` is a small C extension (``_ckernels.c``, CPython stable ABI 3.11,
 no numpy C API) built by ``pip install`` and by ``build_fmu.py`` into the Diagnoser FMU
-for the Python that builds it. ``gyrodiag._pykernels`` holds the same kernels in plain
+for the Python that builds it. ``gyrodiag.common._pykernels`` holds the same kernels in plain
 Python floats, giving the same outputs to rounding (tests/test_kernels.py). The
 extension is used when it imports; the environment variable ``GYRODIAG_KERNELS=python``
 forces the fallback (benchmarks, tests, or a host where the binary misbehaves).

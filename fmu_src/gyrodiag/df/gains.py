@@ -1,20 +1,23 @@
-"""Observer gains designed once: an in-process memo, and the table a build ships.
+"""Observer gains designed once: an in-process memo, seeded by the table a build ships.
 
 Placing an observer's poles (``scipy.signal.place_poles``) takes milliseconds, but
 importing ``scipy.signal`` takes 0.7-1.0 s of CPU (it imports ``scipy.stats``): most of
 a Diagnoser's start-up with the detection filter, and a stall of the step that ends
 its calibration window (the bank is designed there). So
-:func:`gyrodiag.isolation.place_observer_gain` looks a design up here first:
+:func:`gyrodiag.df.isolation.place_observer_gain` looks a design up here first:
 
 * every gain it computes is remembered for the rest of the process (a process that
   builds the same bank twice designs it once);
 * ``observer_gains.npz`` beside this module, when present and of this
   :data:`FORMAT`, seeds the memo. build_fmu.py
-  writes it into the Diagnoser FMU (``resources/gyrodiag/observer_gains.npz``) with
-  ``python fmu_src/tools/observer_gains.py --out FILE``: the bank designs of the
-  detection-filter channel with its default model and eigenvalues, both decision
-  rules, at the sample periods of :data:`DEFAULT_PERIODS_S`. It is a build output,
-  never committed; without it every design is computed.
+  writes it into the Diagnoser FMU (``resources/gyrodiag/df/observer_gains.npz``) with
+  ``python fmu_src/tools/observer_gains.py --out FILE`` (the generator: the bank
+  designs of the detection-filter channel with its default model and eigenvalues,
+  both decision rules, at the sample periods of its ``DEFAULT_PERIODS_S``). It is a
+  build output, never committed; without it every design is computed.
+
+This module only loads and looks up; the generator lives in
+``fmu_src/tools/observer_gains.py``.
 
 A design is found by the exact bytes of its inputs (the discrete model, the output
 matrix and the poles), so another model, other eigenvalues or a machine whose
@@ -26,10 +29,7 @@ never a result.
 
 from __future__ import annotations
 
-import argparse
 import hashlib
-import sys
-from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -37,10 +37,6 @@ from numpy.typing import NDArray
 
 #: The table a build ships beside this module (absent in a source checkout).
 TABLE_FILE = Path(__file__).with_name("observer_gains.npz")
-
-#: Sample periods (s) whose default designs the shipped table holds: the seed aircraft
-#: scenarios run the Diagnoser at 10 ms, the system chain at 1 ms.
-DEFAULT_PERIODS_S = (0.001, 0.002, 0.005, 0.01, 0.02)
 
 #: Format entry of a table file; a table of another format (another placement
 #: algorithm) is not read.
@@ -124,63 +120,8 @@ def forget() -> None:
     _memo = None
 
 
-def default_designs(periods_s: Sequence[float] = DEFAULT_PERIODS_S
-                    ) -> dict[str, NDArray[np.float64]]:
-    """The gains a Diagnoser with the default detection-filter model and eigenvalues
-    designs at each sample period, with either decision rule.
-
-    Each channel is built and calibrated on a short window of synthetic noise, the
-    path a Diagnoser takes, and its designs are collected from the memo.
-    """
-    from gyrodiag.df_channel import DFChannel, DFChannelConfig
-
-    forget()
+def start_empty() -> None:
+    """Start an empty memo without reading the table file (a generator collects the
+    designs it computes from here on)."""
     global _memo
-    _memo = {}  # computed here, not read from an existing table
-    rng = np.random.default_rng(0)
-    for period in periods_s:
-        window_s = max(0.5, 50 * period)
-        for rule in ("paper", "sequential"):
-            channel = DFChannel(DFChannelConfig(
-                sample_period_s=period, decision=rule, calibrate_s=window_s,
-                burn_in_s=0.1 * window_s, align_auto=False))
-            n = round(window_s / period) + 1
-            u = rng.normal(0.0, 0.01, (n, channel.p))
-            y = rng.normal(0.0, 1e-3, (n, channel.m))
-            for k in range(n):
-                channel.update(u[k], y[k])
-            if channel.engine is None:
-                raise RuntimeError(f"{rule} channel at {period} s did not calibrate")
-    out = designs()
-    forget()  # the process goes on with its table file, if any
-    return out
-
-
-def save(path: Path | str, gains: dict[str, NDArray[np.float64]]) -> Path:
-    """Write a table of designs (key -> gain) as .npz, with its :data:`FORMAT`."""
-    path = Path(path)
-    if FORMAT_KEY in gains:
-        raise ValueError(f"gains must not hold the key {FORMAT_KEY!r}")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("wb") as fh:
-        np.savez(fh, **{FORMAT_KEY: np.array(FORMAT)}, **gains)
-    return path
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        description="Write the Diagnoser's table of default observer designs (.npz).")
-    parser.add_argument("--out", type=Path, required=True, help="table file to write")
-    parser.add_argument("--periods", type=float, nargs="+", default=DEFAULT_PERIODS_S,
-                        metavar="S", help="sample periods, s (default: %(default)s)")
-    args = parser.parse_args(argv)
-    if any(not (p > 0.0) for p in args.periods):
-        parser.error(f"--periods must all be > 0, got {args.periods}")
-    gains = default_designs(args.periods)
-    save(args.out, gains)
-    print(f"{len(gains)} observer designs -> {args.out}")
-    return 0
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    _memo = {}

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._validation import check_finite_array, check_positive
+from ..common._validation import check_finite_array, check_positive
 
 __all__ = [
     "N_THETA",

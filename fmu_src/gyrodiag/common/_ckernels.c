@@ -1,6 +1,6 @@
-/* gyrodiag._ckernels: compiled per-sample kernels of the gyrodiag algorithms.
+/* gyrodiag.common._ckernels: compiled per-sample kernels of the gyrodiag algorithms.
  *
- * The same classes and function as gyrodiag/_pykernels.py, with the same arithmetic in
+ * The same classes and function as gyrodiag/common/_pykernels.py, with the same arithmetic in
  * the same order (compile with -ffp-contract=off: no fused multiply-add), so that the
  * compiled kernels and the plain-Python fallback give the same outputs to rounding.
  * Written against the CPython stable ABI (Py_LIMITED_API 3.11) and without numpy, so one
@@ -182,7 +182,7 @@ static PyType_Slot Sos_slots[] = {
 };
 
 static PyType_Spec Sos_spec = {
-    "gyrodiag._ckernels.SosCascade", sizeof(SosObject), 0, Py_TPFLAGS_DEFAULT, Sos_slots,
+    "gyrodiag.common._ckernels.SosCascade", sizeof(SosObject), 0, Py_TPFLAGS_DEFAULT, Sos_slots,
 };
 
 /* ------------------------------------------------------------------ PotterRLS */
@@ -329,7 +329,7 @@ static PyType_Slot Rls_slots[] = {
 };
 
 static PyType_Spec Rls_spec = {
-    "gyrodiag._ckernels.PotterRLS", sizeof(RlsObject), 0, Py_TPFLAGS_DEFAULT, Rls_slots,
+    "gyrodiag.common._ckernels.PotterRLS", sizeof(RlsObject), 0, Py_TPFLAGS_DEFAULT, Rls_slots,
 };
 
 /* ------------------------------------------------------------------ LinearObserver */
@@ -444,7 +444,7 @@ static PyType_Slot Obs_slots[] = {
 };
 
 static PyType_Spec Obs_spec = {
-    "gyrodiag._ckernels.LinearObserver", sizeof(ObsObject), 0, Py_TPFLAGS_DEFAULT, Obs_slots,
+    "gyrodiag.common._ckernels.LinearObserver", sizeof(ObsObject), 0, Py_TPFLAGS_DEFAULT, Obs_slots,
 };
 
 /* ------------------------------------------------------------------ grey */
@@ -565,8 +565,8 @@ static PyModuleDef_Slot module_slots[] = {
 };
 
 static struct PyModuleDef module_def = {
-    PyModuleDef_HEAD_INIT, "gyrodiag._ckernels",
-    "Compiled per-sample kernels of gyrodiag (see gyrodiag._pykernels for the fallback).",
+    PyModuleDef_HEAD_INIT, "gyrodiag.common._ckernels",
+    "Compiled per-sample kernels of gyrodiag (see gyrodiag.common._pykernels for the fallback).",
     0, module_methods, module_slots, NULL, NULL, NULL,
 };
 

@@ -1,0 +1,94 @@
+"""Detection-filter (DF) diagnosis of the flight-control sensors on the seed aircraft.
+
+Modules
+-------
+plant
+    Seed aircraft: linearised longitudinal model and the paper's eigenvalues.
+filter
+    Beard–Jones detection filter design, residual evaluation and thresholds.
+isolation
+    Observer banks, isolability analysis and sensor fault isolation.
+residual
+    Residual covariance model and whitening; sensor noise variances.
+sensor_dynamics
+    Sensor read-out dynamics and their equaliser.
+sequential_diagnosis
+    The sequential decision rule: whitened residual generator, CUSUM
+    (:mod:`gyrodiag.common.cusum`), isolation.
+gains
+    Memo of observer designs, seeded by the table a build ships.
+channel
+    The DF channel of the Diagnoser: all of the above on streamed samples.
+
+Every public name of these modules is importable from the package too
+(``from gyrodiag.df import ...``); it is imported from its module at first use,
+so that importing one module of the package imports none of its siblings.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+#: Public name -> the module of this package that defines it.
+_EXPORTS = {
+    "PAPER_EIGENVALUES": "plant",
+    "PAPER_PRINTED_K": "plant",
+    "LongitudinalModel": "plant",
+    "seed_aircraft": "plant",
+    "DetectionFilter": "filter",
+    "DiscreteObserver": "filter",
+    "ResidualEvaluator": "filter",
+    "ResidualThresholds": "filter",
+    "design_detection_filter": "filter",
+    "gaussian_k_sigma": "filter",
+    "observability_matrix": "filter",
+    "observable_subspace": "filter",
+    "parity_space": "filter",
+    "zoh_discretise": "filter",
+    "BankObserver": "isolation",
+    "FaultType": "isolation",
+    "IsolabilityReport": "isolation",
+    "IsolationResult": "isolation",
+    "SensorFaultIsolator": "isolation",
+    "SensorIsolability": "isolation",
+    "design_observer_bank": "isolation",
+    "isolability_analysis": "isolation",
+    "place_observer_gain": "isolation",
+    "ResidualModel": "residual",
+    "Whitening": "residual",
+    "estimate_sensor_variances": "residual",
+    "SensorDynamics": "sensor_dynamics",
+    "SensorDynamicsEqualiser": "sensor_dynamics",
+    "MULTIPLE": "sequential_diagnosis",
+    "NOT_ISOLATED": "sequential_diagnosis",
+    "DiagnosisOutput": "sequential_diagnosis",
+    "FaultKind": "sequential_diagnosis",
+    "ObserverStack": "sequential_diagnosis",
+    "ResidualGenerator": "sequential_diagnosis",
+    "SequentialDiagnoser": "sequential_diagnosis",
+    "SequentialSettings": "sequential_diagnosis",
+    "design_residual_generator": "sequential_diagnosis",
+    "simulate_fault_free": "sequential_diagnosis",
+    "DECISIONS": "channel",
+    "DECISION_AUTO": "channel",
+    "DFChannel": "channel",
+    "DFChannelConfig": "channel",
+    "DFChannelOutput": "channel",
+    "decision_rule": "channel",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_EXPORTS})

@@ -1,0 +1,107 @@
+"""Dynamically tuned gyro (DTG) diagnosis: identification, reference, decision.
+
+Modules
+-------
+model
+    DTG rotor model: regressors, θ ↔ physical parameters.
+case_rate
+    The rotor model with the case rate as an input (case-rate regressors).
+alignment
+    Sample alignment of the case-rate input to the rotor read-out.
+reference
+    Learned nominal reference, residual monitors and classification statistics.
+patterns
+    Response-pattern library and classifier of DTG faults.
+learning
+    Learning the pattern library from training runs (numpy only).
+decision
+    The paper's decision: ratio thresholds, log10 features, nearest signature.
+channel
+    The DTG channel of the Diagnoser: all of the above on streamed samples.
+
+Every public name of these modules is importable from the package too
+(``from gyrodiag.dtg import ...``); it is imported from its module at first use,
+so that importing one module of the package imports none of its siblings.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+#: Public name -> the module of this package that defines it.
+_EXPORTS = {
+    "N_THETA": "model",
+    "THETA_NAMES": "model",
+    "DTGParameters": "model",
+    "DTGRegressor": "model",
+    "PhysicalRatios": "model",
+    "dtg_regression": "model",
+    "physical_from_theta": "model",
+    "rotor_state_space": "model",
+    "theta_from_physical": "model",
+    "CASE_RATE_SCHEMES": "case_rate",
+    "CaseRateDTGRegressor": "case_rate",
+    "CentralPhysicalRatios": "case_rate",
+    "dtg_case_rate_regression": "case_rate",
+    "physical_from_theta_central": "case_rate",
+    "theta_central_from_physical": "case_rate",
+    "CaseRateAligner": "alignment",
+    "ALLOWANCE_SIGMA": "reference",
+    "CHANNELS": "reference",
+    "N_CHANNELS": "reference",
+    "N_TESTS": "reference",
+    "REFERENCE_STATUS": "reference",
+    "ClassificationStatistics": "reference",
+    "NominalPrior": "reference",
+    "NominalReference": "reference",
+    "ReferenceLearner": "reference",
+    "RegressionModel": "reference",
+    "ResidualMonitor": "reference",
+    "ResidualThresholds": "reference",
+    "block_moments": "reference",
+    "regression_residuals": "reference",
+    "window_moments": "reference",
+    "AXIS_CODES": "patterns",
+    "FAULT_TYPES": "patterns",
+    "FORMAT": "patterns",
+    "SIGNALS": "patterns",
+    "NoiseModel": "patterns",
+    "PatternClass": "patterns",
+    "PatternClassifier": "patterns",
+    "PatternLibrary": "patterns",
+    "PatternResult": "patterns",
+    "PatternRun": "learning",
+    "learn_patterns": "learning",
+    "UNKNOWN_CODE": "decision",
+    "Classification": "decision",
+    "DecisionOutput": "decision",
+    "SignatureClassifier": "decision",
+    "ThresholdDecision": "decision",
+    "WindowedMedianFeature": "decision",
+    "feature_floats": "decision",
+    "feature_vector": "decision",
+    "median_feature": "decision",
+    "parameter_ratios": "decision",
+    "signature_distance": "decision",
+    "CLASSIFIERS": "channel",
+    "ESTIMATOR_KINDS": "channel",
+    "DTGChannel": "channel",
+    "DTGChannelConfig": "channel",
+    "DTGChannelOutput": "channel",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_EXPORTS})

@@ -1,0 +1,62 @@
+"""Grey-model (GM(1,1)) prediction and fault detection of the HRG.
+
+Method B (docs/methods.md §3, seed 001): a hemispherical resonator gyro's
+output is predicted one sample ahead by a grey model fitted to the last ``m`` samples;
+a measured sample farther than a threshold from its prediction raises a fault alarm.
+
+Modules
+-------
+gm11
+    GM(1,1): fit, optimal initial value, one-step prediction, positive shift.
+predictor
+    Classic and improved moving-window grey predictors; prediction error metric.
+detector
+    The grey fault detector (one-step and lagged step tests, calibrated thresholds).
+
+Every public name of these modules is importable from the package too
+(``from gyrodiag.grey import ...``); it is imported from its module at first use,
+so that importing one module of the package imports none of its siblings.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+#: Public name -> the module of this package that defines it.
+_EXPORTS = {
+    "DEFAULT_LEVEL_RATIO": "gm11",
+    "GM11_MIN_LENGTH": "gm11",
+    "gm11_fit": "gm11",
+    "gm11_fitted_values": "gm11",
+    "gm11_optimal_initial_value": "gm11",
+    "gm11_predict_classic": "gm11",
+    "gm11_predict_next": "gm11",
+    "gm11_predict_optimized": "gm11",
+    "positive_shift": "gm11",
+    "ClassicGreyPredictor": "predictor",
+    "GreyPredictor": "predictor",
+    "ImprovedGreyPredictor": "predictor",
+    "prediction_errors_percent": "predictor",
+    "LAG_MAX_LIMIT": "detector",
+    "LONGEST_LAG_SHARE": "detector",
+    "GreyDetectorOutput": "detector",
+    "GreyFaultDetector": "detector",
+    "lag_step_weights": "detector",
+    "lag_test_threshold": "detector",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_EXPORTS})
