@@ -62,7 +62,7 @@ __all__ = [
 ]
 
 #: File format tag of a pattern library.
-FORMAT = "gyrodiag.dtg.model-patterns/1"
+FORMAT = "gyrodiag.dtg-patterns/1"
 #: Fault types; their codes (``dtg.fault_type``) are the 1-based positions.
 FAULT_TYPES = ("step", "noise", "loss", "drift", "spin", "torquer")
 SIGNAL_TYPES = ("step", "noise", "loss", "drift")
