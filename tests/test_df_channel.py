@@ -231,12 +231,13 @@ def test_a_window_without_noise_calibrates_and_stays_quiet(config):
 
 
 def test_a_paper_state_from_before_the_energy_isolation_restores():
-    # states saved before 2026-11-26 have neither threshold statistics nor the
-    # isolator's energy sums; the channel's compatibility path must accept them
+    # unversioned (version 0) states from before the energy isolation have neither
+    # threshold statistics nor the isolator's energy sums; the migration accepts them
     _, u, y = simulate_loop(12.0, seed=24, faults=(F(Q, "bias", 0.01, start_s=9.0),))
     ch = DFChannel(CFG)
     _run(ch, u[:950], y[:950])
     old = ch.get_state()
+    old.pop("state_version")
     old.pop("threshold_stats", None)
     engine = {k: v for k, v in old["engine"].items() if k not in ("energy", "energy_n")}
     old["engine"] = engine

@@ -57,6 +57,7 @@ from ..common._validation import (
     check_nonnegative,
     check_positive,
 )
+from ..common.state import migrate, stamp
 from .filter import DetectionFilter, ResidualThresholds, design_detection_filter
 from .isolation import ENERGY_MIN_SAMPLES, FaultType, SensorFaultIsolator
 from .plant import seed_aircraft
@@ -743,7 +744,7 @@ class DFChannel:
     def get_state(self) -> dict[str, Any]:
         """Full internal state (engine, alignment, window, outputs)."""
         engine = self._engine
-        return {
+        return stamp({
             "n_samples": self._n_samples,
             "calibrated": self._calibrated,
             "delay": self._delay,
@@ -770,14 +771,15 @@ class DFChannel:
             "equaliser": None if self._equaliser is None else self._equaliser.get_state(),
             "skew_u": np.array([e[0] for e in self._skew_line]).reshape(-1, self.p),
             "skew_y": np.array([e[1] for e in self._skew_line]).reshape(-1, self.m),
-        }
+        }, STATE_VERSION)
 
     def set_state(self, state: dict[str, Any]) -> None:
         """Restore a state produced by :meth:`get_state` of an identically configured
         channel (the engine is rebuilt from the saved noise and thresholds)."""
         snapshot = self.get_state() if self._calibrated or self._n_samples else None
         try:
-            self._apply_state(state)
+            self._apply_state(migrate(state, STATE_VERSION, _MIGRATIONS, "detection-filter "
+                                      "channel"))
         except (KeyError, TypeError, ValueError) as exc:
             if snapshot is not None:
                 self._apply_state(snapshot)
@@ -789,7 +791,7 @@ class DFChannel:
 
     def _apply_state(self, state: dict[str, Any]) -> None:
         c = self.config
-        eq = state.get("equaliser")
+        eq = state["equaliser"]
         if (eq is None) != (self._equaliser is None):
             raise ValueError("state['equaliser'] does not match sensor_dynamics (a state of "
                              "a channel with other read-out dynamics)")
@@ -827,9 +829,10 @@ class DFChannel:
         self._cal_u, self._cal_y = cal_u.copy(), cal_y.copy()
         self._monitor.set_state(state["monitor"])
         self._last = _output_from_state(state["last"])
-        # absent in a state saved by an older version (no skew then)
-        su = np.asarray(state.get("skew_u", np.zeros((0, self.p))), dtype=float)
-        sy = np.asarray(state.get("skew_y", np.zeros((0, self.m))), dtype=float)
+        su = np.asarray(state["skew_u"], dtype=float)
+        sy = np.asarray(state["skew_y"], dtype=float)
+        if su.size == 0 and sy.size == 0:  # no skew line (also a version-0 state)
+            su, sy = np.zeros((0, self.p)), np.zeros((0, self.m))
         if (su.ndim != 2 or su.shape[1:] != (self.p,) or sy.shape != (su.shape[0], self.m)
                 or su.shape[0] > (self._skew_max + 1 if self._skew_max else 0)):
             raise ValueError("state['skew_u'] / state['skew_y'] do not fit this channel's "
@@ -851,8 +854,8 @@ class DFChannel:
         noise = np.asarray(state["noise_std"], dtype=float)
         iso = self._paper_isolator()
         k = float(c.k_sigma)
-        stats = state.get("threshold_stats")
-        if stats is None:  # a state saved by a version without the statistics
+        stats = state["threshold_stats"]
+        if stats is None:  # none saved (state version 0): rebuilt from the thresholds
             rebuilt = [_thresholds(t, k) for t in thresholds]
         else:
             if len(stats) != len(thresholds):
@@ -896,3 +899,22 @@ def _output_from_state(state: dict[str, Any]) -> DFChannelOutput:
         d[key] = int(d[key])
     d["magnitude"] = float(d["magnitude"])
     return DFChannelOutput(**d)
+
+
+#: Version of :meth:`DFChannel.get_state`'s format (1: tagged; equaliser,
+#: sensor skew and threshold statistics always present).
+STATE_VERSION = 1
+
+
+def _from_version_0(state: dict[str, Any]) -> dict[str, Any]:
+    """Unversioned states may lack the equaliser, the sensor skew line and the
+    threshold statistics."""
+    out = dict(state)
+    out.setdefault("equaliser", None)
+    out.setdefault("skew_u", [])
+    out.setdefault("skew_y", [])
+    out.setdefault("threshold_stats", None)
+    return out
+
+
+_MIGRATIONS = {0: _from_version_0}

@@ -40,6 +40,7 @@ from ..common._validation import (
 )
 from ..common.estimators import RLS, ForgettingRLS, SlidingWindowLS
 from ..common.prefilter import ButterworthPrefilter
+from ..common.state import migrate, stamp
 from .alignment import CaseRateAligner
 from .case_rate import (
     CASE_RATE_SCHEMES,
@@ -1137,8 +1138,8 @@ class DTGChannel:
     # -- state ----------------------------------------------------------------
     def get_state(self) -> dict[str, Any]:
         """Full internal state (filters, estimators, decisions, learning, reference,
-        residual tests, outputs)."""
-        return {
+        residual tests, outputs), tagged with :data:`STATE_VERSION`."""
+        return stamp({
             "prefilter": None if self._prefilter is None else self._prefilter.get_state(),
             "regressor": self._regressor.get_state(),
             "estimators": [e.get_state() for e in self._estimators],
@@ -1178,11 +1179,12 @@ class DTGChannel:
                                      dtype=float).reshape(-1, 4),
                 "gaps": np.array([q[2] for q in self._queue], dtype=bool),
                 "gap_pending": self._gap_pending, "holdoff": self._aligner_holdoff},
-        }
+        }, STATE_VERSION)
 
     def set_state(self, state: dict[str, Any]) -> None:
         """Restore a state produced by :meth:`get_state` of an identically configured
-        channel."""
+        channel (an older state version is migrated first)."""
+        state = migrate(state, STATE_VERSION, _MIGRATIONS, "DTG channel")
         try:  # first: a state of another classify_window_s leaves this channel untouched
             self._features.set_state(state["features"])
         except ValueError as exc:
@@ -1223,18 +1225,14 @@ class DTGChannel:
         self._hist_filtered = [tuple(r) for r in np.asarray(
             buffers["history"], dtype=float).reshape(2, self._width).tolist()]
         self._gap = int(buffers["gap"])
-        omega = state.get("omega")  # absent in a state saved before 2026-11-25
-        if omega is None:
-            self._omega_learn, self._omega_ref = [], None
-            self._omega_dev = deque(maxlen=self._long_blocks)
-        else:
-            self._omega_learn = [(float(a), float(b)) for a, b in np.asarray(
-                omega["learn"], dtype=float).reshape(-1, 2).tolist()]
-            ref = omega["ref"]
-            self._omega_ref = (None if ref is None else
-                               tuple(np.asarray(ref, dtype=float).reshape(2, 2).copy()))
-            self._omega_dev = deque((float(v) for v in np.asarray(
-                omega["deviation"], dtype=float).reshape(-1)), maxlen=self._long_blocks)
+        omega = state["omega"]
+        self._omega_learn = [(float(a), float(b)) for a, b in np.asarray(
+            omega["learn"], dtype=float).reshape(-1, 2).tolist()]
+        ref = omega["ref"]
+        self._omega_ref = (None if ref is None else
+                           tuple(np.asarray(ref, dtype=float).reshape(2, 2).copy()))
+        self._omega_dev = deque((float(v) for v in np.asarray(
+            omega["deviation"], dtype=float).reshape(-1)), maxlen=self._long_blocks)
         self._theta_now = tuple(tuple(e.theta.tolist()) for e in self._estimators)
         def snapshot(raw: Any) -> tuple[Any, ...]:
             sx, sy, theta = raw
@@ -1263,11 +1261,11 @@ class DTGChannel:
             self._monitor.set_state(state["monitor"])
         self._diagnosis = _diagnosis_from_dict(state["diagnosis"])
         self._last = _output_from_dict(state["last"], self._diagnosis)
-        self._set_alignment_state(state.get("alignment"))
+        self._set_alignment_state(state["alignment"])
 
     def _set_alignment_state(self, state: dict[str, Any] | None) -> None:
         self._reset_alignment()
-        if state is None:  # a state saved before 2026-11-26: no queue, delay as configured
+        if state is None:  # none saved (state version 0): an empty queue, delay as set
             return
         if (state["aligner"] is None) != (self._aligner is None):
             raise ValueError("state['alignment'] does not match case_rate_align_max")
@@ -1374,3 +1372,20 @@ def _diagnosis_from_dict(d: dict[str, Any]) -> DTGDiagnosis:
         tests=np.asarray(d["tests"], dtype=float).reshape(N_TESTS), block=int(d["block"]),
     )
 
+
+
+#: Version of :meth:`DTGChannel.get_state`'s format (1: tagged; case rate and alignment
+#: always present).
+STATE_VERSION = 1
+
+
+def _from_version_0(state: dict[str, Any]) -> dict[str, Any]:
+    """Unversioned states may lack the case-rate part and the alignment queue."""
+    out = dict(state)
+    out.setdefault("omega", {"learn": np.zeros((0, 2)), "ref": None,
+                             "deviation": np.zeros(0)})
+    out.setdefault("alignment", None)
+    return out
+
+
+_MIGRATIONS = {0: _from_version_0}
