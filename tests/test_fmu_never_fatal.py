@@ -1,13 +1,8 @@
 """Never fatal, never a crash: wrong calls from a host are fmi2Error with a message.
 
-Issue 32 item 3, docs/fmu.md "Errors". Measured before (docs/notes.md, 2026-11-27): a
-get or set of a value reference through the accessor of another type (CoFmuPy calls
-fmi2SetReal on Integer variables) or of an unknown value reference was fmi2Fatal in
-every FMU (pythonfmu turns the TypeError / KeyError into fmi2Fatal and releases the
-instance's Python object), and the Diagnoser then died of SIGSEGV in the next call;
-NULL arrays crashed every FMU, a NULL instance name aborted the process, and calls in
-the wrong state (doStep before initialisation, set of a fixed parameter after it) were
-silently accepted.
+Issue 32 item 3, docs/fmu.md "Errors": wrong-typed or unknown value references, NULL
+arguments and calls in the wrong state; what they did before the fix: docs/notes.md
+(wrong calls from a host).
 
 Each FMU runs in its own process (tests/_never_fatal_runner.py, a raw ctypes host on the
 FMU's binary, no fmpy wrapper in between): a segfault or abort is a test failure naming

@@ -1,12 +1,9 @@
 """Time events do not depend on how the master computes its communication points.
 
 Issue 32 item 4, docs/fmu.md "Time events". A master that adds h each step (t += h)
-reaches 9.999999999999831 instead of 10 after 1000 steps of 0.01 s, and 100009.99999999476
-instead of 100010 from t0 = 1e5 s (5e-9 s early, beyond the 1 ns the PitchController
-allowed before). Measured before the fix (docs/notes.md, 2026-11-27): the FaultInjector's
-fault windows and intermittent edges and the PitchController's manoeuvre fired one step
-late for such a master. Every time event of the FMUs is now compared within half a
-communication step, so both masters see each event at the same step index.
+reaches 9.999999999999831 instead of 10 after 1000 steps of 0.01 s. Every time event of
+the FMUs is compared within half a communication step, so both masters see each event
+at the same step index.
 
 The plants (Aircraft, DTG, HRG) have no time event: they use the step size only (the HRG's
 rate profile is a continuous function of time, the DTG checks the host's time against its
