@@ -45,7 +45,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from gd_fmu_base import STEP_RTOL, FacadeBase, samples_in_step
+from gd_fmu_base import FacadeBase, sample_instants, samples_in_step
 from pythonfmu import DefaultExperiment
 
 from gyrodiag.df.plant import seed_aircraft
@@ -58,15 +58,16 @@ from gyrodiag.dtg.channel import (
     DTGChannelConfig,
     DTGChannelOutput,
 )
-from gyrodiag.dtg.decision import UNKNOWN_CODE
 from gyrodiag.dtg.model import N_THETA
-from gyrodiag.dtg.patterns import PatternLibrary
+from gyrodiag.dtg.patterns import PatternLibrary, default_library
 from gyrodiag.dtg.reference import ALLOWANCE_SIGMA, CHANNELS, N_CHANNELS, POWER_THRESHOLD
 from gyrodiag.grey import ClassicGreyPredictor, GreyFaultDetector, ImprovedGreyPredictor
 
 if TYPE_CHECKING:  # imported when the channel is built: it needs SciPy (design time)
     from gyrodiag.df.channel import DFChannel, DFChannelConfig, DFChannelOutput
 
+#: The shipped pattern library in the FMU's resources.
+DEFAULT_LIBRARY_RESOURCE = "gyrodiag/dtg/default_patterns.json"
 #: Signatures that fit in the parameter table (more: use ``dtg.signature_file``).
 MAX_SIGNATURES = 8
 #: Fault codes of the summary output ``fault_code``.
@@ -93,6 +94,9 @@ REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10"]
 VARIABLE_META: dict[str, dict[str, Any]] = {}
 #: Lower bound declared for parameters that must be > 0 (FMI bounds are inclusive).
 POSITIVE = 1e-9
+#: Value of a Real (AUTO) or Integer (AUTO_INT) parameter that takes its automatic value.
+AUTO = -1.0
+AUTO_INT = -1
 #: Parameters that may change between steps; a change applies from the next sample
 #: (the channel is rebuilt with the new value and takes over the old one's state).
 TUNABLE = {
@@ -215,6 +219,7 @@ class Diagnoser(FacadeBase):
         # only, so after a skipped NaN sample it would lag the simulation time.
         self._dtg_first_alarm_time = math.nan
         self._dtg_block_copied = -1
+        self._dtg_named_code: int | None = None
         self._theta0_copied: Any = False  # never a channel's theta0: copy at first
         self._dtg_reference_warned = False
         # tunable values the running channels were built with
@@ -244,8 +249,10 @@ class Diagnoser(FacadeBase):
           "Butterworth low-pass on all four DTG signals")
         p("dtg.prefilter_order", "Integer", "parameter", 6, "Butterworth order")
         _meta("dtg.prefilter_order", None, 1, 20)
-        p("dtg.prefilter_cutoff_hz", "Real", "parameter", 50.0, "Butterworth cut-off")
-        _meta("dtg.prefilter_cutoff_hz", "Hz", POSITIVE)
+        p("dtg.prefilter_cutoff_hz", "Real", "parameter", 0.0,
+          "Butterworth cut-off; 0: auto, 1/(20*sample_period_s) (the paper's 50 Hz at "
+          "1 kHz), so that it follows the sample period")
+        _meta("dtg.prefilter_cutoff_hz", "Hz", 0.0)
         p("dtg.prefilter_highpass_hz", "Real", "parameter", 0.0,
           "High-pass corner cascaded with the low-pass (band-pass); 0: off (paper). "
           "Removes the slow torquer response to case rates, not in the regression")
@@ -255,9 +262,9 @@ class Diagnoser(FacadeBase):
         _meta("dtg.estimator", None, 0, 2)
         p("dtg.window", "Integer", "parameter", 500, "Batch LS window, samples")
         _meta("dtg.window", None, N_THETA)
-        p("dtg.forgetting", "Real", "parameter", 0.999,
-          "RLS forgetting factor (paper 0.99: false alarms on the DTG chain, docs/notes.md)")
-        _meta("dtg.forgetting", "1", POSITIVE, 1.0)
+        p("dtg.forgetting", "Real", "parameter", AUTO,
+          "RLS forgetting factor (paper 0.99); -1: auto, 0.999, with dtg.case_rate 0.9998")
+        _meta("dtg.forgetting", "1", AUTO, 1.0)
         p("dtg.p0", "Real", "parameter", 1e6, "Initial RLS covariance scale")
         _meta("dtg.p0", "1", POSITIVE)
         p("dtg.learn_theta0", "Boolean", "parameter", True,
@@ -265,19 +272,25 @@ class Diagnoser(FacadeBase):
         for i in range(1, N_THETA + 1):
             p(f"dtg.theta0[{i}]", "Real", "parameter", 1.0, f"Nominal theta{i}")
             _meta(f"dtg.theta0[{i}]", "1")
-        p("dtg.learn_start_s", "Real", "parameter", 1.0,
-          "Start of the theta0 learning window after the first sample")
-        _meta("dtg.learn_start_s", "s", 0.0)
-        p("dtg.learn_end_s", "Real", "parameter", 5.0, "End of the theta0 learning window")
-        _meta("dtg.learn_end_s", "s", POSITIVE)
-        p("dtg.low", "Real", "parameter", 0.5, "Lower ratio threshold on eta")
-        _meta("dtg.low", "1", 0.0, 1.0 - POSITIVE)
-        p("dtg.high", "Real", "parameter", 1.5, "Upper ratio threshold on eta")
-        _meta("dtg.high", "1", 1.0 + POSITIVE)
-        p("dtg.persistence_k", "Integer", "parameter", 1, "Alarm when k of the last n violate")
-        _meta("dtg.persistence_k", None, 1)
-        p("dtg.persistence_n", "Integer", "parameter", 1, "Persistence window n, samples")
-        _meta("dtg.persistence_n", None, 1)
+        p("dtg.learn_start_s", "Real", "parameter", AUTO,
+          "Start of the theta0 learning window after the first sample; -1: auto, 1 s, "
+          "with dtg.case_rate 2 s")
+        _meta("dtg.learn_start_s", "s", AUTO)
+        p("dtg.learn_end_s", "Real", "parameter", AUTO,
+          "End of the theta0 learning window; -1: auto, 5 s, with dtg.case_rate 10 s")
+        _meta("dtg.learn_end_s", "s", AUTO)
+        p("dtg.low", "Real", "parameter", AUTO,
+          "Lower ratio threshold on eta; -1: auto, 0.5 (paper), with dtg.case_rate 0.93")
+        _meta("dtg.low", "1", AUTO, 1.0 - POSITIVE)
+        p("dtg.high", "Real", "parameter", AUTO,
+          "Upper ratio threshold on eta; -1: auto, 1.5 (paper), with dtg.case_rate 1.07")
+        _meta("dtg.high", "1", AUTO)
+        p("dtg.persistence_k", "Integer", "parameter", AUTO_INT,
+          "Alarm when k of the last n violate; -1: auto, 1, with dtg.case_rate 0.1 s")
+        _meta("dtg.persistence_k", None, AUTO_INT)
+        p("dtg.persistence_n", "Integer", "parameter", AUTO_INT,
+          "Persistence window n, samples; -1: auto, 1, with dtg.case_rate 0.2 s")
+        _meta("dtg.persistence_n", None, AUTO_INT)
         p("dtg.band_sigma", "Real", "parameter", BAND_SIGMA,
           "Case rate, pattern classifier: a ratio outside the band counts only where "
           "theta is also this many standard errors from theta0 (0: the band alone)")
@@ -405,6 +418,8 @@ class Diagnoser(FacadeBase):
         p("dtg.alarm", "Boolean", "output", False, "DTG parameter-ratio alarm")
         p("dtg.fault_code", "Integer", "output", 0,
           "0 none, j = nearest signature j, -1 unknown/unclassified")
+        p("dtg.fault_name", "String", "output", "",
+          "Name of dtg.fault_code's class (e.g. uty_step, spin): empty none, unknown")
         p("dtg.first_alarm_time", "Real", "output", -1.0,
           "Simulation time of the first DTG alarm (its sample's time), -1 if none")
         _meta("dtg.first_alarm_time", "s")
@@ -697,8 +712,8 @@ class Diagnoser(FacadeBase):
         p("df.isolation_window_s", "Real", "parameter", 4.0,
           "Paper rule: when the alarm pattern does not isolate, isolate by the observer "
           "bank's residual energy within this time after detection (0: the pattern "
-          "alone, as the paper's filter; else at least 10 sample periods; small faults "
-          "in turbulence need it)")
+          "alone, as the paper's filter; a shorter window than 10 sample periods is "
+          "lengthened to 10; small faults in turbulence need it)")
         _meta("df.isolation_window_s", "s", 0.0, 3600.0)
         p("df.isolation_baseline_s", "Real", "parameter", 10.0,
           "Paper rule: time constant of the bank's fault-free energy baseline before "
@@ -896,6 +911,7 @@ class Diagnoser(FacadeBase):
             # Outputs at the start time (before the first step) describe the channels'
             # initial state, e.g. df.calibrating and dtg.learning are already true.
             self._dtg_block_copied = -1
+            self._dtg_named_code = None
             if self._dtg is not None:
                 self._copy_dtg(self._dtg.last_output)
             if self._df is not None:
@@ -1033,23 +1049,23 @@ class Diagnoser(FacadeBase):
             sample_period_s=period,
             prefilter_enabled=bool(v["dtg.prefilter_enabled"]),
             prefilter_order=_named_int(v, "dtg.prefilter_order"),
-            prefilter_cutoff_hz=float(v["dtg.prefilter_cutoff_hz"]),
+            prefilter_cutoff_hz=float(v["dtg.prefilter_cutoff_hz"]) or None,
             prefilter_highpass_hz=(
                 None if float(v["dtg.prefilter_highpass_hz"]) == 0.0
                 else float(v["dtg.prefilter_highpass_hz"])
             ),
             estimator=ESTIMATOR_KINDS[kind],
             window=_named_int(v, "dtg.window"),
-            forgetting=float(v["dtg.forgetting"]),
+            forgetting=_auto(float(v["dtg.forgetting"])),
             p0=float(v["dtg.p0"]),
             theta0=None if v["dtg.learn_theta0"] else [
                 float(v[f"dtg.theta0[{i}]"]) for i in range(1, N_THETA + 1)],
-            learn_start_s=float(v["dtg.learn_start_s"]),
-            learn_end_s=float(v["dtg.learn_end_s"]),
-            low=float(v["dtg.low"]),
-            high=float(v["dtg.high"]),
-            persistence_k=_named_int(v, "dtg.persistence_k"),
-            persistence_n=_named_int(v, "dtg.persistence_n"),
+            learn_start_s=_auto(float(v["dtg.learn_start_s"])),
+            learn_end_s=_auto(float(v["dtg.learn_end_s"])),
+            low=_auto(float(v["dtg.low"])),
+            high=_auto(float(v["dtg.high"])),
+            persistence_k=_auto(_named_int(v, "dtg.persistence_k")),
+            persistence_n=_auto(_named_int(v, "dtg.persistence_n")),
             band_sigma=float(v["dtg.band_sigma"]),
             latch=bool(v["dtg.latch"]),
             monitored=[bool(v[f"dtg.monitored[{i}]"]) for i in range(1, N_THETA + 1)],
@@ -1093,7 +1109,9 @@ class Diagnoser(FacadeBase):
                                    for i in range(1, N_THETA + 1)]
                 for j in range(1, n + 1)
             }
-            return (table if classifier == "paper" else {}), None
+            if classifier == "paper":
+                return table, None
+            return {}, self._shipped_patterns(period)
         path = Path(path_text)
         if not path.is_absolute() and self.resources:
             path = Path(self.resources) / path
@@ -1122,6 +1140,20 @@ class Diagnoser(FacadeBase):
                    if "patterns" in data else "")
             )
         return {str(k): list(s) for k, s in sigs.items()}, None
+
+    def _shipped_patterns(self, period: float) -> PatternLibrary | None:
+        """The shipped pattern library, or None (with a warning) at a sample period it
+        was not learned for: the channel then detects and reports class unknown."""
+        # this instance's copy: another instance's extracted module may be gone by now
+        own = Path(self.resources) / DEFAULT_LIBRARY_RESOURCE if self.resources else None
+        lib = default_library(own if own is not None and own.exists() else None)
+        if abs(period - lib.sample_period_s) <= 1e-6 * lib.sample_period_s:
+            return lib
+        self.report_warning(
+            f"{self.instance_name}: dtg: the shipped pattern library was learned at "
+            f"sample_period_s = {lib.sample_period_s:g} s; at {period:g} s DTG faults are "
+            "detected but not classified (learn a library at this period: dtg.signature_file)")
+        return None
 
     def _grey_detector(self, period: float) -> GreyFaultDetector:
         v = self.values
@@ -1203,21 +1235,16 @@ class Diagnoser(FacadeBase):
             n = samples_in_step(h, period)
             if n is not None:
                 self._last_step, self._last_samples = h, n
-        if n is None:
-            self.report_error(
-                f"{self.instance_name}: communication step {h!r} s is not a whole multiple "
-                f"of sample_period_s = {period!r} s (relative tolerance {STEP_RTOL:g}); the "
-                "Diagnoser is sampled-data: a step of n sample periods processes n samples "
-                "with the inputs held. The step was not taken"
-            )
-            return
         if self.watched_changed and not self._apply_tunables():
             return
         if n == 1:
             self._sample(t)
-        else:
+        elif n is not None:
             for i in range(n):
                 self._sample(t + i * period)
+        else:  # not a whole number of periods: the sample instants that fall in the step
+            for t_k in sample_instants(self._start_time, period, t, h):
+                self._sample(t_k)
 
     def _sample(self, t: float) -> None:
         """Process one sample of every enabled channel, taken at time ``t``."""
@@ -1315,9 +1342,11 @@ class Diagnoser(FacadeBase):
         v["dtg.physical_valid"] = physical_valid
         v["dtg.learning"] = bool(out.learning)
         v["dtg.alarm"] = bool(out.alarm)
-        v["dtg.fault_code"] = int(out.fault_code) if out.alarm else 0
-        if out.alarm and out.fault_code == UNKNOWN_CODE:
-            v["dtg.fault_code"] = UNKNOWN_CODE
+        code = int(out.fault_code) if out.alarm else 0
+        v["dtg.fault_code"] = code
+        if code != self._dtg_named_code:  # the name follows the code
+            self._dtg_named_code = code
+            v["dtg.fault_name"] = self._dtg.class_name(code)
         first = self._dtg_first_alarm_time
         v["dtg.first_alarm_time"] = -1.0 if math.isnan(first) else first
         v["dtg.valid"] = bool(out.valid)
@@ -1392,6 +1421,7 @@ class Diagnoser(FacadeBase):
         self._start_time = float(state["start_time"])
         self._dtg_first_alarm_time = float(state["dtg_first_alarm_time"])
         self._dtg_block_copied = -1  # the restored values are complete; recopy at the next block
+        self._dtg_named_code = None
         for name, channel in (("dtg", self._dtg), ("grey", self._grey), ("df", self._df)):
             sub = state[name]
             if (sub is None) != (channel is None):
@@ -1526,6 +1556,11 @@ def _import_or_explain(module: str, needed_by: str) -> Any:
             f"the host's Python: pip install '{requirement}' (or pip install -r "
             "resources/requirements.txt of this FMU), or switch the channel off"
         ) from None
+
+
+def _auto(value: Any) -> Any:
+    """None (the library's automatic value) for the AUTO sentinel, else the value."""
+    return None if value == AUTO else value
 
 
 def _named_int(values: dict[str, Any], name: str) -> int:
