@@ -73,6 +73,29 @@ def test_container_fmu_passes_the_checker(runs):
     assert _check(runs / "container" / "aircraft_chain.fmu") == []
 
 
+def test_fmucontainer_complains_only_of_the_inputs_the_scenario_leaves_open(runs, fmu_dir):
+    """Its build log's errors name the unconnected inputs (they keep their start values,
+    as in the harness); any other error or warning would be a defect of the description."""
+    import re
+
+    from fmpy import read_model_description
+
+    scenario = load_scenario(SCENARIO)
+    connected = {c.to for c in scenario.connections}
+    open_inputs = {f"{i.fmu}.fmu/{v.name}" for n, i in scenario.fmus.items()
+                   for v in read_model_description(str(fmu_dir / f"{i.fmu}.fmu")).modelVariables
+                   if v.causality == "input" and f"{n}.{v.name}" not in connected}
+    log = (runs / "container.log").read_text().splitlines()
+    errors = [ln for ln in log if ln.startswith("ERROR")]
+    named = {m.group(1) for ln in errors
+             if (m := re.search(r"Input 'Port (.+)' is not connected", ln))}
+    assert len(named) == len(errors) and named == open_inputs, errors
+    warnings = [ln for ln in log if ln.startswith("WARNING")]
+    # the controller-aircraft loop: the harness initialises it the same way (equal rows)
+    assert all("Loop of links through the embedded FMU 'Aircraft.fmu'" in ln
+               for ln in warnings), warnings
+
+
 def test_container_equals_the_harness_run_bit_for_bit(runs):
     ref = RunResult.load(runs / "aircraft-harness")
     got = RunResult.load(runs / "aircraft-container")
