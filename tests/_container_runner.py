@@ -27,10 +27,13 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+if TYPE_CHECKING:
+    from harness import RunResult
 
 SCENARIO = ROOT / "scenarios" / "aircraft_q_bias.toml"
 CONTAINER = "aircraft_chain"
@@ -103,7 +106,7 @@ def build_container(description: dict[str, Any], fmu_dir: Path, work: Path) -> P
 
 
 def simulate_container(fmu: Path, record: list[str], duration_s: float,
-                       step_s: float) -> Any:
+                       step_s: float) -> RunResult:
     """fmpy ``simulate_fmu`` of the container, outputs at every step from t = 0."""
     import fmpy
     import numpy as np

@@ -24,10 +24,13 @@ import json
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _libcosim_runner import ROOT, _aircraft
+
+if TYPE_CHECKING:
+    from harness import RunResult
 
 ECOS_SEPARATOR = "::"  # Ecos names a variable "instance::variable"
 #: Recorded in the run that names no parameter set.
@@ -46,7 +49,7 @@ def _getter(sim: Any, kind: str) -> Any:
 
 
 def run_ecos(ssp: Path, types: dict[str, str], duration_s: float, step_s: float,
-             parameter_set: str | None) -> tuple[Any, dict[str, Any]]:
+             parameter_set: str | None) -> tuple[RunResult, dict[str, Any]]:
     """Run ``ssp`` in Ecos, reading ``types`` (name → FMI type) after init and every step."""
     import numpy as np
     from ecospy import EcosLib, EcosSimulation

@@ -16,7 +16,7 @@ one ``.ssp`` file that any SSP tool can load and run without the harness:
   each component's first binding whatever its name; Ecos merges the components' sets by
   name and applies one set, only when the host names it (``--parameterSet`` or
   ``init(parameter_set=...)``), so one shared name makes that one choice apply every
-  value (per-instance names made it apply at most one instance's, silently);
+  value;
 * ``resources/<Name>.fmu``: the FMUs. A ``files`` parameter (e.g. the DTG signature
   library) is packed into the FMU copy's own resources and the parameter set to that
   relative name, which the Diagnoser resolves in its resources; the SSP is then
