@@ -659,7 +659,8 @@ class Diagnoser(FacadeBase):
         _meta("df.input_delay_samples", None, -50, 50)
         p("df.align_auto", "Boolean", "parameter", True,
           "Choose the alignment on the calibration window (least residual variance over "
-          "d in [-df.align_max, df.align_max]); the master's coupling order needs no setting")
+          "d in [-df.align_max, df.align_max]); the master's coupling order needs no setting. "
+          "Not with df.sensor_dynamics_file, whose read-out model sets the timing")
         p("df.align_max", "Integer", "parameter", 2, "Largest |d| tried by df.align_auto")
         _meta("df.align_max", None, 0, 50)
         for i in range(DF_M):

@@ -165,7 +165,9 @@ class DFChannelConfig:
     input_delay_samples : int
         Alignment d (module notes), used as is unless ``align_auto``.
     align_auto : bool
-        Choose the alignment on the calibration window.
+        Choose the alignment on the calibration window; not with ``sensor_dynamics``,
+        whose read-out model sets the timing (a search there picks a pairing that fits
+        the calibration manoeuvre and false-alarms in the next; :attr:`aligns`).
     align_max : int
         Largest |d| tried.
     x0 : array_like, shape (n,), optional
@@ -230,6 +232,12 @@ class DFChannelConfig:
         )
         x0 = np.zeros(n) if self.x0 is None else check_finite_array("x0", self.x0, shape=(n,))
         return A, B, C, eig, x0
+
+    @property
+    def aligns(self) -> bool:
+        """The alignment is searched on the calibration window (``align_auto`` without
+        a read-out model)."""
+        return self.align_auto and self.sensor_dynamics is None
 
     @property
     def isolation_window_in_use(self) -> float:
@@ -315,7 +323,7 @@ class DFChannelConfig:
             if g.sensor >= m:
                 raise ValueError(f"sensor_dynamics: sensor {g.sensor + 1} (1-based) exceeds "
                                  f"the {m} sensors of C")
-        if self.align_auto and calibrate == 0.0:
+        if self.aligns and calibrate == 0.0:
             raise ValueError("align_auto needs a calibration window (calibrate_s > 0); "
                              "set input_delay_samples and align_auto = False")
 
@@ -670,7 +678,7 @@ class DFChannel:
 
     def _choose_alignment(self) -> int:
         c = self.config
-        if not c.align_auto:
+        if not c.aligns:
             return int(c.input_delay_samples)
         scores = {}
         for d in range(-int(c.align_max), int(c.align_max) + 1):
