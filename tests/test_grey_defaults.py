@@ -151,3 +151,25 @@ def test_a_tiny_design_rate_at_a_fast_sample_builds_with_the_longest_tabulated_r
     det = CalibratedSequential(false_alarms_per_h=1e-9).build(_improved(), 1e-3)
     assert det.cusum_threshold == mean_cusum_threshold(1e13, 1.5)
     assert det.cusum_threshold > CalibratedSequential().build(_improved(), 1e-3).cusum_threshold
+
+
+def test_defaults_at_4_hz_calibrate_until_25_s_and_detect(gyrodiag_run, tmp_path):
+    """The same scenario sampled at 4 Hz (step and sample_period_s 0.25 s), 10 mV: the
+    fault-free start is still 25 s (10 samples of warm-up, then 90 errors), every fault
+    is seen within 1.5 s and nothing else is."""
+    text = DEFAULTS_SCENARIO.read_text(encoding="utf-8")
+    for old, new in (("step_s = 0.5", "step_s = 0.25"),
+                     ("sample_period_s = 0.5", "sample_period_s = 0.25"),
+                     ("noise_std = 0.02, bandwidth_hz = 10.0, seed = 4",
+                      f"noise_std = 0.01, bandwidth_hz = 10.0, seed = {SWEEP_SEED}")):
+        assert old in text
+        text = text.replace(old, new)
+    path = tmp_path / "hrg_defaults_4hz_10mv.toml"
+    path.write_text(text, encoding="utf-8")
+    r = gyrodiag_run(path)
+    t, alarm = r.time, r.signal("diag.grey.alarm")
+    calibrating = t[r.signal("diag.grey.calibrating") > 0.5]
+    assert 24.5 <= calibrating.max() < 25.0
+    delays = [detection_delay_s(t, alarm, start) for start, _ in FAULT_WINDOWS]
+    assert all(d <= 1.5 for d in delays), delays
+    assert false_alarms(t, alarm, FAULT_WINDOWS, margin_s=25.0).count == 0
