@@ -486,13 +486,14 @@ class Diagnoser(FacadeBase):
           "likelihood ratio per lag, threshold for grey.false_alarm_rate); while it is "
           "ready the CUSUM only holds alarms; 0: CUSUM alone")
         _meta("grey.lag_max", None, 0, 4)
-        p("grey.reference_window", "Integer", "parameter", 60,
-          "Sequential rule, lagged test: longest reference window, samples (it starts at "
-          "min(20, this) after the start or an alarm and grows)")
-        _meta("grey.reference_window", None, 3, 400)
+        p("grey.reference_window_s", "Real", "parameter", 30.0,
+          "Sequential rule, lagged test: longest reference window, s (at most 400 "
+          "samples, at least grey.reference_order + 3; it starts at min(20 samples, this) "
+          "after the start or an alarm and grows)")
+        _meta("grey.reference_window_s", "s", POSITIVE)
         p("grey.reference_order", "Integer", "parameter", 3,
           "Sequential rule, lagged test: degree of the reference polynomial "
-          "(grey.reference_window >= order + 3)")
+          "(grey.reference_window_s must hold order + 3 samples)")
         _meta("grey.reference_order", None, 0, 3)
         p("grey.auto_order", "Boolean", "parameter", True,
           "Learned rules, improved model: also run residual orders 1 and 0 during the "
@@ -1207,7 +1208,7 @@ class Diagnoser(FacadeBase):
             learned.update(
                 false_alarms_per_h=float(v["grey.false_alarm_rate"]),
                 cusum_k=float(v["grey.cusum_k"]), lag_max=_named_int(v, "grey.lag_max"),
-                reference_window=_named_int(v, "grey.reference_window"),
+                reference_window_s=float(v["grey.reference_window_s"]),
                 reference_order=_named_int(v, "grey.reference_order"))
         return rule(**learned)
 
@@ -1470,7 +1471,7 @@ _PARAMETER_NAMES: dict[str, dict[str, str]] = {
         "cusum_k": "grey.cusum_k", "suspicion_sigma": "grey.suspicion_sigma",
         "learn_end_s": "grey.learn_end_s", "threshold_floor": "grey.threshold_floor",
         "lag_max": "grey.lag_max",
-        "reference_window": "grey.reference_window",
+        "reference_window_s": "grey.reference_window_s",
         "reference_order": "grey.reference_order",
     },
     "df": {

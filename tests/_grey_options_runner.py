@@ -40,7 +40,7 @@ CALIBRATED: dict[str, dict[str, Any]] = {
     "calibrated_sequential_cusum_only": {**_LEARNED, "grey.decision": 1, "grey.lag_max": 0,
                                          "grey.suspicion_sigma": 3.0},
     "calibrated_sequential_lag2_ref30": {**_LEARNED, "grey.decision": 1, "grey.lag_max": 2,
-                                         "grey.reference_window": 30,
+                                         "grey.reference_window_s": 15.0,
                                          "grey.reference_order": 2},
 }
 #: Steps before the calibrated sequential detector's state is saved (restored, re-run).
@@ -56,9 +56,9 @@ INVALID: dict[str, dict[str, Any]] = {
     "grey.learn_end_s of 12 samples": {"grey.decision": 1, "grey.learn_end_s": 6.0},
     "grey.cusum_k 0": {"grey.decision": 1, "grey.cusum_k": 0.0},
     "grey.lag_max 5": {"grey.decision": 1, "grey.lag_max": 5},
-    "grey.reference_window 5 with order 3": {"grey.decision": 1,
-                                             "grey.reference_window": 5,
-                                             "grey.reference_order": 3},
+    "grey.reference_window_s of 5 samples with order 3": {"grey.decision": 1,
+                                                          "grey.reference_window_s": 2.5,
+                                                          "grey.reference_order": 3},
 }
 
 

@@ -45,8 +45,9 @@ def calibrated_library(label: str, t: np.ndarray, y: np.ndarray) -> dict[str, np
     candidates = ([ImprovedGreyPredictor(10, a_min=1e-6, residual_order=o) for o in (1, 0)]
                   if extra.get("grey.auto_order") else [])
     lagged = {name: extra[f"grey.{name}"] for name in
-              ("lag_max", "reference_window", "reference_order", "suspicion_sigma")
-              if f"grey.{name}" in extra}
+              ("lag_max", "reference_order", "suspicion_sigma") if f"grey.{name}" in extra}
+    if "grey.reference_window_s" in extra:  # seconds in the FMU, samples in the library
+        lagged["reference_window"] = round(extra["grey.reference_window_s"] / H)
     det = GreyFaultDetector(
         ImprovedGreyPredictor(10, a_min=1e-6), extra["grey.threshold_floor"], H, CLEAR_S,
         # grey.learn_end_s counts from the start: the 10-sample warm-up, then calibration
@@ -152,7 +153,8 @@ def test_whole_record_state_save_and_restore(fmu):
     (4, "grey.learn_end_s of 12 samples", ("grey.learn_end_s", "sample_period_s")),
     (5, "grey.cusum_k 0", ("grey.cusum_k",)),
     (6, "grey.lag_max 5", ("grey.lag_max",)),
-    (7, "grey.reference_window 5 with order 3", ("grey.reference_window",)),
+    (7, "grey.reference_window_s of 5 samples with order 3",
+     ("grey.reference_window_s", "grey.reference_order")),
 ])
 def test_invalid_options_are_fmi2error_naming_the_parameter(fmu, i, label, names):
     assert list(INVALID)[i] == label

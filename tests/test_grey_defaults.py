@@ -75,6 +75,20 @@ def test_fault_free_start_is_seconds_and_includes_the_warm_up(period, errors):
         assert rule.build(_improved(), period).calibrate_samples == errors
 
 
+@pytest.mark.parametrize(("period", "samples"),
+                         [(0.5, 60), (0.25, 120), (1.0, 30), (0.1, 300), (0.01, 400)])
+def test_reference_window_is_seconds_up_to_400_samples(period, samples):
+    """The lagged test's reference spans 30 s at any sample period (60 samples at 2 Hz,
+    the hand-tuned value), at most 400 samples."""
+    assert CalibratedSequential().build(_improved(), period).reference_window == samples
+
+
+def test_too_short_a_reference_names_reference_window_s():
+    with pytest.raises(ValueError, match=r"reference_window_s = 2 s holds 4 samples at "
+                                         r"sample_period_s = 0.5 s.*needs >= 6 \(3 s\)"):
+        CalibratedSequential(reference_window_s=2.0).build(_improved(), 0.5)
+
+
 def test_too_short_a_fault_free_start_names_learn_end_s_and_what_it_needs():
     with pytest.raises(ValueError, match=r"learn_end_s = 25 s holds 12 samples at "
                                          r"sample_period_s = 2 s.*learn_end_s >= 40 s"):
@@ -87,6 +101,7 @@ def test_too_short_a_fault_free_start_names_learn_end_s_and_what_it_needs():
     (CalibratedSequential, {"threshold_floor": -1.0}, "threshold_floor"),
     (CalibratedSequential, {"learn_end_s": math.nan}, "learn_end_s"),
     (CalibratedSequential, {"cusum_k": 0.0}, "cusum_k"),
+    (CalibratedSequential, {"reference_window_s": -30.0}, "reference_window_s"),
     (CalibratedKSigma, {"k_sigma": 0.0}, "k_sigma"),
 ])
 def test_bad_rule_parameters_name_the_parameter(rule, kwargs, name):
@@ -155,8 +170,9 @@ def test_a_tiny_design_rate_at_a_fast_sample_builds_with_the_longest_tabulated_r
 
 def test_defaults_at_4_hz_calibrate_until_25_s_and_detect(gyrodiag_run, tmp_path):
     """The same scenario sampled at 4 Hz (step and sample_period_s 0.25 s), 10 mV: the
-    fault-free start is still 25 s (10 samples of warm-up, then 90 errors), every fault
-    is seen within 1.5 s and nothing else is."""
+    fault-free start is still 25 s (10 samples of warm-up, then 90 errors), the lagged
+    test's reference 30 s (120 samples), every fault is seen within 1.5 s and nothing
+    else is."""
     text = DEFAULTS_SCENARIO.read_text(encoding="utf-8")
     for old, new in (("step_s = 0.5", "step_s = 0.25"),
                      ("sample_period_s = 0.5", "sample_period_s = 0.25"),

@@ -68,7 +68,8 @@ COUPLED_BOUNDS: dict[str, dict[str, str]] = {
                   "dtg.n_signatures": "> 0 only with dtg.classifier = paper",
                   "dtg.long_window_s": "must be >= dtg.window_s",
                   "df.calibrate_s": "0 only with df.noise_std given (sequential rule)",
-                  "grey.reference_window": "must be >= grey.reference_order + 3",
+                  "grey.reference_window_s": "must hold grey.reference_order + 3 samples "
+                                             "at sample_period_s",
                   "grey.learn_end_s": "must hold the warm-up window and 10 errors at "
                                       "sample_period_s"},
 }

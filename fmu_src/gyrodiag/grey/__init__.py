@@ -48,6 +48,7 @@ _EXPORTS = {
     "lag_test_threshold": "detector",
     "DEFAULT_LEARN_END_S": "decision",
     "MIN_CALIBRATION_ERRORS": "decision",
+    "REFERENCE_MAX_SAMPLES": "decision",
     "CalibratedKSigma": "decision",
     "CalibratedSequential": "decision",
     "GreyDecision": "decision",

@@ -9,7 +9,8 @@ that decides by that rule (docs/methods.md §3):
 * :class:`CalibratedKSigma`: the threshold learned the same way, a k·σ_e test per sample.
 
 The calibrated rules take their fault-free start in seconds (``learn_end_s``, the
-predictor's warm-up included), so it covers the same time at any sample period.
+predictor's warm-up included), and the sequential rule its reference window
+(``reference_window_s``), so they cover the same time at any sample period.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from .predictor import GreyPredictor
 __all__ = [
     "DEFAULT_LEARN_END_S",
     "MIN_CALIBRATION_ERRORS",
+    "REFERENCE_MAX_SAMPLES",
     "CalibratedKSigma",
     "CalibratedSequential",
     "GreyDecision",
@@ -36,6 +38,10 @@ DEFAULT_LEARN_END_S = 25.0
 
 MIN_CALIBRATION_ERRORS = 10
 """Fewest one-step prediction errors a calibration may hold."""
+
+REFERENCE_MAX_SAMPLES = 400
+"""Longest reference window of the lagged step test, samples (its weights are computed
+for every length up to it when the detector is built)."""
 
 
 class GreyDecision(Protocol):
@@ -127,20 +133,42 @@ class _Calibrated:
 @dataclass(frozen=True)
 class CalibratedSequential(_Calibrated):
     """Calibrated σ_e, then a lagged step test (GLR on the last 1..``lag_max`` samples
-    against a polynomial reference) and a CUSUM on e/σ_e, thresholds for
+    against a polynomial reference of up to ``reference_window_s`` seconds, at most
+    :data:`REFERENCE_MAX_SAMPLES` samples) and a CUSUM on e/σ_e, thresholds for
     ``false_alarms_per_h`` (see :class:`GreyFaultDetector`)."""
 
     false_alarms_per_h: float = 1e-3
     cusum_k: float = 1.5
     lag_max: int = 3
-    reference_window: int = 60
+    reference_window_s: float = 30.0
     reference_order: int = 3
     name: ClassVar[str] = "sequential"
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        check_positive("false_alarms_per_h", self.false_alarms_per_h)
-        check_positive("cusum_k", self.cusum_k)
+        for name in ("false_alarms_per_h", "cusum_k", "reference_window_s"):
+            check_positive(name, getattr(self, name))
+
+    def reference_samples(self, sample_period_s: float) -> int:
+        """Longest reference window of the lagged test, samples: ``reference_window_s``
+        at the sample period, at most :data:`REFERENCE_MAX_SAMPLES`.
+
+        Raises
+        ------
+        ValueError
+            If it holds fewer than ``reference_order`` + 3 samples (naming
+            ``reference_window_s``).
+        """
+        period = check_positive("sample_period_s", sample_period_s)
+        samples = round(self.reference_window_s / period)
+        least = self.reference_order + 3
+        if samples < least:
+            raise ValueError(
+                f"reference_window_s = {self.reference_window_s:g} s holds {samples} "
+                f"samples at sample_period_s = {period:g} s; the reference polynomial of "
+                f"degree reference_order = {self.reference_order} needs >= {least} "
+                f"({least * period:g} s)")
+        return min(samples, REFERENCE_MAX_SAMPLES)
 
     def build(self, predictor: GreyPredictor, sample_period_s: float,
               clear_after_s: float | None = None,
@@ -152,7 +180,7 @@ class CalibratedSequential(_Calibrated):
             k_sigma=self.k_sigma, sequential=True,
             false_alarms_per_h=self.false_alarms_per_h, cusum_k=self.cusum_k,
             suspicion_sigma=self.suspicion_sigma, candidates=candidates,
-            lag_max=self.lag_max, reference_window=self.reference_window,
+            lag_max=self.lag_max, reference_window=self.reference_samples(sample_period_s),
             reference_order=self.reference_order)
 
 
