@@ -62,6 +62,13 @@ from gyrodiag.dtg.model import N_THETA
 from gyrodiag.dtg.patterns import PatternLibrary, default_library
 from gyrodiag.dtg.reference import ALLOWANCE_SIGMA, CHANNELS, N_CHANNELS, POWER_THRESHOLD
 from gyrodiag.grey import ClassicGreyPredictor, GreyFaultDetector, ImprovedGreyPredictor
+from gyrodiag.grey.decision import (
+    DEFAULT_LEARN_END_S,
+    CalibratedKSigma,
+    CalibratedSequential,
+    GreyDecision,
+    PaperThreshold,
+)
 
 if TYPE_CHECKING:  # imported when the channel is built: it needs SciPy (design time)
     from gyrodiag.df.channel import DFChannel, DFChannelConfig, DFChannelOutput
@@ -87,6 +94,10 @@ CHANNEL_TEXT = "Utx, Uty, Ux, Uy, residual x, residual y"
 PHYSICAL_UNITS = ("1/s", "1/s2", "rad/s", "1/s2", "1/s2")
 #: Declared unit of the grey channel's signal (the HRG output voltage it was made for).
 GREY_UNIT = "V"
+#: grey.decision codes -> the rule (gyrodiag.grey.decision); 1, the sequential rule, is
+#: the default, 0 the paper's fixed threshold.
+GREY_DECISIONS = {0: PaperThreshold, 1: CalibratedSequential, 2: CalibratedKSigma}
+GREY_DECISION_DEFAULT = 1
 
 #: Packages the host's Python needs (written to resources/requirements.txt).
 REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10"]
@@ -106,7 +117,7 @@ TUNABLE = {
             # the pattern classifier's residual tests (the monitor is rebuilt with them)
             "dtg.level_threshold", "dtg.var_threshold", "dtg.long_var_threshold",
             "dtg.power_threshold", "dtg.allowance_sigma"),
-    "grey": ("grey.threshold", "grey.clear_after_s"),
+    "grey": ("grey.threshold", "grey.threshold_floor", "grey.clear_after_s"),
 }
 _TUNABLE_NAMES = frozenset(n for names in TUNABLE.values() for n in names)
 
@@ -441,8 +452,15 @@ class Diagnoser(FacadeBase):
           "Classic model's time response: 0 careful (exact as a -> 0), 1 textbook "
           "(1 - e^a)(C - b/a)e^(-am), which collapses on a constant window as in the paper")
         _meta("grey.classic_evaluation", None, 0, 1)
+        p("grey.decision", "Integer", "parameter", GREY_DECISION_DEFAULT,
+          "Decision rule: 0 paper (alarm when |y - prediction| > grey.threshold), "
+          "1 sequential (threshold from the prediction errors of the fault-free start "
+          "grey.learn_end_s, lagged step test and CUSUM for grey.false_alarm_rate), "
+          "2 k-sigma (the same learned sigma_e, alarm at grey.k_sigma * sigma_e per sample)")
+        _meta("grey.decision", None, 0, max(GREY_DECISIONS))
         p("grey.threshold", "Real", "parameter", 0.05,
-          "Alarm threshold on |y - prediction|, in the monitored signal's unit")
+          "Paper rule (grey.decision = 0): alarm threshold on |y - prediction|, in the "
+          "monitored signal's unit")
         _meta("grey.threshold", GREY_UNIT, POSITIVE)
         p("grey.clear_after_s", "Real", "parameter", 20.0,
           "Clear an alarm this long after onset; <= 0: never")
@@ -453,48 +471,53 @@ class Diagnoser(FacadeBase):
         p("grey.residual_order", "Integer", "parameter", 2,
           "Improved model: degree of the residual polynomial (paper: 2)")
         _meta("grey.residual_order", None, 0, 4)
-        p("grey.calibrate_s", "Real", "parameter", 0.0,
-          "> 0: calibrated detector: after the warm-up window, this long of fault-free "
-          "one-step prediction errors gives their standard deviation sigma_e, and "
-          "grey.threshold becomes the smallest threshold allowed; 0: fixed threshold "
-          "(paper)")
-        _meta("grey.calibrate_s", "s", 0.0)
+        p("grey.learn_end_s", "Real", "parameter", DEFAULT_LEARN_END_S,
+          "Learned rules (grey.decision = 1, 2): the signal is fault-free from the start "
+          "until this time: the predictor's warm-up window, then the one-step prediction "
+          "errors that give their standard deviation sigma_e (at least 10 of them)")
+        _meta("grey.learn_end_s", "s", POSITIVE)
+        p("grey.threshold_floor", "Real", "parameter", 0.01,
+          "Learned rules: smallest threshold allowed on |y - prediction| (sigma_e >= "
+          "floor / grey.k_sigma; floor / grey.k_sigma is also the lagged test's allowance "
+          "for its reference's model error), in the monitored signal's unit")
+        _meta("grey.threshold_floor", GREY_UNIT, POSITIVE)
         p("grey.k_sigma", "Real", "parameter", 5.0,
-          "Calibrated: alarm when |y - prediction| > k_sigma * sigma_e")
+          "Learned rules: k-sigma alarm at |y - prediction| > k_sigma * sigma_e "
+          "(grey.decision = 2); sigma floor grey.threshold_floor / k_sigma")
         _meta("grey.k_sigma", "1", POSITIVE)
-        p("grey.sequential", "Boolean", "parameter", False,
-          "Calibrated: alarm by a two-sided CUSUM on the error / sigma_e (threshold for "
-          "grey.false_alarm_rate) instead of the k-sigma test")
         p("grey.false_alarm_rate", "Real", "parameter", 1e-3,
-          "Calibrated, sequential: design false-alarm rate (per hour)")
+          "Sequential rule: design false-alarm rate (per hour)")
         _meta("grey.false_alarm_rate", "1/h", 1e-9, 3600.0)
         p("grey.cusum_k", "Real", "parameter", 1.5,
-          "Calibrated, sequential: CUSUM reference in sigma_e")
+          "Sequential rule: CUSUM reference in sigma_e")
         _meta("grey.cusum_k", "1", 0.05, 5.0)
         p("grey.suspicion_sigma", "Real", "parameter", 4.0,
-          "Calibrated: a sample off its prediction by more than this many sigma_e is "
+          "Learned rules: a sample off its prediction by more than this many sigma_e is "
           "not fed to the predictor until the test decides")
         _meta("grey.suspicion_sigma", "1", POSITIVE)
         p("grey.lag_max", "Integer", "parameter", 3,
-          "Calibrated, sequential: lagged step test on the last 1..lag_max samples "
+          "Sequential rule: lagged step test on the last 1..lag_max samples "
           "against a polynomial reference window that ends before them (a generalised "
           "likelihood ratio per lag, threshold for grey.false_alarm_rate); while it is "
           "ready the CUSUM only holds alarms; 0: CUSUM alone")
         _meta("grey.lag_max", None, 0, 4)
-        p("grey.reference_window", "Integer", "parameter", 60,
-          "Calibrated, lagged test: longest reference window, samples (it starts at "
-          "min(20, this) after the start or an alarm and grows)")
-        _meta("grey.reference_window", None, 3, 400)
+        p("grey.reference_window_s", "Real", "parameter", 30.0,
+          "Sequential rule, lagged test: longest reference window, s (at most 400 "
+          "samples, at least grey.reference_order + 3; it starts at min(20 samples, this) "
+          "after the start or an alarm and grows)")
+        _meta("grey.reference_window_s", "s", POSITIVE)
         p("grey.reference_order", "Integer", "parameter", 3,
-          "Calibrated, lagged test: degree of the reference polynomial "
-          "(grey.reference_window >= order + 3)")
+          "Sequential rule, lagged test: degree of the reference polynomial "
+          "(grey.reference_window_s must hold order + 3 samples)")
         _meta("grey.reference_order", None, 0, 3)
-        p("grey.auto_order", "Boolean", "parameter", False,
-          "Calibrated, improved model: also run residual orders 1 and 0 during the "
-          "calibration and keep the one with the least error (noise favours low orders)")
+        p("grey.auto_order", "Boolean", "parameter", True,
+          "Learned rules, improved model: also run residual orders 1 and 0 during the "
+          "calibration and keep the one with the least error (noise favours low orders); "
+          "not used by the paper rule or the classic model")
         p("grey.y", "Real", "input", 0.0,
           f"Monitored signal (declared in {GREY_UNIT}, the HRG output the channel was made "
-          "for; any signal works, its unit is then that of grey.threshold and the outputs)")
+          "for; any signal works, its unit is then that of grey.threshold, "
+          "grey.threshold_floor and the outputs)")
         _meta("grey.y", GREY_UNIT)
         p("grey.prediction", "Real", "output", 0.0,
           "One-step prediction of this sample; 0 while grey.prediction_valid is false")
@@ -506,15 +529,16 @@ class Diagnoser(FacadeBase):
           "A prediction exists for this sample (window filled)")
         p("grey.alarm", "Boolean", "output", False, "Grey prediction alarm")
         p("grey.calibrating", "Boolean", "output", False,
-          "Calibrated detector: warm-up or calibration window in progress (no alarm)")
+          "Learned rules: warm-up or calibration window in progress (no alarm)")
         p("grey.sigma", "Real", "output", 0.0,
-          "Calibrated: standard deviation of the fault-free prediction error in use "
-          "(signal units); 0 before it is learned and with a fixed threshold")
+          "Learned rules: standard deviation of the fault-free prediction error in use "
+          "(signal units); 0 before it is learned and with the paper rule")
         _meta("grey.sigma", GREY_UNIT, 0.0)
         p("grey.noise_sigma", "Real", "output", 0.0,
-          "Calibrated, lagged test: standard deviation of the signal's white noise in use "
-          "(95 % upper bound from third differences, grey.threshold / grey.k_sigma added "
-          "in quadrature); 0 before it is known or without the lagged test")
+          "Sequential rule, lagged test: standard deviation of the signal's white noise in "
+          "use (95 % upper bound from third differences, grey.threshold_floor / "
+          "grey.k_sigma added in quadrature); 0 before it is known or without the lagged "
+          "test")
         _meta("grey.noise_sigma", GREY_UNIT, 0.0)
         p("grey.statistic", "Real", "output", 0.0,
           "Alarm statistic in units of its threshold (alarm at 1)")
@@ -1158,6 +1182,20 @@ class Diagnoser(FacadeBase):
 
     def _grey_detector(self, period: float) -> GreyFaultDetector:
         v = self.values
+        predictor, candidates = self._grey_predictors()
+        clear = float(v["grey.clear_after_s"])
+        rule = self._grey_decision()
+        for package in rule.requires:
+            _import_or_explain(package, f"grey.decision = {int(v['grey.decision'])} (a "
+                               "learned rule; the paper rule, grey.decision = 0, does "
+                               "without it)")
+        return rule.build(predictor, period, None if clear <= 0 else clear, candidates)
+
+    def _grey_predictors(self) -> tuple[Any, list[Any]]:
+        """The grey predictor, and the improved model's other residual orders that
+        compete on the calibration window (``grey.auto_order``; a learned rule uses
+        them, the paper rule does not)."""
+        v = self.values
         model = int(v["grey.model"])
         window = _named_int(v, "grey.window")
         if model == 0:
@@ -1166,46 +1204,46 @@ class Diagnoser(FacadeBase):
                 raise ValueError("grey.classic_evaluation must be 0 (careful) or 1 (textbook), "
                                  f"got {evaluation}")
             # window 0 stands for None: FMI has no "absent" Integer
-            predictor = ClassicGreyPredictor(
+            return ClassicGreyPredictor(
                 None if window == 0 else window,
                 evaluation="textbook" if evaluation == 1 else "careful",
-            )
-        elif model == 1:
-            if window == 0:
-                raise ValueError("grey.window = 0 (whole record) is only available for the "
-                                 "classic model (grey.model = 0); the improved model needs "
-                                 "a moving window >= 4")
-            predictor = ImprovedGreyPredictor(
-                window, a_min=float(v["grey.a_min"]),
-                residual_order=_named_int(v, "grey.residual_order"))
-        else:
+            ), []
+        if model != 1:
             raise ValueError(f"grey.model must be 0 (classic) or 1 (improved), got {model}")
-        clear = float(v["grey.clear_after_s"])
-        calibrate_s = float(v["grey.calibrate_s"])
-        if not (math.isfinite(calibrate_s) and calibrate_s >= 0.0):
-            raise ValueError(f"grey.calibrate_s must be >= 0 s, got {calibrate_s!r}")
-        calibrate = round(calibrate_s / period)
-        candidates: list[Any] = []
-        if bool(v["grey.auto_order"]):
-            if model != 1 or not calibrate:
-                raise ValueError("grey.auto_order needs the improved model (grey.model = "
-                                 "1) and a calibration window (grey.calibrate_s > 0)")
-            candidates = [ImprovedGreyPredictor(window, a_min=float(v["grey.a_min"]),
-                                                residual_order=order)
-                          for order in (1, 0) if order != int(v["grey.residual_order"])]
-        if calibrate and calibrate < 10:
-            raise ValueError(f"grey.calibrate_s must hold at least 10 samples "
-                             f"({10 * period:g} s), got {calibrate_s!r}")
-        return GreyFaultDetector(
-            predictor, float(v["grey.threshold"]), period, None if clear <= 0 else clear,
-            calibrate_samples=calibrate, k_sigma=float(v["grey.k_sigma"]),
-            sequential=bool(v["grey.sequential"]) and calibrate > 0,
-            false_alarms_per_h=float(v["grey.false_alarm_rate"]),
-            cusum_k=float(v["grey.cusum_k"]), suspicion_sigma=float(v["grey.suspicion_sigma"]),
-            candidates=candidates, lag_max=_named_int(v, "grey.lag_max"),
-            reference_window=_named_int(v, "grey.reference_window"),
-            reference_order=_named_int(v, "grey.reference_order"),
-        )
+        if window == 0:
+            raise ValueError("grey.window = 0 (whole record) is only available for the "
+                             "classic model (grey.model = 0); the improved model needs "
+                             "a moving window >= 4")
+        order = _named_int(v, "grey.residual_order")
+        a_min = float(v["grey.a_min"])
+        predictor = ImprovedGreyPredictor(window, a_min=a_min, residual_order=order)
+        candidates = ([ImprovedGreyPredictor(window, a_min=a_min, residual_order=o)
+                       for o in (1, 0) if o != order] if bool(v["grey.auto_order"]) else [])
+        return predictor, candidates
+
+    def _grey_decision(self) -> GreyDecision:
+        """The rule of ``grey.decision`` with its parameters."""
+        v = self.values
+        code = _named_int(v, "grey.decision")
+        rule = GREY_DECISIONS.get(code)
+        if rule is None:
+            raise ValueError(f"grey.decision must be 0 (paper), 1 (sequential) or 2 "
+                             f"(k-sigma), got {code}")
+        if rule is PaperThreshold:
+            return PaperThreshold(float(v["grey.threshold"]))
+        learned: dict[str, Any] = {
+            "learn_end_s": float(v["grey.learn_end_s"]),
+            "threshold_floor": float(v["grey.threshold_floor"]),
+            "k_sigma": float(v["grey.k_sigma"]),
+            "suspicion_sigma": float(v["grey.suspicion_sigma"]),
+        }
+        if rule is CalibratedSequential:
+            learned.update(
+                false_alarms_per_h=float(v["grey.false_alarm_rate"]),
+                cusum_k=float(v["grey.cusum_k"]), lag_max=_named_int(v, "grey.lag_max"),
+                reference_window_s=float(v["grey.reference_window_s"]),
+                reference_order=_named_int(v, "grey.reference_order"))
+        return rule(**learned)
 
     def reset(self) -> None:  # pythonfmu re-creates the instance on fmi2Reset
         pass
@@ -1462,8 +1500,9 @@ _PARAMETER_NAMES: dict[str, dict[str, str]] = {
         "clear_after_s": "grey.clear_after_s", "residual_order": "grey.residual_order",
         "k_sigma": "grey.k_sigma", "false_alarms_per_h": "grey.false_alarm_rate",
         "cusum_k": "grey.cusum_k", "suspicion_sigma": "grey.suspicion_sigma",
-        "calibrate_samples": "grey.calibrate_s", "lag_max": "grey.lag_max",
-        "reference_window": "grey.reference_window",
+        "learn_end_s": "grey.learn_end_s", "threshold_floor": "grey.threshold_floor",
+        "lag_max": "grey.lag_max",
+        "reference_window_s": "grey.reference_window_s",
         "reference_order": "grey.reference_order",
     },
     "df": {

@@ -64,8 +64,8 @@ K_PATTERN_NAN = 900
 GREY_H = 0.1
 GREY_PARAMS: dict[str, Any] = {
     "sample_period_s": GREY_H, "dtg.enabled": False, "df.enabled": False,
-    "grey.model": 1, "grey.window": 10, "grey.threshold": 0.02, "grey.clear_after_s": 5.0,
-    "grey.a_min": 1e-6,
+    "grey.decision": 0, "grey.model": 1, "grey.window": 10, "grey.threshold": 0.02,
+    "grey.clear_after_s": 5.0, "grey.a_min": 1e-6,
 }
 GREY_CLASSIC_PARAMS = {**GREY_PARAMS, "grey.model": 0, "grey.window": 8,
                        "grey.clear_after_s": 0.0}
@@ -82,7 +82,7 @@ ALL_PARAMS: dict[str, Any] = {
     "dtg.prefilter_cutoff_hz": 20.0, "dtg.p0": 1e8, "dtg.forgetting": 0.99,
     "dtg.learn_start_s": 0.5, "dtg.learn_end_s": 2.0, "dtg.persistence_k": 3,
     "dtg.persistence_n": 5,
-    "grey.window": 10, "grey.threshold": 0.01, "grey.clear_after_s": 3.0,
+    "grey.decision": 0, "grey.window": 10, "grey.threshold": 0.01, "grey.clear_after_s": 3.0,
     "df.calibrate_s": 5.0, "df.burn_in_s": 1.0,
 }
 #: Save points of the state scenario (step indices of the "all" record).
