@@ -30,20 +30,22 @@ def _tool():
     return module
 
 
-def test_the_shipped_library_holds_the_classes_at_1_khz_without_a_prior():
+def test_the_shipped_library_holds_the_classes_at_1_khz_with_a_levels_only_prior():
     data = json.loads(DEFAULT_LIBRARY_FILE.read_text(encoding="utf-8"))
     lib = default_library()
     assert lib.names == CLASSES and data["codes"] == {n: i + 1 for i, n in enumerate(CLASSES)}
-    assert lib.prior is None and "nominal" not in data["patterns"]
+    assert lib.prior is not None and lib.prior.levels_only
+    assert lib.prior.to_dict() == data["patterns"]["nominal"]
     assert lib.sample_period_s == 1e-3
     DTGChannelConfig(patterns=lib).validate()
     with pytest.raises(ValueError, match="learn the patterns at this sample period"):
         DTGChannelConfig(sample_period_s=0.01, patterns=lib).validate()
 
 
-def test_the_tool_drops_the_prior_and_checks_what_it_wrote(tmp_path):
+def test_the_tool_marks_the_prior_levels_only_and_checks_what_it_wrote(tmp_path):
     shipped = json.loads(DEFAULT_LIBRARY_FILE.read_text(encoding="utf-8"))
-    learned = {"patterns": {**shipped["patterns"], "nominal": {"theta0": [1.0] * 5}},
+    nominal = {k: v for k, v in shipped["patterns"]["nominal"].items() if k != "levels_only"}
+    learned = {"patterns": {**shipped["patterns"], "nominal": nominal},
                "codes": shipped["codes"], "training": {"runs": []}}
     src = tmp_path / "learned.json"
     src.write_text(json.dumps(learned))

@@ -8,9 +8,10 @@ takes 54 co-simulation runs. To regenerate it::
     python fmu_src/tools/default_patterns.py learned.json          # rewrites the file
     python fmu_src/tools/default_patterns.py learned.json --check  # exit 1 if it differs
 
-The shipped file keeps the classes, the noise model and the decision constants, and
-drops the bench's nominal prior (θ0 and the statistics of one dither level and noise
-level): a user's gyro is its own nominal, learned at start-up.
+The shipped file keeps the classes, the noise model, the decision constants and the
+bench's nominal prior, marked ``levels_only``: the prior replaces a learned reference
+only when θ0 and the noise match the training bench and the levels do not (an offset
+fault present before learning). Another gyro, dither or noise level is its own nominal.
 """
 
 from __future__ import annotations
@@ -31,12 +32,16 @@ TRAINING = "scenarios/training/patterns"
 
 
 def shipped_content(learned: dict[str, Any]) -> dict[str, Any]:
-    """The shipped library from a ``learn-signatures`` pattern file: patterns without
-    the nominal prior, and the class codes."""
+    """The shipped library from a ``learn-signatures`` pattern file: patterns with the
+    nominal prior marked ``levels_only``, and the class codes."""
     if "patterns" not in learned or "codes" not in learned:
         raise ValueError("not a pattern library from learn-signatures: it needs "
                          "'patterns' and 'codes'")
-    patterns = {k: v for k, v in learned["patterns"].items() if k != "nominal"}
+    patterns = dict(learned["patterns"])
+    if "nominal" not in patterns:
+        raise ValueError("the learned library has no nominal prior (learn it with the "
+                         "fault-free training runs)")
+    patterns["nominal"] = {**patterns["nominal"], "levels_only": True}
     PatternLibrary.from_dict(patterns)  # readable by the channel, or a clear error
     return {"patterns": patterns, "codes": learned["codes"], "learned_from": TRAINING}
 
