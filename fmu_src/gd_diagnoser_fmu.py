@@ -231,6 +231,7 @@ class Diagnoser(FacadeBase):
         self._dtg_first_alarm_time = math.nan
         self._dtg_block_copied = -1
         self._dtg_named_code: int | None = None
+        self._unclassified_note = ""  # why DTG alarms go unclassified (set at build)
         self._theta0_copied: Any = False  # never a channel's theta0: copy at first
         self._dtg_reference_warned = False
         # tunable values the running channels were built with
@@ -959,6 +960,7 @@ class Diagnoser(FacadeBase):
         if errors:
             raise ValueError("; ".join(errors))
         period = float(v["sample_period_s"])
+        self._unclassified_note = ""
         # sample_period_s is fixed after initialisation (not tunable)
         self._period = period
         self._last_step, self._last_samples = math.nan, 0
@@ -1167,14 +1169,15 @@ class Diagnoser(FacadeBase):
         return {str(k): list(s) for k, s in sigs.items()}, None
 
     def _shipped_patterns(self, period: float) -> PatternLibrary | None:
-        """The shipped pattern library, or None (with a warning) at a sample period it
-        was not learned for: the channel then detects and reports class unknown."""
+        """The shipped pattern library, or None at a sample period it was not learned
+        for: the channel then detects and reports class unknown (a warning at the first
+        alarm says why)."""
         # this instance's copy: another instance's extracted module may be gone by now
         own = Path(self.resources) / DEFAULT_LIBRARY_RESOURCE if self.resources else None
         lib = default_library(own if own is not None and own.exists() else None)
         if abs(period - lib.sample_period_s) <= 1e-6 * lib.sample_period_s:
             return lib
-        self.report_warning(
+        self._unclassified_note = (  # reported at the first DTG alarm, if any
             f"{self.instance_name}: dtg: the shipped pattern library was learned at "
             f"sample_period_s = {lib.sample_period_s:g} s; at {period:g} s DTG faults are "
             "detected but not classified (learn a library at this period: dtg.signature_file)")
@@ -1386,6 +1389,9 @@ class Diagnoser(FacadeBase):
         if code != self._dtg_named_code:  # the name follows the code
             self._dtg_named_code = code
             v["dtg.fault_name"] = self._dtg.class_name(code)
+            if code != 0 and self._unclassified_note:
+                self.report_warning(self._unclassified_note)
+                self._unclassified_note = ""
         first = self._dtg_first_alarm_time
         v["dtg.first_alarm_time"] = -1.0 if math.isnan(first) else first
         v["dtg.valid"] = bool(out.valid)

@@ -527,7 +527,7 @@ def test_every_shipped_campaign_learns_the_libraries_its_scenarios_read():
 def test_a_campaign_whose_chain_cannot_start_stops_before_any_run(tmp_path):
     from harness.cosim.scenario import ScenarioError
 
-    spec, base = load_campaign(ROOT / "campaigns" / "system.toml")
+    spec, base = load_campaign(ROOT / "campaigns" / "dtg.toml")
     spec = spec.model_copy(update={"signatures_training": None})  # the library is missing
     with pytest.raises(ScenarioError, match=r"dtg\.signature_file: dtg_patterns\.json not "
                                             r"found"):

@@ -182,7 +182,7 @@ def dtg_campaign(tmp_path_factory, fmu_dir):
     out = tmp_path_factory.mktemp("side_dtg")
     (out / "dtg_signatures.json").write_text(json.dumps({"signatures": DECADES}))
     # the base Diagnoser "diag" has the paper's rule; "pattern" is the project's
-    # classifier with no library (its alarms are "unknown" but name an axis)
+    # classifier with no library file: the Diagnoser's shipped one
     spec = CampaignSpec.model_validate({
         "name": "side_dtg", "base_seed": 3, "fmu_dir": str(FMUS), "results_dir": str(out),
         "classes": {"dtg": {
@@ -205,15 +205,16 @@ def test_dtg_each_rule_reads_its_own_class(dtg_campaign):
     assert paper["detected"] and pattern["detected"]
     assert paper["diagnosed"] == "utx_step"      # nearest decade signature
     assert paper["diagnosed_axis"] is None       # the paper's codes name no axis
-    assert pattern["diagnosed"] == "unknown"     # no pattern library
+    assert pattern["diagnosed"] == "utx_step"    # the shipped library's class 1
+    assert pattern["diagnosed_axis"] == 1
     assert paper["threshold_config"] == 0.5 and paper["sweep_mismatch"] == 0.0
     assert pattern["threshold_config"] == 1.0 and pattern["thresholds"] == [1.0, 3.0]
     assert paper["thresholds"] == [0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.8]
     assert paper["t_ready_s"] == pytest.approx(5.0, abs=0.01)
     s = summarize(dtg_campaign)
     assert s["confusion"]["dtg/diag"]["correct"] == 1
-    assert s["confusion"]["dtg/pattern"]["correct"] == 0
-    assert s["confusion"]["dtg/pattern"]["diagnosed"] == ["unknown", "utx_step"]
+    assert s["confusion"]["dtg/pattern"]["correct"] == 1
+    assert s["confusion"]["dtg/pattern"]["diagnosed"] == ["utx_step"]
 
 
 def test_shipped_campaigns_carry_the_paper_witness():

@@ -496,6 +496,10 @@ def _signature_names(scenario: Any, run: RunSpec) -> list[str]:
 
     files = resolve_file_parameters(scenario, run.results_dir, must_exist=False)
     path = files.get(run.diagnoser, {}).get("dtg.signature_file")
+    if path is None and _dtg_classifier(scenario, run.diagnoser) == "pattern":
+        from gyrodiag.dtg.patterns import default_library
+
+        return default_library().names  # no file: the Diagnoser's shipped library
     if path is None or not Path(path).is_file():
         return []
     data = json.loads(Path(path).read_text(encoding="utf-8"))

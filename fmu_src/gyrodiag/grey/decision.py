@@ -108,26 +108,11 @@ class _Calibrated:
 
     def calibrate_samples(self, predictor: GreyPredictor, sample_period_s: float) -> int:
         """Number of one-step errors calibrated on: the samples up to ``learn_end_s``
-        less the predictor's warm-up.
-
-        Raises
-        ------
-        ValueError
-            If fewer than :data:`MIN_CALIBRATION_ERRORS` errors fit (naming
-            ``learn_end_s``).
-        """
-        learn = self.learn_end_s
+        less the predictor's warm-up, and at least :data:`MIN_CALIBRATION_ERRORS` (at
+        slow sample rates the window is lengthened to hold them)."""
         period = check_positive("sample_period_s", sample_period_s)
-        total = round(learn / period)
-        warm_up = predictor.min_samples
-        if total - warm_up < MIN_CALIBRATION_ERRORS:
-            needed = (warm_up + MIN_CALIBRATION_ERRORS) * period
-            raise ValueError(
-                f"learn_end_s = {learn:g} s holds {total} samples at sample_period_s = "
-                f"{period:g} s: the predictor's warm-up ({warm_up} samples) and at least "
-                f"{MIN_CALIBRATION_ERRORS} calibration errors need learn_end_s >= "
-                f"{needed:g} s")
-        return total - warm_up
+        total = round(self.learn_end_s / period)
+        return max(total - predictor.min_samples, MIN_CALIBRATION_ERRORS)
 
 
 @dataclass(frozen=True)
@@ -151,24 +136,11 @@ class CalibratedSequential(_Calibrated):
 
     def reference_samples(self, sample_period_s: float) -> int:
         """Longest reference window of the lagged test, samples: ``reference_window_s``
-        at the sample period, at most :data:`REFERENCE_MAX_SAMPLES`.
-
-        Raises
-        ------
-        ValueError
-            If it holds fewer than ``reference_order`` + 3 samples (naming
-            ``reference_window_s``).
-        """
+        at the sample period, at most :data:`REFERENCE_MAX_SAMPLES`, and at least the
+        ``reference_order`` + 3 the reference polynomial needs (slow sample rates)."""
         period = check_positive("sample_period_s", sample_period_s)
         samples = round(self.reference_window_s / period)
-        least = self.reference_order + 3
-        if samples < least:
-            raise ValueError(
-                f"reference_window_s = {self.reference_window_s:g} s holds {samples} "
-                f"samples at sample_period_s = {period:g} s; the reference polynomial of "
-                f"degree reference_order = {self.reference_order} needs >= {least} "
-                f"({least * period:g} s)")
-        return min(samples, REFERENCE_MAX_SAMPLES)
+        return min(max(samples, self.reference_order + 3), REFERENCE_MAX_SAMPLES)
 
     def build(self, predictor: GreyPredictor, sample_period_s: float,
               clear_after_s: float | None = None,
