@@ -60,7 +60,10 @@
  * FMU is refused without being touched) and frames serialized states with a header
  * (magic, the FMU's GUID, payload length, FNV-1a 64 checksum), checked before the bytes
  * reach Python: truncated, corrupt or foreign bytes give fmi2Error naming the problem,
- * and the instance is left as it was.
+ * and the instance is left as it was. fmi2FreeInstance frees the states of the instance
+ * that the host did not free (issue 37: a host that forgets states in thousands of
+ * instances must not grow the process); later use of such a state is refused like that
+ * of any freed state.
  */
 #define _GNU_SOURCE
 #include <ctype.h>
@@ -806,10 +809,16 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     return s;
 }
 
+static void free_owned_states(Shim *s);
+
+/* Frees everything the instance holds (issue 37: a host that instantiates and frees an FMU
+ * thousands of times in one process must not grow): its FMU states the host did not free,
+ * pythonfmu's instance, the shim's table and names. */
 void fmi2FreeInstance(fmi2Component c)
 {
     Shim *s = (Shim *)c;
     if (!s) return;
+    free_owned_states(s);
     /* an instance pythonfmu gave up is not freed by it again: its destructor would release
      * the Python objects a second time (a use after free); its few bytes are leaked */
     if (s->mode != MODE_DEAD) real_fmi2FreeInstance(s->inner);
@@ -902,6 +911,7 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 typedef struct ShimState {
     struct ShimState *next;
     char *guid;              /* FMU that made it */
+    Shim *owner;             /* instance that made it (or last wrote it): freed with it */
     fmi2FMUstate inner;      /* pythonfmu's state object */
 } ShimState;
 
@@ -921,10 +931,11 @@ static int state_is_ours(fmi2FMUstate st)
     return p != NULL;
 }
 
-static ShimState *state_new(const char *guid, fmi2FMUstate inner)
+static ShimState *state_new(Shim *owner, fmi2FMUstate inner)
 {
     ShimState *st = calloc(1, sizeof *st);
-    if (!st || !(st->guid = strdup(guid))) { free(st); return NULL; }
+    if (!st || !(st->guid = strdup(owner->guid))) { free(st); return NULL; }
+    st->owner = owner;
     st->inner = inner;
     pthread_mutex_lock(&states_lock);
     st->next = states;
@@ -941,6 +952,28 @@ static void state_forget(ShimState *st)
     pthread_mutex_unlock(&states_lock);
     free(st->guid);
     free(st);
+}
+
+/* Free every state instance `s` made and the host did not free (fmi2FreeInstance frees
+ * all the instance's resources; a host that forgets states must not grow the process). */
+static void free_owned_states(Shim *s)
+{
+    ShimState *mine = NULL;
+    pthread_mutex_lock(&states_lock);
+    for (ShimState **p = &states; *p;) {
+        ShimState *st = *p;
+        if (st->owner == s) { *p = st->next; st->next = mine; mine = st; }
+        else p = &st->next;
+    }
+    pthread_mutex_unlock(&states_lock);
+    while (mine) {
+        ShimState *next = mine->next;
+        fmi2FMUstate inner = mine->inner;
+        if (inner) real_fmi2FreeFMUstate(s->inner, &inner);   /* a reference drop only */
+        free(mine->guid);
+        free(mine);
+        mine = next;
+    }
 }
 
 /* The state `st` if this FMU may use it, else NULL with an error logged. */
@@ -995,9 +1028,10 @@ fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *st)
         fmi2FMUstate previous = old->inner;
         real_fmi2FreeFMUstate(s->inner, &previous);
         old->inner = inner;
+        old->owner = s;
         return merge(s, status);
     }
-    ShimState *fresh = state_new(s->guid, inner);
+    ShimState *fresh = state_new(s, inner);
     if (!fresh) {
         real_fmi2FreeFMUstate(s->inner, &inner);
         shim_log(s, fmi2Error, "fmi2GetFMUstate: out of memory");
@@ -1135,9 +1169,10 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte b[], size_t s
         fmi2FMUstate previous = old->inner;
         real_fmi2FreeFMUstate(s->inner, &previous);
         old->inner = inner;
+        old->owner = s;
         return merge(s, status);
     }
-    ShimState *fresh = state_new(s->guid, inner);
+    ShimState *fresh = state_new(s, inner);
     if (!fresh) {
         real_fmi2FreeFMUstate(s->inner, &inner);
         shim_log(s, fmi2Error, "%s: out of memory", call);
