@@ -122,6 +122,21 @@ if locals() is not globals():  # executed again by pythonfmu's findClass
     _ctypes.pythonapi.Py_IncRef(_ctypes.py_object(globals()))  # the one it releases
     if _sys.path and _sys.path[0] in _sys.path[1:]:  # its sys.path entry of this instance
         _sys.path[1:] = [p for p in _sys.path[1:] if p != _sys.path[0]]
+else:  # first import: every package of requirements.txt, or an error that names them
+    import importlib.util as _util
+    import os as _os
+    import re as _re
+
+    with open(_os.path.join(_os.path.dirname(__file__), "requirements.txt")) as _f:
+        _names = [_re.split(r"[<>=!~;\\[ ]", _r.strip())[0] for _r in _f if _r.strip()]
+    _missing = [_n for _n in _names if _util.find_spec(_n) is None]
+    if _missing:
+        raise ImportError(
+            f"{{', '.join(_missing)}} missing: this FMU needs the packages of "
+            f"resources/requirements.txt ({{', '.join(_names)}}) in the Python that runs it: "
+            "install them there (python -m pip install -r "
+            "requirements.txt) or, in a host that is not a Python process, set "
+            "GYRODIAG_PYTHON to a python executable that has them")
 from {module} import {cls}  # noqa: E402
 '''
 
@@ -403,11 +418,13 @@ HOST_NOTES = """
 model in a CPython interpreter of the host machine and imports the model from
 <code>resources/</code>. What a host needs:</p>
 <ul>
-<li><b>Platform</b>: Linux x86-64 (<code>binaries/linux64</code>, with the gyrodiag status
-shim described below) or Windows x86-64 (pythonfmu's own binary, without the shim).</li>
+<li><b>Platform</b>: Linux x86-64 only (<code>binaries/linux64</code>, with the gyrodiag
+status shim described below). No binary for another platform is shipped: pythonfmu's
+Windows one lacks the shim and has never been run with these FMUs.</li>
 <li><b>A Python with the packages</b> of <code>resources/requirements.txt</code>
 (<code>python -m pip install -r requirements.txt</code>); pythonfmu itself is shipped in
-<code>resources/</code>. Tested with CPython 3.11.</li>
+<code>resources/</code>. Tested with CPython 3.11. Without one of them fmi2Instantiate
+returns NULL and logs which package is missing, in which Python, and GYRODIAG_PYTHON.</li>
 <li><b>Python hosts</b> (FMPy, the gyrodiag harness, libcosimpy): nothing else; the FMU
 uses the host's interpreter.</li>
 <li><b>Hosts that are not Python processes</b> (a C master, libcosim's cosim, Simulink,
@@ -525,7 +542,9 @@ def rewrite_fmu(
     kernels and generated resources ``kernels`` (archive name → file) in place of any
     extension modules the builder copied from the source tree (those are for whichever
     Python built them), and with ``entry`` (model module, class) make the stub of
-    :data:`ENTRY_TEMPLATE` pythonfmu's entry module."""
+    :data:`ENTRY_TEMPLATE` pythonfmu's entry module. Only the Linux binaries are shipped:
+    pythonfmu's win64 DLL has no status shim and has never run here (docs/fmu.md,
+    "Platforms")."""
     linux_binary = f"binaries/linux64/{model_identifier}.so"
     kernels = kernels or {}
     generated: dict[str, bytes] = {}
@@ -545,6 +564,9 @@ def rewrite_fmu(
                 continue
             if shim is not None and info.filename == linux_binary:
                 continue
+            if info.filename.startswith("binaries/") and not info.filename.startswith(
+                    "binaries/linux64/"):
+                continue  # pythonfmu's win64 DLL: no status shim, never run here
             if info.filename in kernels:  # a copy the builder found in the source tree
                 continue
             if info.filename.startswith("resources/") and (

@@ -178,6 +178,7 @@ FMI2_FUNCTIONS(REAL)
 static pthread_mutex_t python_lock = PTHREAD_MUTEX_INITIALIZER;
 static int python_state = 0;          /* 0 not checked, 1 ready, -1 failed */
 static char python_error[3072];
+static char python_used[4096];        /* the executable whose interpreter the shim started */
 
 /* Asked of the Python executable: its version, its libpython candidates, its sys.path. */
 static const char PYTHON_QUERY[] =
@@ -285,15 +286,11 @@ static int python_setup(void)
     py_str_void get_version = (py_str_void)dlsym(RTLD_DEFAULT, "Py_GetVersion");
     void *(*list_new)(long) = (void *(*)(long))dlsym(RTLD_DEFAULT, "PyList_New");
     int (*list_append)(void *, void *) = (int (*)(void *, void *))dlsym(RTLD_DEFAULT, "PyList_Append");
-    long (*list_size)(void *) = (long (*)(void *))dlsym(RTLD_DEFAULT, "PyList_Size");
-    void *(*list_get)(void *, long) = (void *(*)(void *, long))dlsym(RTLD_DEFAULT, "PyList_GetItem");
-    int (*contains)(void *, void *) = (int (*)(void *, void *))dlsym(RTLD_DEFAULT, "PySequence_Contains");
     void *(*decode)(const char *) = (void *(*)(const char *))dlsym(RTLD_DEFAULT, "PyUnicode_DecodeFSDefault");
-    void *(*sys_get)(const char *) = (void *(*)(const char *))dlsym(RTLD_DEFAULT, "PySys_GetObject");
     int (*sys_set)(const char *, void *) = (int (*)(const char *, void *))dlsym(RTLD_DEFAULT, "PySys_SetObject");
     void (*dec_ref)(void *) = (void (*)(void *))dlsym(RTLD_DEFAULT, "Py_DecRef");
-    if (!initialize || !save_thread || !get_version || !list_new || !list_append || !list_size ||
-        !list_get || !contains || !decode || !sys_get || !sys_set || !dec_ref) {
+    if (!initialize || !save_thread || !get_version || !list_new || !list_append || !decode ||
+        !sys_set || !dec_ref) {
         snprintf(python_error, sizeof python_error, "the loaded libpython lacks C-API functions");
         free(answer);
         return 0;
@@ -306,24 +303,24 @@ static int python_setup(void)
     size_t vlen = strlen(version);
     const char *running = get_version();
     if (answer && vlen && strncmp(running, version, vlen) == 0 && running[vlen] == '.') {
-        /* the asked interpreter's sys.path first (its site-packages, .pth entries and
-         * PYTHONPATH), then whatever else the embedded one found */
+        /* exactly the asked interpreter's sys.path (its site-packages, .pth entries and
+         * PYTHONPATH): the embedded one also found the base installation's site-packages,
+         * which would hand a virtual environment without system site packages packages
+         * it does not have (issue 37: a missing numpy went unnoticed) */
         void *path = list_new(0);
         char *save = NULL;
+        long n = 0;
         for (char *line = strtok_r(answer, "\n", &save); line && path;
              line = strtok_r(NULL, "\n", &save)) {
             if (strncmp(line, "P ", 2) != 0) continue;
             void *item = decode(line + 2);
-            if (item) { list_append(path, item); dec_ref(item); }
+            if (item) { n += list_append(path, item) == 0; dec_ref(item); }
         }
-        void *old = sys_get("path");
-        for (long i = 0; old && path && i < list_size(old); i++) {
-            void *item = list_get(old, i);
-            if (contains(path, item) == 0) list_append(path, item);
-        }
-        if (path) { sys_set("path", path); dec_ref(path); }
+        if (path && n > 0) sys_set("path", path);
+        if (path) dec_ref(path);
     }
     free(answer);
+    snprintf(python_used, sizeof python_used, "%s", chosen);
     save_thread();   /* pythonfmu takes the GIL with PyGILState_Ensure on any thread */
     return 1;
 }
@@ -799,6 +796,12 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     s->inner = real_fmi2Instantiate(instanceName, fmuType, fmuGUID, fmuResourceLocation,
                                     &s->mine, visible, fmi2True);
     if (!s->inner || !s->guid || !s->name) {
+        if (!s->inner)   /* pythonfmu logged why (an ImportError names a missing package) */
+            shim_log(s, fmi2Error, "fmi2Instantiate: the model could not be started in %s%s "
+                     "(see the message above); it needs the packages of "
+                     "resources/requirements.txt there%s", python_used[0] ? "the Python of " :
+                     "the host's own Python", python_used, python_used[0] ? ": install them, "
+                     "or set GYRODIAG_PYTHON to a python executable that has them" : "");
         if (s->inner) real_fmi2FreeInstance(s->inner);
         free_vars(s->vars, s->n_vars);
         free(s->guid);
