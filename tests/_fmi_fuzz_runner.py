@@ -142,8 +142,10 @@ class FmuMachine(RuleBasedStateMachine):
         self.f.new_sequence()
         self.c = self.f.create()
         self.mode = INSTANTIATED
-        self.live: set[int] = set()      # FMU states this host holds
-        self.freed: set[int] = set()     # addresses of states it freed
+        # FMU states this host holds, and addresses of states it freed, in the order of
+        # the calls (not of the addresses, which change from run to run)
+        self.live: dict[int, None] = {}
+        self.freed: dict[int, None] = {}
         self.blobs: list[bytes] = []     # serialized states
         self.t = 0.0
         STATS["sequences"] += 1
@@ -248,7 +250,7 @@ class FmuMachine(RuleBasedStateMachine):
         pool = [v for v in self.f.vars if v["type"] == kind]
         if set_:  # mostly variables that may be set now, sometimes any
             ok = [v for v in pool if self.settable(v)]
-            pool = ok if ok and data.draw(st.integers(0, 3)) else pool
+            pool = ok if data.draw(st.integers(0, 3)) and ok else pool
         chosen = data.draw(st.lists(st.sampled_from(pool), min_size=0, max_size=4))
         vrs = (c_uint * max(len(chosen), 1))(*[v["vr"] for v in chosen])
         label = f"fmi2{'Set' if set_ else 'Get'}{kind}{[v['name'] for v in chosen]}"
@@ -294,18 +296,21 @@ class FmuMachine(RuleBasedStateMachine):
 
     # -- FMU states --------------------------------------------------------------------------
     def _take(self, address: int) -> None:
-        self.live.add(address)
-        self.freed.discard(address)  # the allocator may give a freed address again
+        self.live[address] = None
+        self.freed.pop(address, None)  # the allocator may give a freed address again
 
     @staticmethod
-    def _pick(data: st.DataObject, pool: list[Any]) -> Any:
-        """An element of ``pool`` (not empty), drawn with the same constraints whatever the
-        pool: its contents depend on addresses, which change from run to run."""
-        return pool[data.draw(st.integers(0, 1 << 20)) % len(pool)]
+    def _pick(data: st.DataObject, pool: list[Any], empty: Any = None) -> Any:
+        """An element of ``pool`` (``empty`` if there is none), drawn the same way whatever
+        the pool: which addresses the allocator gives again changes from run to run, and
+        Hypothesis requires the same draws when it replays a sequence."""
+        index = data.draw(st.integers(0, 1 << 20))
+        return pool[index % len(pool)] if pool else empty
 
     @rule(data=st.data(), into=st.booleans())
     def get_state(self, data: st.DataObject, into: bool) -> None:
-        target = self._pick(data, sorted(self.live)) if into and self.live else None
+        target = self._pick(data, list(self.live))
+        target = target if into else None
         state = c_void_p(target)
         if self.call(f"fmi2GetFMUstate(into {target})", "fmi2GetFMUstate",
                      byref(state)) <= WARNING:
@@ -315,13 +320,13 @@ class FmuMachine(RuleBasedStateMachine):
     def _state(self, data: st.DataObject) -> tuple[int | None, bool]:
         """A live state (legal), or a NULL, freed or made-up one (illegal)."""
         kind = data.draw(st.sampled_from(["live", "live", "live", "freed", "null", "made-up"]))
-        pool = sorted(self.live if kind == "live" else self.freed)
-        if kind == "made-up" or (kind in ("live", "freed") and not pool):
+        address = self._pick(data, list(self.live if kind == "live" else self.freed))
+        if kind == "made-up" or (kind in ("live", "freed") and address is None):
             self.bogus = create_string_buffer(64)  # readable memory that is no state
             return addressof(self.bogus), True
         if kind == "null":
             return None, True
-        return self._pick(data, pool), kind != "live"
+        return address, kind != "live"
 
     @rule(data=st.data())
     def set_state(self, data: st.DataObject) -> None:
@@ -335,8 +340,8 @@ class FmuMachine(RuleBasedStateMachine):
         status = self.call(f"fmi2FreeFMUstate({state})", "fmi2FreeFMUstate", byref(handle),
                            illegal=illegal and state is not None)  # *NULL: nothing to free
         if not illegal and status <= WARNING:
-            self.live.discard(state)
-            self.freed.add(state)
+            self.live.pop(state, None)
+            self.freed[state] = None
 
     @rule(data=st.data(), null=st.sampled_from(["", "", "", "size", "bytes", "short"]))
     def serialize(self, data: st.DataObject, null: str) -> None:
@@ -361,7 +366,7 @@ class FmuMachine(RuleBasedStateMachine):
     @rule(data=st.data(), how=st.sampled_from(["as is", "as is", "truncated", "flipped",
                                                 "garbage"]), into=st.booleans())
     def deserialize(self, data: st.DataObject, how: str, into: bool) -> None:
-        blob = self._pick(data, self.blobs) if self.blobs else b""
+        blob = self._pick(data, self.blobs, b"")
         cut = data.draw(st.integers(0, 1 << 20))
         if how == "truncated" and blob:
             blob = blob[:cut % len(blob)]
@@ -371,7 +376,8 @@ class FmuMachine(RuleBasedStateMachine):
         elif how == "garbage":
             blob = data.draw(st.binary(max_size=64))
         illegal = how != "as is" or not blob
-        target = self._pick(data, sorted(self.live)) if into and self.live else None
+        target = self._pick(data, list(self.live))
+        target = target if into else None
         state = c_void_p(target)
         status = self.call(f"fmi2DeSerializeFMUstate({how}, {len(blob)} bytes, into {target})",
                            "fmi2DeSerializeFMUstate", blob, len(blob), byref(state),
@@ -385,7 +391,7 @@ class FmuMachine(RuleBasedStateMachine):
             status = self.call("fmi2Terminate (teardown)", "fmi2Terminate")
             assert status <= WARNING, ("fmi2Terminate after the sequence", status,
                                        self.f.last_log)
-        for state in sorted(self.live)[: len(self.live) // 2]:  # the rest: FreeInstance's
+        for state in list(self.live)[: len(self.live) // 2]:  # the rest: FreeInstance's
             handle = c_void_p(state)
             status = self.call("fmi2FreeFMUstate (teardown)", "fmi2FreeFMUstate", byref(handle))
             assert status <= WARNING, ("fmi2FreeFMUstate after the sequence", self.f.last_log)
