@@ -35,6 +35,7 @@ import json
 import math
 import sys
 import traceback
+import xml.etree.ElementTree as ET
 from collections import Counter
 from ctypes import (
     addressof,
@@ -80,8 +81,6 @@ class FuzzHost(RawFmu):
                            "fmi2SetDebugLogging": [c_void_p, c_int, c_size_t, c_void_p]}.items():
             fn = getattr(self.dll, name)
             fn.restype, fn.argtypes = c_int, args
-        import xml.etree.ElementTree as ET
-
         root = ET.parse(self.dir / "modelDescription.xml").getroot()
         for var, sv in zip(self.vars, root.iter("ScalarVariable"), strict=True):
             var["start"] = sv[0].get("start")
