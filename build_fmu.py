@@ -218,7 +218,8 @@ def source_files(entry: tuple[str, str, str]) -> list[Path]:
     for _, script, _ in GENERATED_RESOURCES.get(entry[0], []):
         out.extend(sorted((ROOT / script).parent.glob("*.py")))
     for p in project_files(entry):
-        out.extend(sorted([*p.rglob("*.py"), *p.rglob("*.c")]) if p.is_dir() else [p])
+        out.extend(sorted([*p.rglob("*.py"), *p.rglob("*.c"), *p.rglob("*.json")])
+                   if p.is_dir() else [p])
     return out
 
 

@@ -49,7 +49,7 @@ IN_NAMES = (
 )
 BASE_PARAMS = {"sample_period_s": H, "df.calibrate_s": 0.5, "df.burn_in_s": 0.1,
                "dtg.learn_start_s": 0.2, "dtg.learn_end_s": 0.8, "dtg.p0": 1e8,
-               "grey.window": 10, "grey.threshold": 0.05}
+               "grey.window": 10, "grey.decision": 0, "grey.threshold": 0.05}
 #: channel configuration → (enabled channels, input columns of IN_NAMES)
 CONFIGS = {
     "DTG": (("dtg",), list(range(0, 4))),

@@ -45,7 +45,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from gd_fmu_base import STEP_RTOL, FacadeBase, samples_in_step
+from gd_fmu_base import FacadeBase, sample_instants, samples_in_step
 from pythonfmu import DefaultExperiment
 
 from gyrodiag.df.plant import seed_aircraft
@@ -58,15 +58,23 @@ from gyrodiag.dtg.channel import (
     DTGChannelConfig,
     DTGChannelOutput,
 )
-from gyrodiag.dtg.decision import UNKNOWN_CODE
 from gyrodiag.dtg.model import N_THETA
-from gyrodiag.dtg.patterns import PatternLibrary
+from gyrodiag.dtg.patterns import PatternLibrary, default_library
 from gyrodiag.dtg.reference import ALLOWANCE_SIGMA, CHANNELS, N_CHANNELS, POWER_THRESHOLD
 from gyrodiag.grey import ClassicGreyPredictor, GreyFaultDetector, ImprovedGreyPredictor
+from gyrodiag.grey.decision import (
+    DEFAULT_LEARN_END_S,
+    CalibratedKSigma,
+    CalibratedSequential,
+    GreyDecision,
+    PaperThreshold,
+)
 
 if TYPE_CHECKING:  # imported when the channel is built: it needs SciPy (design time)
     from gyrodiag.df.channel import DFChannel, DFChannelConfig, DFChannelOutput
 
+#: The shipped pattern library in the FMU's resources.
+DEFAULT_LIBRARY_RESOURCE = "gyrodiag/dtg/default_patterns.json"
 #: Signatures that fit in the parameter table (more: use ``dtg.signature_file``).
 MAX_SIGNATURES = 8
 #: Fault codes of the summary output ``fault_code``.
@@ -86,6 +94,10 @@ CHANNEL_TEXT = "Utx, Uty, Ux, Uy, residual x, residual y"
 PHYSICAL_UNITS = ("1/s", "1/s2", "rad/s", "1/s2", "1/s2")
 #: Declared unit of the grey channel's signal (the HRG output voltage it was made for).
 GREY_UNIT = "V"
+#: grey.decision codes -> the rule (gyrodiag.grey.decision); 1, the sequential rule, is
+#: the default, 0 the paper's fixed threshold.
+GREY_DECISIONS = {0: PaperThreshold, 1: CalibratedSequential, 2: CalibratedKSigma}
+GREY_DECISION_DEFAULT = 1
 
 #: Packages the host's Python needs (written to resources/requirements.txt).
 REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10"]
@@ -93,6 +105,9 @@ REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10"]
 VARIABLE_META: dict[str, dict[str, Any]] = {}
 #: Lower bound declared for parameters that must be > 0 (FMI bounds are inclusive).
 POSITIVE = 1e-9
+#: Value of a Real (AUTO) or Integer (AUTO_INT) parameter that takes its automatic value.
+AUTO = -1.0
+AUTO_INT = -1
 #: Parameters that may change between steps; a change applies from the next sample
 #: (the channel is rebuilt with the new value and takes over the old one's state).
 TUNABLE = {
@@ -102,7 +117,7 @@ TUNABLE = {
             # the pattern classifier's residual tests (the monitor is rebuilt with them)
             "dtg.level_threshold", "dtg.var_threshold", "dtg.long_var_threshold",
             "dtg.power_threshold", "dtg.allowance_sigma"),
-    "grey": ("grey.threshold", "grey.clear_after_s"),
+    "grey": ("grey.threshold", "grey.threshold_floor", "grey.clear_after_s"),
 }
 _TUNABLE_NAMES = frozenset(n for names in TUNABLE.values() for n in names)
 
@@ -215,6 +230,7 @@ class Diagnoser(FacadeBase):
         # only, so after a skipped NaN sample it would lag the simulation time.
         self._dtg_first_alarm_time = math.nan
         self._dtg_block_copied = -1
+        self._dtg_named_code: int | None = None
         self._theta0_copied: Any = False  # never a channel's theta0: copy at first
         self._dtg_reference_warned = False
         # tunable values the running channels were built with
@@ -244,8 +260,10 @@ class Diagnoser(FacadeBase):
           "Butterworth low-pass on all four DTG signals")
         p("dtg.prefilter_order", "Integer", "parameter", 6, "Butterworth order")
         _meta("dtg.prefilter_order", None, 1, 20)
-        p("dtg.prefilter_cutoff_hz", "Real", "parameter", 50.0, "Butterworth cut-off")
-        _meta("dtg.prefilter_cutoff_hz", "Hz", POSITIVE)
+        p("dtg.prefilter_cutoff_hz", "Real", "parameter", 0.0,
+          "Butterworth cut-off; 0: auto, 1/(20*sample_period_s) (the paper's 50 Hz at "
+          "1 kHz), so that it follows the sample period")
+        _meta("dtg.prefilter_cutoff_hz", "Hz", 0.0)
         p("dtg.prefilter_highpass_hz", "Real", "parameter", 0.0,
           "High-pass corner cascaded with the low-pass (band-pass); 0: off (paper). "
           "Removes the slow torquer response to case rates, not in the regression")
@@ -255,9 +273,9 @@ class Diagnoser(FacadeBase):
         _meta("dtg.estimator", None, 0, 2)
         p("dtg.window", "Integer", "parameter", 500, "Batch LS window, samples")
         _meta("dtg.window", None, N_THETA)
-        p("dtg.forgetting", "Real", "parameter", 0.999,
-          "RLS forgetting factor (paper 0.99: false alarms on the DTG chain, docs/notes.md)")
-        _meta("dtg.forgetting", "1", POSITIVE, 1.0)
+        p("dtg.forgetting", "Real", "parameter", AUTO,
+          "RLS forgetting factor (paper 0.99); -1: auto, 0.999, with dtg.case_rate 0.9998")
+        _meta("dtg.forgetting", "1", AUTO, 1.0)
         p("dtg.p0", "Real", "parameter", 1e6, "Initial RLS covariance scale")
         _meta("dtg.p0", "1", POSITIVE)
         p("dtg.learn_theta0", "Boolean", "parameter", True,
@@ -265,19 +283,25 @@ class Diagnoser(FacadeBase):
         for i in range(1, N_THETA + 1):
             p(f"dtg.theta0[{i}]", "Real", "parameter", 1.0, f"Nominal theta{i}")
             _meta(f"dtg.theta0[{i}]", "1")
-        p("dtg.learn_start_s", "Real", "parameter", 1.0,
-          "Start of the theta0 learning window after the first sample")
-        _meta("dtg.learn_start_s", "s", 0.0)
-        p("dtg.learn_end_s", "Real", "parameter", 5.0, "End of the theta0 learning window")
-        _meta("dtg.learn_end_s", "s", POSITIVE)
-        p("dtg.low", "Real", "parameter", 0.5, "Lower ratio threshold on eta")
-        _meta("dtg.low", "1", 0.0, 1.0 - POSITIVE)
-        p("dtg.high", "Real", "parameter", 1.5, "Upper ratio threshold on eta")
-        _meta("dtg.high", "1", 1.0 + POSITIVE)
-        p("dtg.persistence_k", "Integer", "parameter", 1, "Alarm when k of the last n violate")
-        _meta("dtg.persistence_k", None, 1)
-        p("dtg.persistence_n", "Integer", "parameter", 1, "Persistence window n, samples")
-        _meta("dtg.persistence_n", None, 1)
+        p("dtg.learn_start_s", "Real", "parameter", AUTO,
+          "Start of the theta0 learning window after the first sample; -1: auto, 1 s, "
+          "with dtg.case_rate 2 s")
+        _meta("dtg.learn_start_s", "s", AUTO)
+        p("dtg.learn_end_s", "Real", "parameter", AUTO,
+          "End of the theta0 learning window; -1: auto, 5 s, with dtg.case_rate 10 s")
+        _meta("dtg.learn_end_s", "s", AUTO)
+        p("dtg.low", "Real", "parameter", AUTO,
+          "Lower ratio threshold on eta; -1: auto, 0.5 (paper), with dtg.case_rate 0.93")
+        _meta("dtg.low", "1", AUTO, 1.0 - POSITIVE)
+        p("dtg.high", "Real", "parameter", AUTO,
+          "Upper ratio threshold on eta; -1: auto, 1.5 (paper), with dtg.case_rate 1.07")
+        _meta("dtg.high", "1", AUTO)
+        p("dtg.persistence_k", "Integer", "parameter", AUTO_INT,
+          "Alarm when k of the last n violate; -1: auto, 1, with dtg.case_rate 0.1 s")
+        _meta("dtg.persistence_k", None, AUTO_INT)
+        p("dtg.persistence_n", "Integer", "parameter", AUTO_INT,
+          "Persistence window n, samples; -1: auto, 1, with dtg.case_rate 0.2 s")
+        _meta("dtg.persistence_n", None, AUTO_INT)
         p("dtg.band_sigma", "Real", "parameter", BAND_SIGMA,
           "Case rate, pattern classifier: a ratio outside the band counts only where "
           "theta is also this many standard errors from theta0 (0: the band alone)")
@@ -405,6 +429,8 @@ class Diagnoser(FacadeBase):
         p("dtg.alarm", "Boolean", "output", False, "DTG parameter-ratio alarm")
         p("dtg.fault_code", "Integer", "output", 0,
           "0 none, j = nearest signature j, -1 unknown/unclassified")
+        p("dtg.fault_name", "String", "output", "",
+          "Name of dtg.fault_code's class (e.g. uty_step, spin): empty none, unknown")
         p("dtg.first_alarm_time", "Real", "output", -1.0,
           "Simulation time of the first DTG alarm (its sample's time), -1 if none")
         _meta("dtg.first_alarm_time", "s")
@@ -426,8 +452,15 @@ class Diagnoser(FacadeBase):
           "Classic model's time response: 0 careful (exact as a -> 0), 1 textbook "
           "(1 - e^a)(C - b/a)e^(-am), which collapses on a constant window as in the paper")
         _meta("grey.classic_evaluation", None, 0, 1)
+        p("grey.decision", "Integer", "parameter", GREY_DECISION_DEFAULT,
+          "Decision rule: 0 paper (alarm when |y - prediction| > grey.threshold), "
+          "1 sequential (threshold from the prediction errors of the fault-free start "
+          "grey.learn_end_s, lagged step test and CUSUM for grey.false_alarm_rate), "
+          "2 k-sigma (the same learned sigma_e, alarm at grey.k_sigma * sigma_e per sample)")
+        _meta("grey.decision", None, 0, max(GREY_DECISIONS))
         p("grey.threshold", "Real", "parameter", 0.05,
-          "Alarm threshold on |y - prediction|, in the monitored signal's unit")
+          "Paper rule (grey.decision = 0): alarm threshold on |y - prediction|, in the "
+          "monitored signal's unit")
         _meta("grey.threshold", GREY_UNIT, POSITIVE)
         p("grey.clear_after_s", "Real", "parameter", 20.0,
           "Clear an alarm this long after onset; <= 0: never")
@@ -438,48 +471,53 @@ class Diagnoser(FacadeBase):
         p("grey.residual_order", "Integer", "parameter", 2,
           "Improved model: degree of the residual polynomial (paper: 2)")
         _meta("grey.residual_order", None, 0, 4)
-        p("grey.calibrate_s", "Real", "parameter", 0.0,
-          "> 0: calibrated detector: after the warm-up window, this long of fault-free "
-          "one-step prediction errors gives their standard deviation sigma_e, and "
-          "grey.threshold becomes the smallest threshold allowed; 0: fixed threshold "
-          "(paper)")
-        _meta("grey.calibrate_s", "s", 0.0)
+        p("grey.learn_end_s", "Real", "parameter", DEFAULT_LEARN_END_S,
+          "Learned rules (grey.decision = 1, 2): the signal is fault-free from the start "
+          "until this time: the predictor's warm-up window, then the one-step prediction "
+          "errors that give their standard deviation sigma_e (at least 10 of them)")
+        _meta("grey.learn_end_s", "s", POSITIVE)
+        p("grey.threshold_floor", "Real", "parameter", 0.01,
+          "Learned rules: smallest threshold allowed on |y - prediction| (sigma_e >= "
+          "floor / grey.k_sigma; floor / grey.k_sigma is also the lagged test's allowance "
+          "for its reference's model error), in the monitored signal's unit")
+        _meta("grey.threshold_floor", GREY_UNIT, POSITIVE)
         p("grey.k_sigma", "Real", "parameter", 5.0,
-          "Calibrated: alarm when |y - prediction| > k_sigma * sigma_e")
+          "Learned rules: k-sigma alarm at |y - prediction| > k_sigma * sigma_e "
+          "(grey.decision = 2); sigma floor grey.threshold_floor / k_sigma")
         _meta("grey.k_sigma", "1", POSITIVE)
-        p("grey.sequential", "Boolean", "parameter", False,
-          "Calibrated: alarm by a two-sided CUSUM on the error / sigma_e (threshold for "
-          "grey.false_alarm_rate) instead of the k-sigma test")
         p("grey.false_alarm_rate", "Real", "parameter", 1e-3,
-          "Calibrated, sequential: design false-alarm rate (per hour)")
+          "Sequential rule: design false-alarm rate (per hour)")
         _meta("grey.false_alarm_rate", "1/h", 1e-9, 3600.0)
         p("grey.cusum_k", "Real", "parameter", 1.5,
-          "Calibrated, sequential: CUSUM reference in sigma_e")
+          "Sequential rule: CUSUM reference in sigma_e")
         _meta("grey.cusum_k", "1", 0.05, 5.0)
         p("grey.suspicion_sigma", "Real", "parameter", 4.0,
-          "Calibrated: a sample off its prediction by more than this many sigma_e is "
+          "Learned rules: a sample off its prediction by more than this many sigma_e is "
           "not fed to the predictor until the test decides")
         _meta("grey.suspicion_sigma", "1", POSITIVE)
         p("grey.lag_max", "Integer", "parameter", 3,
-          "Calibrated, sequential: lagged step test on the last 1..lag_max samples "
+          "Sequential rule: lagged step test on the last 1..lag_max samples "
           "against a polynomial reference window that ends before them (a generalised "
           "likelihood ratio per lag, threshold for grey.false_alarm_rate); while it is "
           "ready the CUSUM only holds alarms; 0: CUSUM alone")
         _meta("grey.lag_max", None, 0, 4)
-        p("grey.reference_window", "Integer", "parameter", 60,
-          "Calibrated, lagged test: longest reference window, samples (it starts at "
-          "min(20, this) after the start or an alarm and grows)")
-        _meta("grey.reference_window", None, 3, 400)
+        p("grey.reference_window_s", "Real", "parameter", 30.0,
+          "Sequential rule, lagged test: longest reference window, s (at most 400 "
+          "samples, at least grey.reference_order + 3; it starts at min(20 samples, this) "
+          "after the start or an alarm and grows)")
+        _meta("grey.reference_window_s", "s", POSITIVE)
         p("grey.reference_order", "Integer", "parameter", 3,
-          "Calibrated, lagged test: degree of the reference polynomial "
-          "(grey.reference_window >= order + 3)")
+          "Sequential rule, lagged test: degree of the reference polynomial "
+          "(grey.reference_window_s must hold order + 3 samples)")
         _meta("grey.reference_order", None, 0, 3)
-        p("grey.auto_order", "Boolean", "parameter", False,
-          "Calibrated, improved model: also run residual orders 1 and 0 during the "
-          "calibration and keep the one with the least error (noise favours low orders)")
+        p("grey.auto_order", "Boolean", "parameter", True,
+          "Learned rules, improved model: also run residual orders 1 and 0 during the "
+          "calibration and keep the one with the least error (noise favours low orders); "
+          "not used by the paper rule or the classic model")
         p("grey.y", "Real", "input", 0.0,
           f"Monitored signal (declared in {GREY_UNIT}, the HRG output the channel was made "
-          "for; any signal works, its unit is then that of grey.threshold and the outputs)")
+          "for; any signal works, its unit is then that of grey.threshold, "
+          "grey.threshold_floor and the outputs)")
         _meta("grey.y", GREY_UNIT)
         p("grey.prediction", "Real", "output", 0.0,
           "One-step prediction of this sample; 0 while grey.prediction_valid is false")
@@ -491,15 +529,16 @@ class Diagnoser(FacadeBase):
           "A prediction exists for this sample (window filled)")
         p("grey.alarm", "Boolean", "output", False, "Grey prediction alarm")
         p("grey.calibrating", "Boolean", "output", False,
-          "Calibrated detector: warm-up or calibration window in progress (no alarm)")
+          "Learned rules: warm-up or calibration window in progress (no alarm)")
         p("grey.sigma", "Real", "output", 0.0,
-          "Calibrated: standard deviation of the fault-free prediction error in use "
-          "(signal units); 0 before it is learned and with a fixed threshold")
+          "Learned rules: standard deviation of the fault-free prediction error in use "
+          "(signal units); 0 before it is learned and with the paper rule")
         _meta("grey.sigma", GREY_UNIT, 0.0)
         p("grey.noise_sigma", "Real", "output", 0.0,
-          "Calibrated, lagged test: standard deviation of the signal's white noise in use "
-          "(95 % upper bound from third differences, grey.threshold / grey.k_sigma added "
-          "in quadrature); 0 before it is known or without the lagged test")
+          "Sequential rule, lagged test: standard deviation of the signal's white noise in "
+          "use (95 % upper bound from third differences, grey.threshold_floor / "
+          "grey.k_sigma added in quadrature); 0 before it is known or without the lagged "
+          "test")
         _meta("grey.noise_sigma", GREY_UNIT, 0.0)
         p("grey.statistic", "Real", "output", 0.0,
           "Alarm statistic in units of its threshold (alarm at 1)")
@@ -644,7 +683,8 @@ class Diagnoser(FacadeBase):
         _meta("df.input_delay_samples", None, -50, 50)
         p("df.align_auto", "Boolean", "parameter", True,
           "Choose the alignment on the calibration window (least residual variance over "
-          "d in [-df.align_max, df.align_max]); the master's coupling order needs no setting")
+          "d in [-df.align_max, df.align_max]); the master's coupling order needs no setting. "
+          "Not with df.sensor_dynamics_file, whose read-out model sets the timing")
         p("df.align_max", "Integer", "parameter", 2, "Largest |d| tried by df.align_auto")
         _meta("df.align_max", None, 0, 50)
         for i in range(DF_M):
@@ -697,8 +737,8 @@ class Diagnoser(FacadeBase):
         p("df.isolation_window_s", "Real", "parameter", 4.0,
           "Paper rule: when the alarm pattern does not isolate, isolate by the observer "
           "bank's residual energy within this time after detection (0: the pattern "
-          "alone, as the paper's filter; else at least 10 sample periods; small faults "
-          "in turbulence need it)")
+          "alone, as the paper's filter; a shorter window than 10 sample periods is "
+          "lengthened to 10; small faults in turbulence need it)")
         _meta("df.isolation_window_s", "s", 0.0, 3600.0)
         p("df.isolation_baseline_s", "Real", "parameter", 10.0,
           "Paper rule: time constant of the bank's fault-free energy baseline before "
@@ -896,6 +936,7 @@ class Diagnoser(FacadeBase):
             # Outputs at the start time (before the first step) describe the channels'
             # initial state, e.g. df.calibrating and dtg.learning are already true.
             self._dtg_block_copied = -1
+            self._dtg_named_code = None
             if self._dtg is not None:
                 self._copy_dtg(self._dtg.last_output)
             if self._df is not None:
@@ -1033,23 +1074,23 @@ class Diagnoser(FacadeBase):
             sample_period_s=period,
             prefilter_enabled=bool(v["dtg.prefilter_enabled"]),
             prefilter_order=_named_int(v, "dtg.prefilter_order"),
-            prefilter_cutoff_hz=float(v["dtg.prefilter_cutoff_hz"]),
+            prefilter_cutoff_hz=float(v["dtg.prefilter_cutoff_hz"]) or None,
             prefilter_highpass_hz=(
                 None if float(v["dtg.prefilter_highpass_hz"]) == 0.0
                 else float(v["dtg.prefilter_highpass_hz"])
             ),
             estimator=ESTIMATOR_KINDS[kind],
             window=_named_int(v, "dtg.window"),
-            forgetting=float(v["dtg.forgetting"]),
+            forgetting=_auto(float(v["dtg.forgetting"])),
             p0=float(v["dtg.p0"]),
             theta0=None if v["dtg.learn_theta0"] else [
                 float(v[f"dtg.theta0[{i}]"]) for i in range(1, N_THETA + 1)],
-            learn_start_s=float(v["dtg.learn_start_s"]),
-            learn_end_s=float(v["dtg.learn_end_s"]),
-            low=float(v["dtg.low"]),
-            high=float(v["dtg.high"]),
-            persistence_k=_named_int(v, "dtg.persistence_k"),
-            persistence_n=_named_int(v, "dtg.persistence_n"),
+            learn_start_s=_auto(float(v["dtg.learn_start_s"])),
+            learn_end_s=_auto(float(v["dtg.learn_end_s"])),
+            low=_auto(float(v["dtg.low"])),
+            high=_auto(float(v["dtg.high"])),
+            persistence_k=_auto(_named_int(v, "dtg.persistence_k")),
+            persistence_n=_auto(_named_int(v, "dtg.persistence_n")),
             band_sigma=float(v["dtg.band_sigma"]),
             latch=bool(v["dtg.latch"]),
             monitored=[bool(v[f"dtg.monitored[{i}]"]) for i in range(1, N_THETA + 1)],
@@ -1093,7 +1134,9 @@ class Diagnoser(FacadeBase):
                                    for i in range(1, N_THETA + 1)]
                 for j in range(1, n + 1)
             }
-            return (table if classifier == "paper" else {}), None
+            if classifier == "paper":
+                return table, None
+            return {}, self._shipped_patterns(period)
         path = Path(path_text)
         if not path.is_absolute() and self.resources:
             path = Path(self.resources) / path
@@ -1123,7 +1166,35 @@ class Diagnoser(FacadeBase):
             )
         return {str(k): list(s) for k, s in sigs.items()}, None
 
+    def _shipped_patterns(self, period: float) -> PatternLibrary | None:
+        """The shipped pattern library, or None (with a warning) at a sample period it
+        was not learned for: the channel then detects and reports class unknown."""
+        # this instance's copy: another instance's extracted module may be gone by now
+        own = Path(self.resources) / DEFAULT_LIBRARY_RESOURCE if self.resources else None
+        lib = default_library(own if own is not None and own.exists() else None)
+        if abs(period - lib.sample_period_s) <= 1e-6 * lib.sample_period_s:
+            return lib
+        self.report_warning(
+            f"{self.instance_name}: dtg: the shipped pattern library was learned at "
+            f"sample_period_s = {lib.sample_period_s:g} s; at {period:g} s DTG faults are "
+            "detected but not classified (learn a library at this period: dtg.signature_file)")
+        return None
+
     def _grey_detector(self, period: float) -> GreyFaultDetector:
+        v = self.values
+        predictor, candidates = self._grey_predictors()
+        clear = float(v["grey.clear_after_s"])
+        rule = self._grey_decision()
+        for package in rule.requires:
+            _import_or_explain(package, f"grey.decision = {int(v['grey.decision'])} (a "
+                               "learned rule; the paper rule, grey.decision = 0, does "
+                               "without it)")
+        return rule.build(predictor, period, None if clear <= 0 else clear, candidates)
+
+    def _grey_predictors(self) -> tuple[Any, list[Any]]:
+        """The grey predictor, and the improved model's other residual orders that
+        compete on the calibration window (``grey.auto_order``; a learned rule uses
+        them, the paper rule does not)."""
         v = self.values
         model = int(v["grey.model"])
         window = _named_int(v, "grey.window")
@@ -1133,46 +1204,46 @@ class Diagnoser(FacadeBase):
                 raise ValueError("grey.classic_evaluation must be 0 (careful) or 1 (textbook), "
                                  f"got {evaluation}")
             # window 0 stands for None: FMI has no "absent" Integer
-            predictor = ClassicGreyPredictor(
+            return ClassicGreyPredictor(
                 None if window == 0 else window,
                 evaluation="textbook" if evaluation == 1 else "careful",
-            )
-        elif model == 1:
-            if window == 0:
-                raise ValueError("grey.window = 0 (whole record) is only available for the "
-                                 "classic model (grey.model = 0); the improved model needs "
-                                 "a moving window >= 4")
-            predictor = ImprovedGreyPredictor(
-                window, a_min=float(v["grey.a_min"]),
-                residual_order=_named_int(v, "grey.residual_order"))
-        else:
+            ), []
+        if model != 1:
             raise ValueError(f"grey.model must be 0 (classic) or 1 (improved), got {model}")
-        clear = float(v["grey.clear_after_s"])
-        calibrate_s = float(v["grey.calibrate_s"])
-        if not (math.isfinite(calibrate_s) and calibrate_s >= 0.0):
-            raise ValueError(f"grey.calibrate_s must be >= 0 s, got {calibrate_s!r}")
-        calibrate = round(calibrate_s / period)
-        candidates: list[Any] = []
-        if bool(v["grey.auto_order"]):
-            if model != 1 or not calibrate:
-                raise ValueError("grey.auto_order needs the improved model (grey.model = "
-                                 "1) and a calibration window (grey.calibrate_s > 0)")
-            candidates = [ImprovedGreyPredictor(window, a_min=float(v["grey.a_min"]),
-                                                residual_order=order)
-                          for order in (1, 0) if order != int(v["grey.residual_order"])]
-        if calibrate and calibrate < 10:
-            raise ValueError(f"grey.calibrate_s must hold at least 10 samples "
-                             f"({10 * period:g} s), got {calibrate_s!r}")
-        return GreyFaultDetector(
-            predictor, float(v["grey.threshold"]), period, None if clear <= 0 else clear,
-            calibrate_samples=calibrate, k_sigma=float(v["grey.k_sigma"]),
-            sequential=bool(v["grey.sequential"]) and calibrate > 0,
-            false_alarms_per_h=float(v["grey.false_alarm_rate"]),
-            cusum_k=float(v["grey.cusum_k"]), suspicion_sigma=float(v["grey.suspicion_sigma"]),
-            candidates=candidates, lag_max=_named_int(v, "grey.lag_max"),
-            reference_window=_named_int(v, "grey.reference_window"),
-            reference_order=_named_int(v, "grey.reference_order"),
-        )
+        if window == 0:
+            raise ValueError("grey.window = 0 (whole record) is only available for the "
+                             "classic model (grey.model = 0); the improved model needs "
+                             "a moving window >= 4")
+        order = _named_int(v, "grey.residual_order")
+        a_min = float(v["grey.a_min"])
+        predictor = ImprovedGreyPredictor(window, a_min=a_min, residual_order=order)
+        candidates = ([ImprovedGreyPredictor(window, a_min=a_min, residual_order=o)
+                       for o in (1, 0) if o != order] if bool(v["grey.auto_order"]) else [])
+        return predictor, candidates
+
+    def _grey_decision(self) -> GreyDecision:
+        """The rule of ``grey.decision`` with its parameters."""
+        v = self.values
+        code = _named_int(v, "grey.decision")
+        rule = GREY_DECISIONS.get(code)
+        if rule is None:
+            raise ValueError(f"grey.decision must be 0 (paper), 1 (sequential) or 2 "
+                             f"(k-sigma), got {code}")
+        if rule is PaperThreshold:
+            return PaperThreshold(float(v["grey.threshold"]))
+        learned: dict[str, Any] = {
+            "learn_end_s": float(v["grey.learn_end_s"]),
+            "threshold_floor": float(v["grey.threshold_floor"]),
+            "k_sigma": float(v["grey.k_sigma"]),
+            "suspicion_sigma": float(v["grey.suspicion_sigma"]),
+        }
+        if rule is CalibratedSequential:
+            learned.update(
+                false_alarms_per_h=float(v["grey.false_alarm_rate"]),
+                cusum_k=float(v["grey.cusum_k"]), lag_max=_named_int(v, "grey.lag_max"),
+                reference_window_s=float(v["grey.reference_window_s"]),
+                reference_order=_named_int(v, "grey.reference_order"))
+        return rule(**learned)
 
     def reset(self) -> None:  # pythonfmu re-creates the instance on fmi2Reset
         pass
@@ -1203,21 +1274,16 @@ class Diagnoser(FacadeBase):
             n = samples_in_step(h, period)
             if n is not None:
                 self._last_step, self._last_samples = h, n
-        if n is None:
-            self.report_error(
-                f"{self.instance_name}: communication step {h!r} s is not a whole multiple "
-                f"of sample_period_s = {period!r} s (relative tolerance {STEP_RTOL:g}); the "
-                "Diagnoser is sampled-data: a step of n sample periods processes n samples "
-                "with the inputs held. The step was not taken"
-            )
-            return
         if self.watched_changed and not self._apply_tunables():
             return
         if n == 1:
             self._sample(t)
-        else:
+        elif n is not None:
             for i in range(n):
                 self._sample(t + i * period)
+        else:  # not a whole number of periods: the sample instants that fall in the step
+            for t_k in sample_instants(self._start_time, period, t, h):
+                self._sample(t_k)
 
     def _sample(self, t: float) -> None:
         """Process one sample of every enabled channel, taken at time ``t``."""
@@ -1315,9 +1381,11 @@ class Diagnoser(FacadeBase):
         v["dtg.physical_valid"] = physical_valid
         v["dtg.learning"] = bool(out.learning)
         v["dtg.alarm"] = bool(out.alarm)
-        v["dtg.fault_code"] = int(out.fault_code) if out.alarm else 0
-        if out.alarm and out.fault_code == UNKNOWN_CODE:
-            v["dtg.fault_code"] = UNKNOWN_CODE
+        code = int(out.fault_code) if out.alarm else 0
+        v["dtg.fault_code"] = code
+        if code != self._dtg_named_code:  # the name follows the code
+            self._dtg_named_code = code
+            v["dtg.fault_name"] = self._dtg.class_name(code)
         first = self._dtg_first_alarm_time
         v["dtg.first_alarm_time"] = -1.0 if math.isnan(first) else first
         v["dtg.valid"] = bool(out.valid)
@@ -1392,6 +1460,7 @@ class Diagnoser(FacadeBase):
         self._start_time = float(state["start_time"])
         self._dtg_first_alarm_time = float(state["dtg_first_alarm_time"])
         self._dtg_block_copied = -1  # the restored values are complete; recopy at the next block
+        self._dtg_named_code = None
         for name, channel in (("dtg", self._dtg), ("grey", self._grey), ("df", self._df)):
             sub = state[name]
             if (sub is None) != (channel is None):
@@ -1431,8 +1500,9 @@ _PARAMETER_NAMES: dict[str, dict[str, str]] = {
         "clear_after_s": "grey.clear_after_s", "residual_order": "grey.residual_order",
         "k_sigma": "grey.k_sigma", "false_alarms_per_h": "grey.false_alarm_rate",
         "cusum_k": "grey.cusum_k", "suspicion_sigma": "grey.suspicion_sigma",
-        "calibrate_samples": "grey.calibrate_s", "lag_max": "grey.lag_max",
-        "reference_window": "grey.reference_window",
+        "learn_end_s": "grey.learn_end_s", "threshold_floor": "grey.threshold_floor",
+        "lag_max": "grey.lag_max",
+        "reference_window_s": "grey.reference_window_s",
         "reference_order": "grey.reference_order",
     },
     "df": {
@@ -1526,6 +1596,11 @@ def _import_or_explain(module: str, needed_by: str) -> Any:
             f"the host's Python: pip install '{requirement}' (or pip install -r "
             "resources/requirements.txt of this FMU), or switch the channel off"
         ) from None
+
+
+def _auto(value: Any) -> Any:
+    """None (the library's automatic value) for the AUTO sentinel, else the value."""
+    return None if value == AUTO else value
 
 
 def _named_int(values: dict[str, Any], name: str) -> int:

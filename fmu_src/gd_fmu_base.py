@@ -104,6 +104,18 @@ def samples_in_step(step_size: float, sample_period: float) -> int | None:
     return int(n)
 
 
+def sample_instants(start: float, period: float, t: float, h: float) -> list[float]:
+    """Sample instants ``start + k*period`` in the communication step [t, t + h).
+
+    For steps that are not a whole number of periods: a step shorter than a period
+    holds the outputs (no sample), a longer one takes every instant it spans. Instants
+    within ``STEP_RTOL`` of a period from either end count as on the step's start.
+    """
+    k0 = math.ceil((t - start) / period - STEP_RTOL)
+    k1 = math.ceil((t + h - start) / period - STEP_RTOL)
+    return [start + k * period for k in range(k0, k1)]
+
+
 class GuardedSlave(Fmi2Slave):
     """Fmi2Slave base of every gyrodiag FMU: errors as fmi2Error, guarded FMU states,
     outputs that are right in initialisation mode.

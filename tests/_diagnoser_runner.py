@@ -11,6 +11,7 @@ references) and this process share them.
 
 from __future__ import annotations
 
+import math
 import shutil
 import sys
 from pathlib import Path
@@ -63,8 +64,8 @@ K_PATTERN_NAN = 900
 GREY_H = 0.1
 GREY_PARAMS: dict[str, Any] = {
     "sample_period_s": GREY_H, "dtg.enabled": False, "df.enabled": False,
-    "grey.model": 1, "grey.window": 10, "grey.threshold": 0.02, "grey.clear_after_s": 5.0,
-    "grey.a_min": 1e-6,
+    "grey.decision": 0, "grey.model": 1, "grey.window": 10, "grey.threshold": 0.02,
+    "grey.clear_after_s": 5.0, "grey.a_min": 1e-6,
 }
 GREY_CLASSIC_PARAMS = {**GREY_PARAMS, "grey.model": 0, "grey.window": 8,
                        "grey.clear_after_s": 0.0}
@@ -81,7 +82,7 @@ ALL_PARAMS: dict[str, Any] = {
     "dtg.prefilter_cutoff_hz": 20.0, "dtg.p0": 1e8, "dtg.forgetting": 0.99,
     "dtg.learn_start_s": 0.5, "dtg.learn_end_s": 2.0, "dtg.persistence_k": 3,
     "dtg.persistence_n": 5,
-    "grey.window": 10, "grey.threshold": 0.01, "grey.clear_after_s": 3.0,
+    "grey.decision": 0, "grey.window": 10, "grey.threshold": 0.01, "grey.clear_after_s": 3.0,
     "df.calibrate_s": 5.0, "df.burn_in_s": 1.0,
 }
 #: Save points of the state scenario (step indices of the "all" record).
@@ -110,7 +111,9 @@ MULTI_STEPS = (1, 3, 2, 5, 1, 4, 7, 2)
 MULTI_JITTER = (0.0, 4e-7, -4e-7, 9e-7)
 #: Refused steps at sample_period_s = 0.1 s: not a multiple, beyond the tolerance, zero,
 #: negative, non-finite.
-BAD_STEPS = (0.15, 0.05, 0.3 * (1 + 5e-6), 0.0, -0.1, float("nan"), float("inf"))
+BAD_STEPS = (0.0, -0.1, float("nan"), float("inf"))
+#: Steps that are no whole number of GREY_H: half, one and a half, 0.3 s a little long.
+OFF_GRID_STEPS = (0.5, 1.5, 3.0 * (1 + 5e-6))
 N_INTERLEAVE = 600
 #: Invalid parameter sets: label → (parameters, strings).
 INVALID: dict[str, tuple[dict[str, Any], dict[str, str]]] = {
@@ -132,12 +135,12 @@ INVALID: dict[str, tuple[dict[str, Any], dict[str, str]]] = {
     "df.eigenvalue (unstable)": ({"df.eigenvalue[1]": 1.0}, {}),
     "df.eigenvalue (repeated)": ({"df.eigenvalue[2]": -1.0}, {}),
     "df.persistence_k": ({"df.persistence_k": 6}, {}),
-    "df.calibrate_s": ({"df.calibrate_s": 1.0, "df.burn_in_s": 1.0}, {}),
+    "df.calibrate_s": ({"df.calibrate_s": -1.0}, {}),
     "df.decision": ({"df.decision": 3}, {}),
     "df.cusum_k": ({"df.cusum_k": 0.0}, {}),
     "df.false_alarm_rate": ({"df.false_alarm_rate": -1.0}, {}),
     "df.max_faults": ({"df.max_faults": 3}, {}),
-    "df.isolation_window_s": ({"df.isolation_window_s": 0.005}, {}),  # 5 samples at 1 kHz
+    "df.isolation_window_s": ({"df.isolation_window_s": 3601.0}, {}),
     "df.isolation_baseline_s": ({"df.isolation_baseline_s": -1.0}, {}),
     "df.align_auto (no window)": ({"df.calibrate_s": 0.0, "df.noise_std[1]": 0.05,
                                    "df.noise_std[2]": 1e-3, "df.noise_std[3]": 1e-3,
@@ -146,6 +149,32 @@ INVALID: dict[str, tuple[dict[str, Any], dict[str, str]]] = {
     "sample_period_s (zero)": ({"sample_period_s": 0.0}, {}),
     "sample_period_s (negative)": ({"sample_period_s": -1e-3}, {}),
 }
+
+
+def _off_grid_runs(unzipdir: str, md: Any, record: np.ndarray) -> dict[str, np.ndarray]:
+    """The grey record stepped by OFF_GRID_STEPS (in periods) from t = 0, with a new
+    input set before every step (the record's next value, every other one a decoy
+    1000 × larger); and the reference: one step per sample, fed the input of the step
+    each sample instant k·GREY_H falls in."""
+    res: dict[str, np.ndarray] = {}
+    for m in OFF_GRID_STEPS:
+        inputs = np.array([x if j % 2 == 0 else 1e3 * x for j, x in enumerate(record)])
+        d = Diag(unzipdir, md, f"off_grid_{m}", GREY_PARAMS, h=GREY_H)
+        rows, statuses = [], []
+        for j, x in enumerate(inputs):
+            d.fmu.setReal(d._in_vr, [float(v) for v in x])
+            statuses.append(d.call(d.fmu.doStep, j * m * GREY_H, m * GREY_H))
+            rows.append(d.outputs())
+        d.close()
+        starts = np.arange(len(inputs)) * m  # step starts, in periods
+        k = np.arange(math.ceil(starts[-1] + m - 1e-6))
+        owner = np.searchsorted(starts, k + 1e-9, side="right") - 1
+        ref = Diag(unzipdir, md, f"off_grid_ref_{m}", GREY_PARAMS, h=GREY_H)
+        res[f"off_grid_{m}_ref"] = ref.run(inputs[owner])
+        ref.close()
+        res[f"off_grid_{m}"], res[f"off_grid_{m}_status"] = np.array(rows), np.array(statuses)
+        res[f"off_grid_{m}_counts"] = np.bincount(owner, minlength=len(inputs))
+    return res
 
 
 class Diag:
@@ -239,7 +268,7 @@ class Diag:
         return status
 
     def outputs(self) -> np.ndarray:
-        row = np.empty(len(self.out_names))
+        row = np.zeros(len(self.out_names))  # String outputs stay 0
         for kind, getter in (("Real", self.fmu.getReal), ("Integer", self.fmu.getInteger),
                              ("Boolean", self.fmu.getBoolean)):
             items = self._out[kind]
@@ -443,6 +472,7 @@ def run_scenarios(fmu_dir: Path, out: Path, inp: Path) -> None:
     res["after_wrong_step"] = d.run(data["grey"][:20])
     res["after_wrong_step_log"] = np.array(len(d.log))
     d.close()
+    res.update(_off_grid_runs(unzipdir, md, data["grey"][:40]))
 
     np.savez(out, **res)
     shutil.rmtree(unzipdir, ignore_errors=True)

@@ -21,7 +21,7 @@ from _diagnoser_runner import IN_NAMES, Diag
 H = 0.5
 BASE: dict[str, Any] = {
     "sample_period_s": H, "dtg.enabled": False, "df.enabled": False,
-    "grey.threshold": 0.05, "grey.clear_after_s": 10.0,
+    "grey.decision": 0, "grey.threshold": 0.05, "grey.clear_after_s": 10.0,
 }
 #: label -> (grey.model, grey.window, grey.classic_evaluation)
 CASES: dict[str, tuple[int, int, int]] = {
@@ -30,21 +30,17 @@ CASES: dict[str, tuple[int, int, int]] = {
     "moving_textbook": (0, 8, 1),
     "improved": (1, 10, 0),
 }
-#: Calibrated detectors (run on the noisy signal ``y_noisy``): label -> parameters.
+#: Learned rules (run on the noisy signal ``y_noisy``): label -> parameters. The first
+#: 15 s are fault-free: the 10-sample warm-up (5 s), then 20 calibration errors.
+_LEARNED = {"grey.model": 1, "grey.window": 10, "grey.learn_end_s": 15.0,
+            "grey.threshold_floor": 0.01, "grey.auto_order": False}
 CALIBRATED: dict[str, dict[str, Any]] = {
-    "calibrated_k_sigma": {"grey.model": 1, "grey.window": 10, "grey.calibrate_s": 10.0,
-                           "grey.threshold": 0.01, "grey.k_sigma": 5.0},
-    "calibrated_sequential_auto": {"grey.model": 1, "grey.window": 10,
-                                   "grey.calibrate_s": 10.0, "grey.threshold": 0.01,
-                                   "grey.sequential": True, "grey.auto_order": True},
-    "calibrated_sequential_cusum_only": {"grey.model": 1, "grey.window": 10,
-                                         "grey.calibrate_s": 10.0, "grey.threshold": 0.01,
-                                         "grey.sequential": True, "grey.lag_max": 0,
+    "calibrated_k_sigma": {**_LEARNED, "grey.decision": 2, "grey.k_sigma": 5.0},
+    "calibrated_sequential_auto": {**_LEARNED, "grey.decision": 1, "grey.auto_order": True},
+    "calibrated_sequential_cusum_only": {**_LEARNED, "grey.decision": 1, "grey.lag_max": 0,
                                          "grey.suspicion_sigma": 3.0},
-    "calibrated_sequential_lag2_ref30": {"grey.model": 1, "grey.window": 10,
-                                         "grey.calibrate_s": 10.0, "grey.threshold": 0.01,
-                                         "grey.sequential": True, "grey.lag_max": 2,
-                                         "grey.reference_window": 30,
+    "calibrated_sequential_lag2_ref30": {**_LEARNED, "grey.decision": 1, "grey.lag_max": 2,
+                                         "grey.reference_window_s": 15.0,
                                          "grey.reference_order": 2},
 }
 #: Steps before the calibrated sequential detector's state is saved (restored, re-run).
@@ -56,18 +52,13 @@ INVALID: dict[str, dict[str, Any]] = {
     "window 0 with the improved model": {"grey.model": 1, "grey.window": 0},
     "classic_evaluation 2": {"grey.model": 0, "grey.classic_evaluation": 2},
     "classic window 3": {"grey.model": 0, "grey.window": 3},
-    "grey.auto_order with the classic model": {"grey.model": 0, "grey.window": 8,
-                                               "grey.calibrate_s": 10.0,
-                                               "grey.auto_order": True},
-    "grey.calibrate_s of 2 samples": {"grey.calibrate_s": 1.0},
-    "grey.cusum_k 0": {"grey.calibrate_s": 10.0, "grey.sequential": True,
-                       "grey.cusum_k": 0.0},
-    "grey.lag_max 5": {"grey.calibrate_s": 10.0, "grey.sequential": True,
-                       "grey.lag_max": 5},
-    "grey.reference_window 5 with order 3": {"grey.calibrate_s": 10.0,
-                                             "grey.sequential": True,
-                                             "grey.reference_window": 5,
-                                             "grey.reference_order": 3},
+    "grey.decision 3": {"grey.decision": 3},
+    "grey.learn_end_s of 12 samples": {"grey.decision": 1, "grey.learn_end_s": 6.0},
+    "grey.cusum_k 0": {"grey.decision": 1, "grey.cusum_k": 0.0},
+    "grey.lag_max 5": {"grey.decision": 1, "grey.lag_max": 5},
+    "grey.reference_window_s of 5 samples with order 3": {"grey.decision": 1,
+                                                          "grey.reference_window_s": 2.5,
+                                                          "grey.reference_order": 3},
 }
 
 

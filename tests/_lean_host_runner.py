@@ -23,7 +23,8 @@ sys.modules["control"] = None  # type: ignore[assignment]
 
 LEAN_PARAMS = {
     "sample_period_s": 1e-3, "df.enabled": False, "dtg.p0": 1e8, "dtg.learn_start_s": 0.2,
-    "dtg.learn_end_s": 0.8, "grey.window": 10, "grey.threshold": 0.05,
+    "dtg.learn_end_s": 0.8, "grey.window": 10, "grey.decision": 0,
+    "grey.threshold": 0.05,
 }
 
 
@@ -43,16 +44,21 @@ def main(fmu_dir: Path, out: Path, inp: Path, kernels: str) -> None:
     d.close()
     accel = sys.modules["gyrodiag.common._accel"]
     kernel_file = getattr(accel.kernels, "__file__", "")
-    full = Diag(unzipdir, md, "with_df", {})
+    full = Diag(unzipdir, md, "with_df", {"grey.decision": 0})
     init_log = "\n".join(f"[{s}] {m}" for s, m in full.log)
     full.log.clear()
     step_status = full.step(np.zeros(13))
     full.close()
+    learned = Diag(unzipdir, md, "learned_grey", {"df.enabled": False})  # grey's default
+    learned_log = "\n".join(f"[{s}] {m}" for s, m in learned.log)
+    learned_status = learned.init_status
+    learned.close()
     loaded = sorted(m for m, mod in sys.modules.items()
                     if m.split(".")[0] in ("scipy", "control") and mod is not None)
     np.savez(out, rows=rows, names=np.array(d.out_names), accelerated=accel.ACCELERATED,
              kernel_file=kernel_file, resources=str(Path(unzipdir) / "resources"),
              init_status=full.init_status, init_log=init_log, step_status=step_status,
+             learned_status=learned_status, learned_log=learned_log,
              loaded=np.array(loaded, dtype=str))
 
 

@@ -57,7 +57,8 @@ def _hrg_physical() -> dict[str, Any]:
                                                  "seed": 5}},
             "diag": {"fmu": "Diagnoser", "parameters": {
                 "sample_period_s": 0.5, "dtg.enabled": False, "df.enabled": False,
-                "grey.window": 6, "grey.threshold": 0.01, "grey.clear_after_s": 3.0}},
+                "grey.decision": 0, "grey.window": 6, "grey.threshold": 0.01,
+                "grey.clear_after_s": 3.0}},
         },
         "connections": [{"from": "hrg.voltage", "to": "diag.grey.y"}],
         "faults": [{"name": "scale", "set": "hrg.scale_factor", "value": 10.2,

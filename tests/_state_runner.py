@@ -38,6 +38,7 @@ SETUP: dict[str, tuple[dict[str, Any], float | None]] = {
     "PitchController": ({"command_source": 1, "cmd_period": 0.5}, None),
     "Diagnoser": ({"sample_period_s": 0.01, "dtg.learn_start_s": 0.05, "dtg.learn_end_s": 0.2,
                    "df.calibrate_s": 0.3, "df.burn_in_s": 0.05, "grey.window": 6,
+                   "grey.decision": 0,
                    "dtg.prefilter_cutoff_hz": 20.0}, 0.01),
 }
 MAGIC = b"GDFMUST1"

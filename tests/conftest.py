@@ -62,7 +62,7 @@ _SLOW_MODULES = frozenset(_LONG_MODULES) | {
     "test_isolation_closed_loop.py", "test_dtg_case_rate.py", "test_sample_alignment.py",
     "test_dtg_case_rate_reference.py", "test_distributions.py", "test_gain_table.py",
     "test_harness_reference.py", "test_harness_layout.py", "test_dtg_fast_path.py",
-    "test_harness_report.py",
+    "test_harness_report.py", "test_ecos_ssp.py", "test_fmu_container.py",
 }
 #: Single slow tests of otherwise fast modules (function names, parameters aside).
 _SLOW_TESTS = frozenset({
@@ -94,7 +94,11 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
 # ------------------------------------------------------------------ no silent skips
 #: Skips that CI accepts (GYRODIAG_STRICT_SKIPS=1, set by .ci/run): a regular expression
 #: of the skip reason -> why that skip is no defect on CI. Everything else fails the run.
-ALLOWED_SKIPS: dict[str, str] = {}
+ALLOWED_SKIPS: dict[str, str] = {
+    r"Ecos cannot load: libtbb\.so\.12 missing": (
+        "ecospy's binary links TBB, a system library pip cannot install; .ci/run installs "
+        "Debian's libtbb12 where apt-get is available (tests/test_ecos_ssp.py)"),
+}
 _SKIPPED: list[tuple[str, str]] = []
 _SKIP_PROBLEM: list[str] = []
 

@@ -10,7 +10,7 @@ from _aircraft_loop import simulate as simulate_loop
 from test_isolation_closed_loop import T_FAULT, simulate
 
 from gyrodiag.df.channel import DFChannel, DFChannelConfig
-from gyrodiag.df.isolation import FaultType
+from gyrodiag.df.isolation import FaultType, SensorFaultIsolator
 from gyrodiag.df.sequential_diagnosis import FaultKind
 
 CFG = DFChannelConfig(sample_period_s=DT, calibrate_s=8.0, burn_in_s=2.0, k_sigma=6.0,
@@ -171,7 +171,7 @@ def test_given_noise_replaces_the_window():
         ({"calibrate_s": 0.0, "decision": "paper", "align_auto": False}, "main_thresholds"),
         ({"calibrate_s": 0.0, "align_auto": False}, "noise_std"),
         ({"calibrate_s": 0.0, "noise_std": NOISE_STD}, "align_auto"),
-        ({"calibrate_s": 1.0, "burn_in_s": 1.0}, "calibrate_s"),
+        ({"calibrate_s": -1.0}, "calibrate_s"),
         ({"persistence_k": 6, "persistence_n": 5}, "persistence_k"),
         ({"sample_period_s": -1.0}, "sample_period_s"),
         ({"decision": "fast"}, "decision"),
@@ -247,14 +247,22 @@ def test_a_paper_state_from_before_the_energy_isolation_restores():
     assert out[-1].detected and out[-1].isolated_sensor == 3
 
 
-def test_an_isolation_window_too_short_to_decide_is_refused():
-    cfg = DFChannelConfig(sample_period_s=DT, calibrate_s=8.0, burn_in_s=2.0,
-                          decision="paper", isolation_window_s=0.05)
-    with pytest.raises(ValueError, match=r"isolation_window_s must be 0 \(off\) or at "
-                                         r"least 10 samples"):
+def test_an_isolation_window_too_short_to_decide_is_lengthened_to_ten_samples():
+    def window(seconds: float, period: float = DT) -> float:
+        cfg = DFChannelConfig(sample_period_s=period, calibrate_s=8.0, burn_in_s=2.0,
+                              decision="paper", isolation_window_s=seconds)
         cfg.validate()
-    DFChannelConfig(sample_period_s=DT, calibrate_s=8.0, burn_in_s=2.0, decision="paper",
-                    isolation_window_s=10 * DT).validate()
+        return cfg.isolation_window_in_use
+
+    assert window(0.05) == pytest.approx(10 * DT)      # 5 samples: never isolates
+    assert window(10 * DT) == pytest.approx(10 * DT)
+    assert window(4.0) == 4.0 and window(0.0) == 0.0   # long enough; off stays off
+    assert window(4.0, period=0.5) == 5.0               # the default at 2 Hz
+    with pytest.raises(ValueError, match=r"energy_window_s must be 0 \(off\) or at least "
+                                         r"10 samples"):
+        ch = DFChannel(DFChannelConfig(sample_period_s=DT, calibrate_s=8.0, burn_in_s=2.0,
+                                       decision="paper"))
+        SensorFaultIsolator(ch.A, ch.B, ch.C, ch.K, DT, energy_window_s=0.05)
 
 
 @pytest.mark.parametrize("value", [-1.0, float("nan"), 3601.0])
@@ -263,3 +271,12 @@ def test_an_invalid_isolation_baseline_is_refused_naming_it(value):
                           decision="paper", isolation_baseline_s=value)
     with pytest.raises(ValueError, match="isolation_baseline_s"):
         cfg.validate()
+
+
+def test_a_calibration_window_too_short_for_the_sample_period_is_lengthened():
+    """10 s at a 1 s period leaves 8 samples after the 2 s burn-in: lengthened to 12
+    samples so that 10 remain; at 10 ms the window is taken as given."""
+    slow = DFChannel(DFChannelConfig(sample_period_s=1.0, calibrate_s=10.0, burn_in_s=2.0))
+    assert (slow._n_burn, slow._n_cal) == (2, 12)
+    fast = DFChannel(DFChannelConfig(sample_period_s=DT, calibrate_s=10.0, burn_in_s=2.0))
+    assert (fast._n_burn, fast._n_cal) == (round(2.0 / DT), round(10.0 / DT))

@@ -41,15 +41,17 @@ def noisy_signal() -> tuple[np.ndarray, np.ndarray]:
 
 def calibrated_library(label: str, t: np.ndarray, y: np.ndarray) -> dict[str, np.ndarray]:
     extra = CALIBRATED[label]
-    sequential = bool(extra.get("grey.sequential", False))
+    sequential = extra["grey.decision"] == 1
     candidates = ([ImprovedGreyPredictor(10, a_min=1e-6, residual_order=o) for o in (1, 0)]
                   if extra.get("grey.auto_order") else [])
     lagged = {name: extra[f"grey.{name}"] for name in
-              ("lag_max", "reference_window", "reference_order", "suspicion_sigma")
-              if f"grey.{name}" in extra}
+              ("lag_max", "reference_order", "suspicion_sigma") if f"grey.{name}" in extra}
+    if "grey.reference_window_s" in extra:  # seconds in the FMU, samples in the library
+        lagged["reference_window"] = round(extra["grey.reference_window_s"] / H)
     det = GreyFaultDetector(
-        ImprovedGreyPredictor(10, a_min=1e-6), extra["grey.threshold"], H, CLEAR_S,
-        calibrate_samples=round(extra["grey.calibrate_s"] / H), sequential=sequential,
+        ImprovedGreyPredictor(10, a_min=1e-6), extra["grey.threshold_floor"], H, CLEAR_S,
+        # grey.learn_end_s counts from the start: the 10-sample warm-up, then calibration
+        calibrate_samples=round(extra["grey.learn_end_s"] / H) - 10, sequential=sequential,
         candidates=candidates, **lagged)
     return _grey_columns(det, y, t)
 
@@ -147,11 +149,12 @@ def test_whole_record_state_save_and_restore(fmu):
     (0, "window 0 with the improved model", ("grey.window", "grey.model")),
     (1, "classic_evaluation 2", ("grey.classic_evaluation",)),
     (2, "classic window 3", ("grey.window",)),
-    (3, "grey.auto_order with the classic model", ("grey.auto_order", "grey.model")),
-    (4, "grey.calibrate_s of 2 samples", ("grey.calibrate_s",)),
+    (3, "grey.decision 3", ("grey.decision",)),
+    (4, "grey.learn_end_s of 12 samples", ("grey.learn_end_s", "sample_period_s")),
     (5, "grey.cusum_k 0", ("grey.cusum_k",)),
     (6, "grey.lag_max 5", ("grey.lag_max",)),
-    (7, "grey.reference_window 5 with order 3", ("grey.reference_window",)),
+    (7, "grey.reference_window_s of 5 samples with order 3",
+     ("grey.reference_window_s", "grey.reference_order")),
 ])
 def test_invalid_options_are_fmi2error_naming_the_parameter(fmu, i, label, names):
     assert list(INVALID)[i] == label

@@ -155,3 +155,16 @@ def test_training_set_structure_and_disjoint_seeds():
                       for j in range(len(r.seed_parameters))}
     assert not train_seeds & eval_seeds
     assert not train_seeds & campaign_seeds
+
+
+def test_the_shipped_library_is_the_one_the_training_set_learns(pattern_runs):
+    """gyrodiag/dtg/default_patterns.json is what fmu_src/tools/default_patterns.py makes
+    of this session's learned library (classes, noise model and constants, no prior)."""
+    import subprocess
+    import sys
+
+    tool = ROOT / "fmu_src" / "tools" / "default_patterns.py"
+    proc = subprocess.run([sys.executable, str(tool), str(pattern_runs["library"]),
+                           "--check"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "matches (0 differences)" in proc.stdout

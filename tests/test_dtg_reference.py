@@ -228,3 +228,32 @@ def test_monitor_state_round_trip_and_reference_state():
 def test_bad_thresholds_name_the_threshold(kwargs, name):
     with pytest.raises(ValueError, match=name):
         ResidualThresholds(**kwargs).validate()
+
+
+def test_a_levels_only_prior_replaces_only_an_offset_reference_of_the_same_bench():
+    """A library learned on the user's bench replaces any mismatching reference; the
+    shipped one (levels_only) only one whose θ0 (within 30 %) and noise match its bench
+    and whose levels do not: another rotor, dither or noise level stands."""
+    from dataclasses import replace
+
+    from gyrodiag.dtg.reference import NominalPrior, NominalReference, ReferenceLearner
+
+    theta = np.array([2.0, 1.0, -0.03, -0.03, 2e-4])
+    stats = dict(mean=np.zeros(6), block_std=np.full(6, 0.01), var_short=np.ones(6),
+                 var_long=np.ones(6))
+    full = NominalPrior(theta0=theta, theta0_std=np.full(5, 1e-4), **stats)
+    shipped = replace(full, levels_only=True)
+    same = NominalReference(theta0=theta, theta0_eta=theta, **stats)
+    offset = replace(same, mean=np.array([0, 0.3, 0, 0, 0, 0]),
+                     theta0=theta * [1, 1, 1.2, 1.2, 1])          # θ3, θ4 moved 20 %
+    noisier = replace(same, var_short=np.full(6, 4.0))            # another dither level
+    rotor = replace(offset, theta0=theta * [1, 1, 2.0, 2.0, 1])  # another rotor
+    replaces = ReferenceLearner._prior_replaces
+    assert [replaces(r, full) for r in (same, offset, noisier, rotor)] == [
+        False, True, True, True]
+    assert [replaces(r, shipped) for r in (same, offset, noisier, rotor)] == [
+        False, True, False, False]
+    assert NominalPrior.from_dict(shipped.to_dict()).to_dict() == shipped.to_dict()
+    assert shipped.to_dict()["levels_only"] and "levels_only" not in full.to_dict()
+    with pytest.raises(ValueError, match="levels_only must be true or false"):
+        NominalPrior.from_dict({**full.to_dict(), "levels_only": "yes"})

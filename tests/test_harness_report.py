@@ -51,7 +51,7 @@ FULL_SCENARIO = {
     "description": "all plot families",
     "fmus": {"diag": {"fmu": "Diagnoser",
                       "parameters": {"df.threshold[1]": 0.05, "df.threshold[2]": 0.06,
-                                     "grey.threshold": 0.05}}},
+                                     "grey.decision": 0, "grey.threshold": 0.05}}},
     "connections": [{"from": "hrg.voltage", "to": "diag.grey.y"}],
     "expect": [
         {"kind": "detected_within", "signal": "diag.df.detected", "fault": "q_bias",

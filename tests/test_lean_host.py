@@ -1,9 +1,11 @@
-"""Diagnoser.fmu needs only what it imports: DTG and grey run without SciPy or control.
+"""Diagnoser.fmu needs only what it imports: DTG and the paper's grey rule run without
+SciPy or control.
 
 A host whose Python lacks SciPy and python-control (both blocked in the runner's
-process) runs the DTG and grey channels with the compiled kernels and with the
-plain-Python fallback; the outputs equal the library's (full install, this process) to
-1e−12. Switching on the detection filter there gives fmi2Error naming the missing
+process) runs the DTG channel and the grey channel's paper rule (``grey.decision = 0``)
+with the compiled kernels and with the plain-Python fallback; the outputs equal the
+library's (full install, this process) to 1e−12. Switching on the detection filter or
+the grey channel's learned rules (its default) there gives fmi2Error naming the missing
 package and how to install it.
 """
 
@@ -94,6 +96,12 @@ def test_missing_package_is_fmi2error_saying_how_to_install(run_fmu_script, tmp_
     assert "pip install 'scipy>=1.10'" in log and "requirements.txt" in log, log
     assert "Traceback" not in log
     assert int(res["step_status"]) == 3  # not initialised: steps refused, host alive
+    # the grey channel's default, learned rule needs SciPy too; the paper rule does not
+    assert int(res["learned_status"]) == 3
+    log = str(res["learned_log"])
+    assert "grey.decision = 1 (a learned rule; the paper rule, grey.decision = 0, does " \
+           "without it) needs the Python package 'scipy'" in log, log
+    assert "Traceback" not in log
 
 
 _NO_CONTROL = r"""

@@ -26,7 +26,7 @@ from _libcosim_runner import CASES, ROOT, _hrg_physical
 
 from harness import RunResult
 from harness.cosim.scenario import parse_scenario
-from harness.cosim.ssp import check_ssp, export_ssp
+from harness.cosim.ssp import PARAMETER_SET, check_ssp, export_ssp
 from harness.verification.expectations import evaluate
 
 RUNNER = Path(__file__).resolve().parent / "_libcosim_runner.py"
@@ -154,6 +154,7 @@ def test_export_ssp_command_line(fmu_dir, tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "4 components (aircraft, injector, controller, diag)" in proc.stdout
     assert "not carried: coupling 'gauss-seidel'" in proc.stdout
+    assert f"Ecos only when named (--parameterSet {PARAMETER_SET})" in proc.stdout
     check_ssp(out)
     bad = subprocess.run([sys.executable, "-m", "harness", "export-ssp",
                           str(ROOT / "scenarios" / "aircraft_q_bias.toml"), "--out",

@@ -68,14 +68,17 @@ COUPLED_BOUNDS: dict[str, dict[str, str]] = {
                   "dtg.n_signatures": "> 0 only with dtg.classifier = paper",
                   "dtg.long_window_s": "must be >= dtg.window_s",
                   "df.calibrate_s": "0 only with df.noise_std given (sequential rule)",
-                  "grey.reference_window": "must be >= grey.reference_order + 3"},
+                  "grey.reference_window_s": "must hold grey.reference_order + 3 samples "
+                                             "at sample_period_s",
+                  "grey.learn_end_s": "must hold the warm-up window and 10 errors at "
+                                      "sample_period_s"},
 }
 #: Safe-to-change parameters that must be tunable.
 MUST_BE_TUNABLE: dict[str, set[str]] = {
     "Diagnoser": {"dtg.low", "dtg.high", "dtg.persistence_k", "dtg.latch", "dtg.max_distance",
                   "dtg.level_threshold", "dtg.var_threshold", "dtg.long_var_threshold",
                   "dtg.power_threshold", "dtg.allowance_sigma",
-                  "grey.threshold", "grey.clear_after_s"}
+                  "grey.threshold", "grey.threshold_floor", "grey.clear_after_s"}
     | {f"dtg.monitored[{i}]" for i in range(1, 6)},
     "FaultInjector": {f"fault_type_{i}" for i in range(1, 9)},
     "DTG": {"spin_fraction", "torquer_scale", "pickoff_scale", "damping_scale", "k_offset"},

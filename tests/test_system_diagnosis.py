@@ -582,3 +582,12 @@ def test_band_significance_state_round_trip(runs) -> None:
 def test_band_sigma_is_validated() -> None:
     with pytest.raises(ValueError, match="band_sigma"):
         DTGChannel(DTGChannelConfig(band_sigma=-1.0))
+
+
+def test_a_readout_model_sets_the_timing_and_no_alignment_is_searched() -> None:
+    """With the DTG's read-out model the alignment search is off whatever align_auto
+    says (it picked pairings that false-alarmed in off-trim and large-step flights)."""
+    assert _df_config(align_auto=True).aligns
+    with_model = _df_config(align_auto=True, sensor_dynamics=_readout())
+    assert not with_model.aligns
+    assert DFChannel(with_model)._choose_alignment() == with_model.input_delay_samples

@@ -111,7 +111,7 @@ grey record into one record per witness (class ``<class>/<witness>``, channel
 ``grey/<witness>``), so every table has a row per rule.  The grey channel names no
 fault kind: ``diagnosed`` is None and isolation/classification does not apply.  Sweep
 ``T`` in multiples of the rule's threshold.  A fixed-threshold rule (the paper's,
-``grey.calibrate_s = 0``) is *replayed*: the library's detector
+``grey.decision = 0``) is *replayed*: the library's detector
 (:class:`gyrodiag.grey.GreyFaultDetector`, the FMU's own code) is run on the recorded
 input ``grey.y`` with threshold ``T · grey.threshold``, substitutions and clearing
 included, so every point is exact; ``sweep_mismatch`` is the replay at ``T = 1``

@@ -362,9 +362,10 @@ GreyReplay = Callable[[np.ndarray, np.ndarray, np.ndarray, float], np.ndarray]
 
 
 def grey_replay(scenario: Any, witness: str) -> GreyReplay | None:
-    """A function ``(t, y, valid, T) -> alarm`` replaying a fixed-threshold grey rule of
-    ``witness`` at ``T`` times its ``grey.threshold``, or None for a calibrated rule
-    (``grey.calibrate_s > 0``), which is swept on its statistic instead.
+    """A function ``(t, y, valid, T) -> alarm`` replaying the paper's fixed-threshold grey
+    rule of ``witness`` (``grey.decision = 0``) at ``T`` times its ``grey.threshold``, or
+    None for a learned rule (``grey.decision`` 1 or 2, the default 1), which is swept on
+    its statistic instead.
 
     The detector is built as the Diagnoser FMU builds it (its parameter defaults) and fed
     the recorded samples ``y`` (V) at times ``t`` (s).  Its first sample is the row that
@@ -377,7 +378,7 @@ def grey_replay(scenario: Any, witness: str) -> GreyReplay | None:
     def par(name: str, default: Any) -> Any:
         return _param(scenario, witness, name, default)
 
-    if float(par("grey.calibrate_s", 0.0)) > 0.0:
+    if int(par("grey.decision", 1)) != 0:
         return None
     model, window = int(par("grey.model", 1)), int(par("grey.window", 10))
     threshold = float(par("grey.threshold", 0.05))

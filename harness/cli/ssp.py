@@ -19,7 +19,7 @@ def add_parser(sub: Any) -> None:
     p = sub.add_parser(
         "export-ssp",
         help="write a scenario as an SSP package (SystemStructure.ssd, the FMUs, parameter "
-             "values) for SSP tools such as libcosim")
+             "values) for SSP tools such as libcosim and Ecos")
     p.add_argument("scenario", type=Path, metavar="SCENARIO", help="scenario .toml file")
     p.add_argument("--out", type=Path, required=True, metavar="FILE.ssp", help="SSP to write")
     p.add_argument("--fmu-dir", type=Path, default=None, help="folder of the .fmu files")

@@ -9,9 +9,14 @@ one ``.ssp`` file that any SSP tool can load and run without the harness:
   (start 0, stop ``duration_s``) with the Open Simulation Platform annotation that
   gives libcosim its fixed base step (``step_s``) and each component's step
   (``step_ratio``, as a step-size hint);
-* ``resources/<instance>.ssv``: the instance's parameter values, bound to it by a
+* ``resources/<instance>.ssv``: the instance's parameter values, bound to it by its one
   ParameterBinding. Injector faults are parameter values of the FaultInjector
-  (``fault_type_i``, ``t_start_i``, ``t_end_i``, ...), so they are carried completely;
+  (``fault_type_i``, ``t_start_i``, ``t_end_i``, ...), so they are carried completely.
+  Every ``.ssv`` names the same parameter set, :data:`PARAMETER_SET`: libcosim applies
+  each component's first binding whatever its name; Ecos merges the components' sets by
+  name and applies one set, only when the host names it (``--parameterSet`` or
+  ``init(parameter_set=...)``), so one shared name makes that one choice apply every
+  value;
 * ``resources/<Name>.fmu``: the FMUs. A ``files`` parameter (e.g. the DTG signature
   library) is packed into the FMU copy's own resources and the parameter set to that
   relative name, which the Diagnoser resolves in its resources; the SSP is then
@@ -56,6 +61,9 @@ from harness.cosim.timing import fill_timing_parameters
 #: Annotation type understood by libcosim (fixed-step algorithm, step-size hints).
 OSP_ANNOTATION = "com.opensimulationplatform"
 OSP_NAMESPACE = "https://opensimulationplatform.com/SSP/OSPAnnotations"
+#: Name of the one parameter set that every ``.ssv`` of an export belongs to (Ecos's
+#: own SSP examples use this name; Ecos applies a set only when a host names it).
+PARAMETER_SET = "initialValues"
 #: Annotation type of the list of what the export could not carry.
 NOT_CARRIED_ANNOTATION = "org.gyrodiag.not-carried"
 #: Folder inside an FMU copy's resources that holds the packed ``files`` parameters.
@@ -265,7 +273,7 @@ def export_ssp(scenario: Scenario | Path | str, out: Path | str,
                     continue
                 ssv_path = staging / f"{inst}.ssv"
                 with pyssp.SSV(ssv_path, mode="w") as ssv:
-                    ssv.ssv_elem.name = f"{inst} parameters"
+                    ssv.ssv_elem.name = PARAMETER_SET
                     for name, value in params.items():
                         v = info[inst].variables[name]
                         ssv.add_parameter(name, "Integer" if v.type == "Enumeration"
@@ -342,6 +350,9 @@ def _not_carried(s: Scenario) -> list[str]:
         notes.append(f"infinite values of {', '.join(infinite)} are written as the largest "
                      "double, 1.8e308 (libcosim reads no INF)")
     notes.append("[record] and [[expect]] (what the harness records and checks)")
+    notes.append(f"which parameter set to apply (SSP names no default): every .ssv is set "
+                 f"{PARAMETER_SET!r}; libcosim applies it by default, Ecos only when named "
+                 f"(--parameterSet {PARAMETER_SET})")
     return notes
 
 

@@ -1054,7 +1054,8 @@ def figures_for_result(result: RunResult, scenario: Any = None,
     * ``<inst>.df.*`` → :func:`plot_df_channel`;
     * ``<inst>.grey.*`` → :func:`plot_grey_channel`: the measurement is ``<inst>.grey.y``
       if recorded, else the recorded source connected to it in the scenario; threshold
-      from ``<inst>.grey.threshold`` (signal, then parameter);
+      from ``<inst>.grey.threshold`` (signal, then parameter with the paper rule,
+      ``grey.decision = 0``);
     * flags of no channel (fault injection, plant) → one timeline, switching flags first,
       at most :data:`MAX_TIMELINE_LANES` lanes.
 
@@ -1108,9 +1109,12 @@ def figures_for_result(result: RunResult, scenario: Any = None,
                 (src for src, dst in connections if dst == f"{inst}.grey.y" and src in sig),
                 None)
             thr_name = f"{inst}.grey.threshold"
+            params = scenario_parameters(scenario, inst)
+            # a fixed threshold is the paper rule's (grey.decision = 0); the learned
+            # rules' (the default) is in grey.statistic
             threshold = (float(np.nanmax(sig[thr_name])) if thr_name in sig
-                         else _number(scenario_parameters(scenario, inst).get(
-                             "grey.threshold")))
+                         else _number(params.get("grey.threshold"))
+                         if _number(params.get("grey.decision")) == 0 else None)
             try:
                 fig = plot_grey_channel(result, inst, measured=measured, threshold=threshold,
                                         title=title)

@@ -72,6 +72,8 @@ __all__ = ["DECISIONS", "DECISION_AUTO", "DFChannel", "DFChannelConfig", "DFChan
 DECISIONS = ("paper", "sequential")
 #: FMU code of the automatic choice (the Diagnoser's default ``df.decision``).
 DECISION_AUTO = 2
+#: Fewest calibration samples after the burn-in (the window is lengthened to leave them).
+CAL_MIN_SAMPLES = 10
 
 
 def decision_rule(code: int, has_sensor_dynamics: bool) -> str:
@@ -119,6 +121,8 @@ class DFChannelConfig:
         Length of the initial fault-free window, s. 0: no window; then the paper rule
         needs ``main_thresholds``/``bank_thresholds`` and the sequential rule
         ``noise_std``, and the alignment is ``input_delay_samples``.
+        A window that leaves fewer than ``CAL_MIN_SAMPLES`` samples after the burn-in
+        is lengthened to leave that many (slow sample rates).
     burn_in_s : float
         Start of the window ignored while the observers converge, s.
     k_sigma : float
@@ -138,7 +142,8 @@ class DFChannelConfig:
         Paper rule: when the alarm pattern does not isolate, isolate by the bank's
         residual energy within this time after detection, s (0: off, the pattern
         alone as the paper's filter; :class:`~gyrodiag.df.isolation.SensorFaultIsolator`
-        ``energy_window_s``).
+        ``energy_window_s``). A window shorter than ``ENERGY_MIN_SAMPLES`` samples, which
+        never isolates, is lengthened to that (:attr:`isolation_window_in_use`).
     isolation_baseline_s : float
         Paper rule: time constant of the bank's fault-free energy baseline, s; the
         energy test measures against the larger of the calibration and the last
@@ -160,7 +165,9 @@ class DFChannelConfig:
     input_delay_samples : int
         Alignment d (module notes), used as is unless ``align_auto``.
     align_auto : bool
-        Choose the alignment on the calibration window.
+        Choose the alignment on the calibration window; not with ``sensor_dynamics``,
+        whose read-out model sets the timing (a search there picks a pairing that fits
+        the calibration manoeuvre and false-alarms in the next; :attr:`aligns`).
     align_max : int
         Largest |d| tried.
     x0 : array_like, shape (n,), optional
@@ -226,6 +233,21 @@ class DFChannelConfig:
         x0 = np.zeros(n) if self.x0 is None else check_finite_array("x0", self.x0, shape=(n,))
         return A, B, C, eig, x0
 
+    @property
+    def aligns(self) -> bool:
+        """The alignment is searched on the calibration window (``align_auto`` without
+        a read-out model)."""
+        return self.align_auto and self.sensor_dynamics is None
+
+    @property
+    def isolation_window_in_use(self) -> float:
+        """``isolation_window_s``, lengthened to ``ENERGY_MIN_SAMPLES`` samples if
+        shorter (0 stays off), s."""
+        window = self.isolation_window_s
+        if window <= 0.0:
+            return 0.0
+        return max(window, ENERGY_MIN_SAMPLES * self.sample_period_s)
+
     def settings(self) -> SequentialSettings:
         """The sequential rule's settings."""
         return SequentialSettings(
@@ -234,27 +256,9 @@ class DFChannelConfig:
             history_s=self.history_s, memory_s=self.memory_s,
         )
 
-    def validate(self) -> None:
-        """Raise ValueError/TypeError naming the first invalid setting."""
-        _, _, C, _, _ = self.matrices()
-        m = C.shape[0]
-        period = check_positive("sample_period_s", self.sample_period_s)
-        if self.decision not in DECISIONS:
-            raise ValueError(f"decision must be one of {DECISIONS}, got {self.decision!r}")
-        calibrate = check_nonnegative("calibrate_s", self.calibrate_s)
-        burn = check_nonnegative("burn_in_s", self.burn_in_s)
-        check_positive("k_sigma", self.k_sigma)
-        if self.noise_std is not None:
-            std = check_finite_array("noise_std", self.noise_std, shape=(m,))
-            if np.any(std <= 0):
-                raise ValueError("noise_std must be > 0 on every sensor")
-        if calibrate > 0.0:
-            if calibrate - burn < 10 * period:
-                raise ValueError(
-                    "calibrate_s must exceed burn_in_s by at least 10 samples, got "
-                    f"calibrate_s={self.calibrate_s!r}, burn_in_s={self.burn_in_s!r}"
-                )
-        elif self.decision == "paper":
+    def _check_given_noise(self, m: int) -> None:
+        """Without a calibration window: the paper rule's thresholds, or the noise."""
+        if self.decision == "paper":
             if self.main_thresholds is None or self.bank_thresholds is None:
                 raise ValueError(
                     "main_thresholds and bank_thresholds are required when calibrate_s = 0"
@@ -268,17 +272,29 @@ class DFChannelConfig:
         elif self.noise_std is None:
             raise ValueError("noise_std is required by the sequential decision when "
                              "calibrate_s = 0 (no window to estimate the noise from)")
+
+    def validate(self) -> None:
+        """Raise ValueError/TypeError naming the first invalid setting."""
+        _, _, C, _, _ = self.matrices()
+        m = C.shape[0]
+        period = check_positive("sample_period_s", self.sample_period_s)
+        if self.decision not in DECISIONS:
+            raise ValueError(f"decision must be one of {DECISIONS}, got {self.decision!r}")
+        calibrate = check_nonnegative("calibrate_s", self.calibrate_s)
+        check_nonnegative("burn_in_s", self.burn_in_s)
+        check_positive("k_sigma", self.k_sigma)
+        if self.noise_std is not None:
+            std = check_finite_array("noise_std", self.noise_std, shape=(m,))
+            if np.any(std <= 0):
+                raise ValueError("noise_std must be > 0 on every sensor")
+        if calibrate == 0.0:  # no window: thresholds or noise must be given
+            self._check_given_noise(m)
         pk = check_int("persistence_k", self.persistence_k, minimum=1)
         pn = check_int("persistence_n", self.persistence_n, minimum=1)
         if pk > pn:
             raise ValueError(f"persistence_k must be <= persistence_n ({pn}), got {pk}")
         check_int("confirm_samples", self.confirm_samples, minimum=1)
-        window = check_in_range("isolation_window_s", self.isolation_window_s, 0.0, 3600.0)
-        if 0.0 < window and round(window / period) < ENERGY_MIN_SAMPLES:
-            raise ValueError(f"isolation_window_s must be 0 (off) or at least "
-                             f"{ENERGY_MIN_SAMPLES} samples ({ENERGY_MIN_SAMPLES * period:g} s "
-                             f"at sample_period_s={period:g}), got {window:g}: a shorter "
-                             "window never isolates")
+        check_in_range("isolation_window_s", self.isolation_window_s, 0.0, 3600.0)
         check_in_range("isolation_baseline_s", self.isolation_baseline_s, 0.0, 3600.0)
         self.settings().validate()
         limit = check_int("align_max", self.align_max, minimum=0)
@@ -307,7 +323,7 @@ class DFChannelConfig:
             if g.sensor >= m:
                 raise ValueError(f"sensor_dynamics: sensor {g.sensor + 1} (1-based) exceeds "
                                  f"the {m} sensors of C")
-        if self.align_auto and calibrate == 0.0:
+        if self.aligns and calibrate == 0.0:
             raise ValueError("align_auto needs a calibration window (calibrate_s > 0); "
                              "set input_delay_samples and align_auto = False")
 
@@ -396,8 +412,9 @@ class DFChannel:
         self.K = design_detection_filter(A, C, np.eye(self.n), eig)
         self.T = float(config.sample_period_s)
         self._x0 = x0
-        self._n_cal = round(config.calibrate_s / self.T)
-        self._n_burn = min(round(config.burn_in_s / self.T), max(self._n_cal - 10, 0))
+        self._n_burn = round(config.burn_in_s / self.T)
+        self._n_cal = (0 if config.calibrate_s == 0.0 else
+                       max(round(config.calibrate_s / self.T), self._n_burn + CAL_MIN_SAMPLES))
         self._monitor = DetectionFilter(A, B, C, self.K, self.T)
         self._equaliser = (None if config.sensor_dynamics is None else
                            SensorDynamicsEqualiser(config.sensor_dynamics, self.p, self.m))
@@ -661,7 +678,7 @@ class DFChannel:
 
     def _choose_alignment(self) -> int:
         c = self.config
-        if not c.align_auto:
+        if not c.aligns:
             return int(c.input_delay_samples)
         scores = {}
         for d in range(-int(c.align_max), int(c.align_max) + 1):
@@ -845,7 +862,7 @@ class DFChannel:
         return SensorFaultIsolator(
             self.A, self.B, self.C, self.K, self.T, persistence_k=c.persistence_k,
             persistence_n=c.persistence_n, confirm_samples=c.confirm_samples,
-            energy_window_s=c.isolation_window_s,
+            energy_window_s=c.isolation_window_in_use,
             energy_baseline_s=c.isolation_baseline_s)
 
     def _rebuild_paper(self, state: dict[str, Any]) -> None:

@@ -72,6 +72,7 @@ from .reference import (
 )
 
 __all__ = [
+    "AUTO_SETTINGS",
     "CLASSIFIERS",
     "ESTIMATOR_KINDS",
     "DTGChannel",
@@ -87,6 +88,18 @@ ClassifierKind = Literal["paper", "pattern"]
 CLASSIFIERS: tuple[ClassifierKind, ...] = ("paper", "pattern")
 #: Block length of the reference statistics, s (rounded to whole samples).
 BLOCK_S = 0.025
+#: Automatic settings, by use: on a bench (case at rest) the paper's chain; with the case
+#: rate (manoeuvres) slower forgetting, a longer learning window and a fine ratio band
+#: held 0.1 s of 0.2 s, so that manoeuvre edges do not alarm and physical faults do
+#: (docs/dtg_case_rate.md). Persistence in seconds (0: one sample).
+AUTO_SETTINGS: dict[str, dict[str, float]] = {
+    "bench": {"forgetting": 0.999, "learn_start_s": 1.0, "learn_end_s": 5.0,
+              "low": 0.5, "high": 1.5, "persistence_k": 0.0, "persistence_n": 0.0},
+    "case_rate": {"forgetting": 0.9998, "learn_start_s": 2.0, "learn_end_s": 10.0,
+                  "low": 0.93, "high": 1.07, "persistence_k": 0.1, "persistence_n": 0.2},
+}
+#: Auto prefilter cut-off as a fraction of the sample rate: the paper's 50 Hz at 1 kHz.
+AUTO_CUTOFF_FRACTION = 0.05
 #: Reference status when the guard could not run (paper classifier, too little data).
 STATUS_NOT_CHECKED = 4
 #: Reference status when learning ended without any usable reference (no excitation in
@@ -125,8 +138,9 @@ class DTGChannelConfig:
         Apply the Butterworth prefilter to all four signals.
     prefilter_order : int
         Butterworth order (paper: 6).
-    prefilter_cutoff_hz : float
-        Cut-off frequency, Hz (paper: 50).
+    prefilter_cutoff_hz : float or None
+        Cut-off frequency, Hz; None: :data:`AUTO_CUTOFF_FRACTION` of the sample rate
+        (the paper's 50 Hz at its 1 kHz), so that it follows ``sample_period_s``.
     prefilter_highpass_hz : float or None
         Optional high-pass corner, Hz (2nd order, cascaded: a band-pass). Removes the
         slow torquer response to case rates, which the regression does not model; None
@@ -135,20 +149,23 @@ class DTGChannelConfig:
         Sliding-window batch LS, RLS, or RLS with forgetting factor.
     window : int
         Window length of the batch estimator, samples (each sample adds one row).
-    forgetting : float
-        Forgetting factor of the "forgetting" estimator. Paper: 0.99; default 0.999
-        (on the DTG FMU chain 0.99 scatters θ3/θ4 by 14 % and false-alarms in the paper
-        band, docs/notes.md).
+    forgetting : float or None
+        Forgetting factor of the "forgetting" estimator. Paper: 0.99 (on the DTG FMU
+        chain it scatters θ3/θ4 by 14 % and false-alarms in the paper band). None:
+        automatic, 0.999 on a bench, 0.9998 with the case rate (:data:`AUTO_SETTINGS`,
+        as every None below).
     p0 : float
         Initial covariance scale of the RLS estimators.
     theta0 : sequence of 5 floats or None
         Nominal θ0. None: learn it as the mean θ over the learning window.
-    learn_start_s, learn_end_s : float
-        Learning window for θ0, s from the first sample (used when theta0 is None).
-    low, high : float
-        Ratio band for η (paper: 0.5, 1.5).
-    persistence_k, persistence_n : int
-        Alarm when k of the last n samples violate the band.
+    learn_start_s, learn_end_s : float or None
+        Learning window for θ0, s from the first sample (used when theta0 is None);
+        automatic 1–5 s, 2–10 s with the case rate.
+    low, high : float or None
+        Ratio band for η (paper and automatic: 0.5, 1.5; with the case rate 0.93, 1.07).
+    persistence_k, persistence_n : int or None
+        Alarm when k of the last n samples violate the band; automatic 1 of 1, with the
+        case rate 0.1 s of 0.2 s.
     band_sigma : float
         Case rate with the pattern classifier (and the "forgetting" or "rls"
         estimator): a ratio outside the band counts as a violation only where θ also
@@ -241,19 +258,19 @@ class DTGChannelConfig:
     sample_period_s: float = 1e-3
     prefilter_enabled: bool = True
     prefilter_order: int = 6
-    prefilter_cutoff_hz: float = 50.0
+    prefilter_cutoff_hz: float | None = None
     prefilter_highpass_hz: float | None = None
     estimator: EstimatorKind = "forgetting"
     window: int = 500
-    forgetting: float = 0.999
+    forgetting: float = None  # type: ignore[assignment]  # None: auto (AUTO_SETTINGS)
     p0: float = 1e6
     theta0: Sequence[float] | None = None
-    learn_start_s: float = 1.0
-    learn_end_s: float = 5.0
-    low: float = 0.5
-    high: float = 1.5
-    persistence_k: int = 1
-    persistence_n: int = 1
+    learn_start_s: float = None  # type: ignore[assignment]
+    learn_end_s: float = None  # type: ignore[assignment]
+    low: float = None  # type: ignore[assignment]
+    high: float = None  # type: ignore[assignment]
+    persistence_k: int = None  # type: ignore[assignment]
+    persistence_n: int = None  # type: ignore[assignment]
     band_sigma: float = BAND_SIGMA
     latch: bool = False
     monitored: Sequence[bool] = (True, True, True, True, True)
@@ -276,6 +293,22 @@ class DTGChannelConfig:
     case_rate_delay_samples: int = 0
     case_rate_align_max: int = 0
     case_rate_lookahead_s: float = 0.032
+
+    def __post_init__(self) -> None:
+        """Settings left None take their automatic value (:data:`AUTO_SETTINGS`)."""
+        auto = AUTO_SETTINGS["case_rate" if self.case_rate is not None else "bench"]
+        end_auto = self.learn_end_s is None
+        T = self.sample_period_s  # an invalid one is left to validate() to name
+        period_ok = isinstance(T, int | float) and math.isfinite(T) and T > 0
+        for name, value in auto.items():
+            if name.startswith("persistence_") and getattr(self, name) is None:
+                setattr(self, name, max(1, round(value / T)) if value > 0 and period_ok
+                        else 1)
+            elif getattr(self, name) is None:
+                setattr(self, name, value)
+        if end_auto and period_ok:  # at least two reference blocks, at slow rates too
+            self.learn_end_s = max(self.learn_end_s, self.learn_start_s
+                                   + 2 * self.block_samples * self.sample_period_s)
 
     @property
     def lookahead_samples(self) -> int:
@@ -300,6 +333,13 @@ class DTGChannelConfig:
                                   self.power_threshold, self.allowance_sigma)
 
     @property
+    def cutoff_hz(self) -> float:
+        """The prefilter cut-off in use, Hz (``prefilter_cutoff_hz`` or its auto rule)."""
+        if self.prefilter_cutoff_hz is None:
+            return AUTO_CUTOFF_FRACTION / self.sample_period_s
+        return self.prefilter_cutoff_hz
+
+    @property
     def block_samples(self) -> int:
         """Samples per reference block (:data:`BLOCK_S`, at least one)."""
         return max(1, round(BLOCK_S / self.sample_period_s))
@@ -313,7 +353,7 @@ class DTGChannelConfig:
         check_positive("sample_period_s", self.sample_period_s)
         if self.prefilter_enabled:
             ButterworthPrefilter(
-                self.prefilter_order, self.prefilter_cutoff_hz, 1.0 / self.sample_period_s,
+                self.prefilter_order, self.cutoff_hz, 1.0 / self.sample_period_s,
                 highpass_hz=self.prefilter_highpass_hz,
             )
         if self.estimator not in ESTIMATOR_KINDS:
@@ -649,7 +689,7 @@ class DTGChannel:
         c = self.config
         self._prefilter = (
             ButterworthPrefilter(
-                c.prefilter_order, c.prefilter_cutoff_hz, 1.0 / self.T, self._width,
+                c.prefilter_order, c.cutoff_hz, 1.0 / self.T, self._width,
                 highpass_hz=c.prefilter_highpass_hz,
             )
             if c.prefilter_enabled
@@ -914,6 +954,16 @@ class DTGChannel:
         )
         return self._last
 
+    def class_name(self, code: int) -> str:
+        """Name of a ``fault_code``: its class (pattern library or signature table),
+        "" for 0 (no fault), "unknown" otherwise."""
+        c = self.config
+        names = (c.patterns.names if c.classifier == "pattern" and c.patterns is not None
+                 else list(c.signatures) if c.classifier == "paper" else [])
+        if code == 0:
+            return ""
+        return names[code - 1] if 0 < code <= len(names) else "unknown"
+
     def _class_code(self, name: str) -> int:
         assert self.config.patterns is not None
         return self.config.patterns.names.index(name) + 1
@@ -1018,7 +1068,8 @@ class DTGChannel:
                 self._refine_band()
             self._hold_estimators(was, now)
             done = True
-        self._hist_filtered = self._blk_filtered[-2:]
+        # the two samples before the next block (a block may hold a single sample)
+        self._hist_filtered = (self._hist_filtered + self._blk_filtered)[-2:]
         self._clear_block()
         return done
 
@@ -1297,7 +1348,7 @@ _NO_FEATURE = np.zeros(N_THETA, dtype=np.int64)
 def _ringing_samples(config: DTGChannelConfig, T: float) -> int:
     """Samples after which the prefilter's impulse response stays below 1e-3 of its
     peak."""
-    f = ButterworthPrefilter(config.prefilter_order, config.prefilter_cutoff_hz, 1.0 / T,
+    f = ButterworthPrefilter(config.prefilter_order, config.cutoff_hz, 1.0 / T,
                              highpass_hz=config.prefilter_highpass_hz)
     # sample by sample (the record path needs SciPy, which a lean host may not have)
     h = np.abs([f.step((1.0 if k == 0 else 0.0,))[0] for k in range(4096)])

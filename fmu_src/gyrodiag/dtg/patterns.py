@@ -36,9 +36,11 @@ Two cases cannot be told apart and are merged by rule:
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -51,6 +53,7 @@ from .reference import N_CHANNELS, ClassificationStatistics, NominalPrior
 
 __all__ = [
     "AXIS_CODES",
+    "DEFAULT_LIBRARY_FILE",
     "FAULT_TYPES",
     "FORMAT",
     "SIGNALS",
@@ -59,7 +62,13 @@ __all__ = [
     "PatternClassifier",
     "PatternLibrary",
     "PatternResult",
+    "default_library",
 ]
+
+#: The shipped library: classes learned on the paper DTG bench at 1 kHz
+#: (scenarios/training/patterns), its nominal prior applied to levels only; written by
+#: ``fmu_src/tools/default_patterns.py`` from a ``harness learn-signatures`` file.
+DEFAULT_LIBRARY_FILE = Path(__file__).with_name("default_patterns.json")
 
 #: File format tag of a pattern library.
 FORMAT = "gyrodiag.dtg-patterns/1"
@@ -547,3 +556,10 @@ class PatternClassifier:
             signal=0, axis=best.axis, distance=distance, ratio=10.0 ** a,
             runner_up="" if runner is None else lib.classes[runner[1]].name,
             margin=math.nan if runner is None else (runner[0] - chi2) / N_ETA)
+
+
+def default_library(path: Path | None = None) -> PatternLibrary:
+    """The shipped pattern library, used when no ``dtg.signature_file`` is given: from
+    ``path`` (an FMU's own copy) or :data:`DEFAULT_LIBRARY_FILE`."""
+    data = json.loads((path or DEFAULT_LIBRARY_FILE).read_text(encoding="utf-8"))
+    return PatternLibrary.from_dict(data["patterns"])

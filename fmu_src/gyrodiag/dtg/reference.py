@@ -376,6 +376,10 @@ def _block_allowances(phi_blocks: list[tuple[NDArray[np.float64], NDArray[np.flo
 
 
 # --------------------------------------------------------------------------- reference
+#: A levels-only prior's θ0 tolerance, relative: the rotor the prior was learned on.
+SAME_ROTOR_THETA = 0.3
+
+
 @dataclass(frozen=True)
 class NominalPrior:
     """Nominal reference expected from fault-free training runs (signature file).
@@ -386,6 +390,12 @@ class NominalPrior:
         Mean and spread of the learned reference θ over the training runs.
     mean, block_std, var_short, var_long : ndarray, shape (6,)
         Median channel statistics of those runs (V, V, V², V²; :class:`NominalReference`).
+    levels_only : bool
+        False (a library learned on the user's bench): any mismatch replaces the learned
+        reference. True (the shipped library, learned on another bench): only a
+        reference with the prior's θ0 and variances but other levels is replaced (an
+        offset fault before learning); one with another θ0 or noise is another gyro or
+        bench, and stands.
     """
 
     theta0: NDArray[np.float64]
@@ -394,6 +404,7 @@ class NominalPrior:
     block_std: NDArray[np.float64]
     var_short: NDArray[np.float64]
     var_long: NDArray[np.float64]
+    levels_only: bool = False
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], where: str = "nominal") -> NominalPrior:
@@ -409,15 +420,22 @@ class NominalPrior:
             vals[key] = check_finite_array(f"{where}.{key}", d[key], shape=(n,))
         if np.any(vals["theta0"] == 0.0):
             raise ValueError(f"{where}.theta0 must have no zero entry")
+        levels_only = d.get("levels_only", False)
+        if not isinstance(levels_only, bool):
+            raise ValueError(f"{where}.levels_only must be true or false, got {levels_only!r}")
         for key in ("theta0_std", "block_std", "var_short", "var_long"):
             if np.any(vals[key] < 0) or (key != "theta0_std" and np.any(vals[key] == 0)):
                 raise ValueError(f"{where}.{key} must be positive, got {list(vals[key])}")
-        return cls(**vals)
+        return cls(**vals, levels_only=levels_only)
 
-    def to_dict(self) -> dict[str, list[float]]:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready content."""
-        return {k: [float(v) for v in getattr(self, k)] for k in
-                ("theta0", "theta0_std", "mean", "block_std", "var_short", "var_long")}
+        out: dict[str, Any] = {k: [float(v) for v in getattr(self, k)] for k in
+                               ("theta0", "theta0_std", "mean", "block_std", "var_short",
+                                "var_long")}
+        if self.levels_only:
+            out["levels_only"] = True
+        return out
 
 
 @dataclass
@@ -765,7 +783,7 @@ class ReferenceLearner:
         if prior is not None and prior.theta0.shape != ref.theta0.shape:
             raise ValueError("the nominal prior has one θ0 for both axes; this regression "
                              "(with the case rate) has one per axis: learn the prior with it")
-        if prior is not None and not self._matches_prior(ref, prior):
+        if prior is not None and self._prior_replaces(ref, prior):
             return NominalReference(
                 theta0=prior.theta0.copy(), theta0_eta=prior.theta0.copy(),
                 mean=prior.mean.copy(), block_std=prior.block_std.copy(),
@@ -852,18 +870,22 @@ class ReferenceLearner:
         return not spread <= thr.theta_spread
 
     @staticmethod
-    def _matches_prior(ref: NominalReference, prior: NominalPrior) -> bool:
+    def _prior_replaces(ref: NominalReference, prior: NominalPrior) -> bool:
+        """The learned reference is rejected for the prior (:class:`NominalPrior`)."""
         # θ: within 6 spreads of the training runs (floor 1e-3 relative: runs of one
         # seed set can agree better than plants do)
         tol = 6.0 * np.maximum(prior.theta0_std, 1e-3 * np.abs(prior.theta0))
-        if np.any(np.abs(ref.theta0 - prior.theta0) > tol):
-            return False
+        if prior.levels_only:  # the same kind of rotor; an offset moves θ3, θ4 ~20 %
+            tol = np.maximum(tol, SAME_ROTOR_THETA * np.abs(prior.theta0))
+        theta_ok = not np.any(np.abs(ref.theta0 - prior.theta0) > tol)
         # channel levels within 6 block spreads (over the whole window: conservative),
         # variances within a factor 3
-        if np.any(np.abs(ref.mean - prior.mean) > 6.0 * prior.block_std):
-            return False
+        levels_ok = not np.any(np.abs(ref.mean - prior.mean) > 6.0 * prior.block_std)
         ratio = ref.var_short / prior.var_short
-        return bool(np.all((ratio < 3.0) & (ratio > 1.0 / 3.0)))
+        noise_ok = bool(np.all((ratio < 3.0) & (ratio > 1.0 / 3.0)))
+        if prior.levels_only:
+            return theta_ok and noise_ok and not levels_ok
+        return not (theta_ok and levels_ok and noise_ok)
 
     # -- state -----------------------------------------------------------------------
     def get_state(self) -> dict[str, Any]:

@@ -12,6 +12,9 @@ predictor
     Classic and improved moving-window grey predictors; prediction error metric.
 detector
     The grey fault detector (one-step and lagged step tests, calibrated thresholds).
+decision
+    The decision rules (paper's fixed threshold, calibrated sequential, calibrated
+    k-sigma) as strategy objects that build the detector.
 
 Every public name of these modules is importable from the package too
 (``from gyrodiag.grey import ...``); it is imported from its module at first use,
@@ -43,6 +46,13 @@ _EXPORTS = {
     "GreyFaultDetector": "detector",
     "lag_step_weights": "detector",
     "lag_test_threshold": "detector",
+    "DEFAULT_LEARN_END_S": "decision",
+    "MIN_CALIBRATION_ERRORS": "decision",
+    "REFERENCE_MAX_SAMPLES": "decision",
+    "CalibratedKSigma": "decision",
+    "CalibratedSequential": "decision",
+    "GreyDecision": "decision",
+    "PaperThreshold": "decision",
 }
 
 __all__ = sorted(_EXPORTS)

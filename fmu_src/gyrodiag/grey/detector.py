@@ -370,11 +370,15 @@ class GreyFaultDetector:
         self.reference_min = min(self.reference_window, max(self.reference_order + 3, 20))
         self._lag_weights: dict[tuple[int, int], NDArray[np.float64]] = {}
         if self.sequential:
-            from ..common.cusum import arl_for_rate, mean_cusum_threshold
+            from ..common.cusum import TABLE_LOG10_ARL, arl_for_rate, mean_cusum_threshold
 
             # the CUSUM decides only while the lagged test cannot (see class notes): each
             # has the whole design rate
-            arl = arl_for_rate(self.false_alarms_per_h, self.sample_period_s, 2)
+            # at most the longest run length of the shipped table (1e13 samples, no false
+            # alarm in any record; a very low rate at a fast sample would ask for more,
+            # beyond what the CUSUM can be solved for at start-up)
+            arl = min(arl_for_rate(self.false_alarms_per_h, self.sample_period_s, 2),
+                      10.0 ** TABLE_LOG10_ARL[-1])
             self.cusum_threshold = mean_cusum_threshold(arl, self.cusum_k)
             if self._lags:
                 # the longest lag gets LONGEST_LAG_SHARE of the design rate (it has the
