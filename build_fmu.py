@@ -18,6 +18,9 @@ subprocess post-processes ``modelDescription.xml``, which pythonfmu leaves inval
   parameters);
 * units, min/max/nominal and descriptions from the script's ``VARIABLE_META``, with every
   unit declared in ``<UnitDefinitions>`` (SI base-unit exponents where known);
+* ``resources/slavemodule.txt`` names a generated entry module that imports the model
+  class (``ENTRY_TEMPLATE``): pythonfmu executes its entry module's file again at every
+  instantiation, and the model script leaked its classes each time;
 * ``resources/requirements.txt`` from the script's ``REQUIREMENTS`` (default numpy+scipy),
   because the FMU runs on the host's Python (docs/methods.md §6.5).  Hosts that are not Python
   processes need no LD_PRELOAD: the status shim finds and starts a Python itself
@@ -97,6 +100,51 @@ GENERATED_RESOURCES: dict[str, list[tuple[str, str, tuple[str, ...]]]] = {
 DEFAULT_REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10"]
 SHIM_SOURCE = ROOT / "fmu_src" / "shim" / "fmi2_status_shim.c"
 SHIM_INNER_NAME = "pythonfmu-export.so"
+
+#: pythonfmu's entry module of every FMU (``resources/slavemodule.txt`` names it), in
+#: place of the model script. pythonfmu 0.7 (``findClass`` in its binary) imports that
+#: module and then compiles and executes its file again at every fmi2Instantiate, in the
+#: module's globals with fresh locals, keeps a list of the MRO of every class that run
+#: defines (so every class it defines, with its functions, stays alive), releases one
+#: reference to the module's globals that it never took, and inserts the resources
+#: directory into ``sys.path`` once more. Executed again, the model script leaked its
+#: classes at every instance (issue 37); this stub leaves one MRO list and the names of
+#: its classes (under 1 kB), gives the reference back and keeps ``sys.path`` from
+#: growing. Fields: module, class.
+ENTRY_TEMPLATE = '''"""pythonfmu's entry module of this FMU (build_fmu.py, ENTRY_TEMPLATE).
+
+The model is {module}.{cls}; pythonfmu executes this file again at every fmi2Instantiate.
+"""
+import ctypes as _ctypes
+import sys as _sys
+
+if locals() is not globals():  # executed again by pythonfmu's findClass
+    _ctypes.pythonapi.Py_IncRef(_ctypes.py_object(globals()))  # the one it releases
+    if _sys.path and _sys.path[0] in _sys.path[1:]:  # its sys.path entry of this instance
+        _sys.path[1:] = [p for p in _sys.path[1:] if p != _sys.path[0]]
+else:  # first import: every package of requirements.txt, or an error that names them
+    import importlib.util as _util
+    import os as _os
+    import re as _re
+
+    with open(_os.path.join(_os.path.dirname(__file__), "requirements.txt")) as _f:
+        _names = [_re.split(r"[<>=!~;\\[ ]", _r.strip())[0] for _r in _f if _r.strip()]
+    _missing = [_n for _n in _names if _util.find_spec(_n) is None]
+    if _missing:
+        raise ImportError(
+            f"{{', '.join(_missing)}} missing: this FMU needs the packages of "
+            f"resources/requirements.txt ({{', '.join(_names)}}) in the Python that runs it: "
+            "install them there (python -m pip install -r "
+            "requirements.txt) or, in a host that is not a Python process, set "
+            "GYRODIAG_PYTHON to a python executable that has them")
+from {module} import {cls}  # noqa: E402
+'''
+
+
+def entry_module_name(script_stem: str) -> str:
+    """Name of the entry module of the FMU whose model script is ``script_stem``."""
+    return f"{script_stem}_entry"
+
 
 # FMI 2.0 BaseUnit exponents (and factor) of the unit strings used in this project.
 # A unit not listed here is still declared, only without its SI decomposition.
@@ -371,11 +419,13 @@ HOST_NOTES = """
 model in a CPython interpreter of the host machine and imports the model from
 <code>resources/</code>. What a host needs:</p>
 <ul>
-<li><b>Platform</b>: Linux x86-64 (<code>binaries/linux64</code>, with the gyrodiag status
-shim described below) or Windows x86-64 (pythonfmu's own binary, without the shim).</li>
+<li><b>Platform</b>: Linux x86-64 only (<code>binaries/linux64</code>, with the gyrodiag
+status shim described below). No binary for another platform is shipped: pythonfmu's
+Windows one lacks the shim and has never been run with these FMUs.</li>
 <li><b>A Python with the packages</b> of <code>resources/requirements.txt</code>
 (<code>python -m pip install -r requirements.txt</code>); pythonfmu itself is shipped in
-<code>resources/</code>. Tested with CPython 3.11.</li>
+<code>resources/</code>. Tested with CPython 3.11. Without one of them fmi2Instantiate
+returns NULL and logs which package is missing, in which Python, and GYRODIAG_PYTHON.</li>
 <li><b>Python hosts</b> (FMPy, the gyrodiag harness, libcosimpy): nothing else; the FMU
 uses the host's interpreter.</li>
 <li><b>Hosts that are not Python processes</b> (a C master, libcosim's cosim, Simulink,
@@ -456,9 +506,10 @@ pre{{white-space:pre-wrap}}</style></head><body>
     return page.encode("utf-8")
 
 
-def _bytecode(fmu: zipfile.ZipFile) -> dict[str, bytes]:
+def _bytecode(fmu: zipfile.ZipFile, extra: dict[str, bytes] | None = None) -> dict[str, bytes]:
     """Hash-checked bytecode of every Python file under resources/ (archive name of the
-    .pyc → its bytes), for the Python that builds the FMU.
+    .pyc → its bytes), for the Python that builds the FMU; ``extra`` (archive name →
+    source) adds files or replaces the archive's.
 
     pythonfmu imports the model and its packages from the unzipped resources, which a
     host unzips afresh (mtimes lost) and may not be allowed to write into (or runs with
@@ -469,11 +520,12 @@ def _bytecode(fmu: zipfile.ZipFile) -> dict[str, bytes]:
     """
     out: dict[str, bytes] = {}
     with tempfile.TemporaryDirectory(prefix="gyrodiag-pyc-") as tmp:
-        for name in fmu.namelist():
+        extra = extra or {}
+        for name in sorted({*fmu.namelist(), *extra}):
             if not (name.startswith("resources/") and name.endswith(".py")):
                 continue
             source = Path(tmp) / "module.py"
-            source.write_bytes(fmu.read(name))
+            source.write_bytes(extra[name] if name in extra else fmu.read(name))
             target = Path(tmp) / "module.pyc"
             py_compile.compile(str(source), cfile=str(target), dfile=name, doraise=True,
                                invalidation_mode=py_compile.PycInvalidationMode.CHECKED_HASH)
@@ -484,26 +536,38 @@ def _bytecode(fmu: zipfile.ZipFile) -> dict[str, bytes]:
 def rewrite_fmu(
     fmu: Path, model_description: bytes, requirements: list[str], model_identifier: str,
     shim: Path | None, documentation: bytes | None = None,
-    kernels: dict[str, Path] | None = None,
+    kernels: dict[str, Path] | None = None, entry: tuple[str, str] | None = None,
 ) -> None:
     """Replace modelDescription.xml, add resources/requirements.txt and the
-    documentation, wrap the Linux binary with the status shim, and put the compiled
+    documentation, wrap the Linux binary with the status shim, put the compiled
     kernels and generated resources ``kernels`` (archive name → file) in place of any
     extension modules the builder copied from the source tree (those are for whichever
-    Python built them)."""
+    Python built them), and with ``entry`` (model module, class) make the stub of
+    :data:`ENTRY_TEMPLATE` pythonfmu's entry module. Only the Linux binaries are shipped:
+    pythonfmu's win64 DLL has no status shim and has never run here (docs/fmu.md,
+    "Platforms")."""
     linux_binary = f"binaries/linux64/{model_identifier}.so"
     kernels = kernels or {}
+    generated: dict[str, bytes] = {}
+    if entry is not None:
+        stub = entry_module_name(entry[0])
+        generated[f"resources/{stub}.py"] = ENTRY_TEMPLATE.format(
+            module=entry[0], cls=entry[1]).encode()
+        generated["resources/slavemodule.txt"] = stub.encode()
     buffer = io.BytesIO()
     with zipfile.ZipFile(fmu) as src, zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as dst:
         names = set(src.namelist())
         # before the copy: writestr(info) moves the shared ZipInfo's offsets to dst's
-        bytecode = _bytecode(src)
+        bytecode = _bytecode(src, generated)
         for info in src.infolist():
             if info.filename in ("modelDescription.xml", "resources/requirements.txt",
-                                 "documentation/index.html"):
+                                 "documentation/index.html", *generated):
                 continue
             if shim is not None and info.filename == linux_binary:
                 continue
+            if info.filename.startswith("binaries/") and not info.filename.startswith(
+                    "binaries/linux64/"):
+                continue  # pythonfmu's win64 DLL: no status shim, never run here
             if info.filename in kernels:  # a copy the builder found in the source tree
                 continue
             if info.filename.startswith("resources/") and (
@@ -513,7 +577,7 @@ def rewrite_fmu(
             dst.writestr(info, src.read(info.filename))
         for name, path in kernels.items():
             dst.writestr(name, path.read_bytes())
-        for name, data in bytecode.items():
+        for name, data in [*bytecode.items(), *generated.items()]:
             dst.writestr(name, data)
         dst.writestr("modelDescription.xml", model_description)
         dst.writestr("resources/requirements.txt", "\n".join(requirements) + "\n")
@@ -596,8 +660,11 @@ def build_one(name: str, out_dir: Path) -> Path:
             kernels[f"resources/{package}/_ckernels.abi3.so"] = compiled
     # generated data files travel with the kernels (archive name -> file)
     kernels.update(generate_resources(name, out_dir / ".resources" / name))
+    if not isinstance(getattr(module, model_name, None), type):
+        raise ValueError(f"{script.name} has no class {model_name!r} (the model name)")
     rewrite_fmu(built, fixed, list(getattr(module, "REQUIREMENTS", DEFAULT_REQUIREMENTS)),
-                model_name, shim, documentation_html(fixed, module.__doc__ or ""), kernels)
+                model_name, shim, documentation_html(fixed, module.__doc__ or ""), kernels,
+                entry=(script.stem, model_name))
     final = out_dir / f"{name}.fmu"
     built.replace(final)
     return final

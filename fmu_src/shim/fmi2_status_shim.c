@@ -60,7 +60,10 @@
  * FMU is refused without being touched) and frames serialized states with a header
  * (magic, the FMU's GUID, payload length, FNV-1a 64 checksum), checked before the bytes
  * reach Python: truncated, corrupt or foreign bytes give fmi2Error naming the problem,
- * and the instance is left as it was.
+ * and the instance is left as it was. fmi2FreeInstance frees the states of the instance
+ * that the host did not free (issue 37: a host that forgets states in thousands of
+ * instances must not grow the process); later use of such a state is refused like that
+ * of any freed state.
  */
 #define _GNU_SOURCE
 #include <ctype.h>
@@ -175,6 +178,7 @@ FMI2_FUNCTIONS(REAL)
 static pthread_mutex_t python_lock = PTHREAD_MUTEX_INITIALIZER;
 static int python_state = 0;          /* 0 not checked, 1 ready, -1 failed */
 static char python_error[3072];
+static char python_used[4096];        /* the executable whose interpreter the shim started */
 
 /* Asked of the Python executable: its version, its libpython candidates, its sys.path. */
 static const char PYTHON_QUERY[] =
@@ -282,15 +286,11 @@ static int python_setup(void)
     py_str_void get_version = (py_str_void)dlsym(RTLD_DEFAULT, "Py_GetVersion");
     void *(*list_new)(long) = (void *(*)(long))dlsym(RTLD_DEFAULT, "PyList_New");
     int (*list_append)(void *, void *) = (int (*)(void *, void *))dlsym(RTLD_DEFAULT, "PyList_Append");
-    long (*list_size)(void *) = (long (*)(void *))dlsym(RTLD_DEFAULT, "PyList_Size");
-    void *(*list_get)(void *, long) = (void *(*)(void *, long))dlsym(RTLD_DEFAULT, "PyList_GetItem");
-    int (*contains)(void *, void *) = (int (*)(void *, void *))dlsym(RTLD_DEFAULT, "PySequence_Contains");
     void *(*decode)(const char *) = (void *(*)(const char *))dlsym(RTLD_DEFAULT, "PyUnicode_DecodeFSDefault");
-    void *(*sys_get)(const char *) = (void *(*)(const char *))dlsym(RTLD_DEFAULT, "PySys_GetObject");
     int (*sys_set)(const char *, void *) = (int (*)(const char *, void *))dlsym(RTLD_DEFAULT, "PySys_SetObject");
     void (*dec_ref)(void *) = (void (*)(void *))dlsym(RTLD_DEFAULT, "Py_DecRef");
-    if (!initialize || !save_thread || !get_version || !list_new || !list_append || !list_size ||
-        !list_get || !contains || !decode || !sys_get || !sys_set || !dec_ref) {
+    if (!initialize || !save_thread || !get_version || !list_new || !list_append || !decode ||
+        !sys_set || !dec_ref) {
         snprintf(python_error, sizeof python_error, "the loaded libpython lacks C-API functions");
         free(answer);
         return 0;
@@ -303,24 +303,24 @@ static int python_setup(void)
     size_t vlen = strlen(version);
     const char *running = get_version();
     if (answer && vlen && strncmp(running, version, vlen) == 0 && running[vlen] == '.') {
-        /* the asked interpreter's sys.path first (its site-packages, .pth entries and
-         * PYTHONPATH), then whatever else the embedded one found */
+        /* exactly the asked interpreter's sys.path (its site-packages, .pth entries and
+         * PYTHONPATH): the embedded one also found the base installation's site-packages,
+         * which would hand a virtual environment without system site packages packages
+         * it does not have (issue 37: a missing numpy went unnoticed) */
         void *path = list_new(0);
         char *save = NULL;
+        long n = 0;
         for (char *line = strtok_r(answer, "\n", &save); line && path;
              line = strtok_r(NULL, "\n", &save)) {
             if (strncmp(line, "P ", 2) != 0) continue;
             void *item = decode(line + 2);
-            if (item) { list_append(path, item); dec_ref(item); }
+            if (item) { n += list_append(path, item) == 0; dec_ref(item); }
         }
-        void *old = sys_get("path");
-        for (long i = 0; old && path && i < list_size(old); i++) {
-            void *item = list_get(old, i);
-            if (contains(path, item) == 0) list_append(path, item);
-        }
-        if (path) { sys_set("path", path); dec_ref(path); }
+        if (path && n > 0) sys_set("path", path);
+        if (path) dec_ref(path);
     }
     free(answer);
+    snprintf(python_used, sizeof python_used, "%s", chosen);
     save_thread();   /* pythonfmu takes the GIL with PyGILState_Ensure on any thread */
     return 1;
 }
@@ -796,6 +796,12 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     s->inner = real_fmi2Instantiate(instanceName, fmuType, fmuGUID, fmuResourceLocation,
                                     &s->mine, visible, fmi2True);
     if (!s->inner || !s->guid || !s->name) {
+        if (!s->inner)   /* pythonfmu logged why (an ImportError names a missing package) */
+            shim_log(s, fmi2Error, "fmi2Instantiate: the model could not be started in %s%s "
+                     "(see the message above); it needs the packages of "
+                     "resources/requirements.txt there%s", python_used[0] ? "the Python of " :
+                     "the host's own Python", python_used, python_used[0] ? ": install them, "
+                     "or set GYRODIAG_PYTHON to a python executable that has them" : "");
         if (s->inner) real_fmi2FreeInstance(s->inner);
         free_vars(s->vars, s->n_vars);
         free(s->guid);
@@ -806,10 +812,16 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     return s;
 }
 
+static void free_owned_states(Shim *s);
+
+/* Frees everything the instance holds (issue 37: a host that instantiates and frees an FMU
+ * thousands of times in one process must not grow): its FMU states the host did not free,
+ * pythonfmu's instance, the shim's table and names. */
 void fmi2FreeInstance(fmi2Component c)
 {
     Shim *s = (Shim *)c;
     if (!s) return;
+    free_owned_states(s);
     /* an instance pythonfmu gave up is not freed by it again: its destructor would release
      * the Python objects a second time (a use after free); its few bytes are leaked */
     if (s->mode != MODE_DEAD) real_fmi2FreeInstance(s->inner);
@@ -902,6 +914,7 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 typedef struct ShimState {
     struct ShimState *next;
     char *guid;              /* FMU that made it */
+    Shim *owner;             /* instance that made it (or last wrote it): freed with it */
     fmi2FMUstate inner;      /* pythonfmu's state object */
 } ShimState;
 
@@ -921,10 +934,11 @@ static int state_is_ours(fmi2FMUstate st)
     return p != NULL;
 }
 
-static ShimState *state_new(const char *guid, fmi2FMUstate inner)
+static ShimState *state_new(Shim *owner, fmi2FMUstate inner)
 {
     ShimState *st = calloc(1, sizeof *st);
-    if (!st || !(st->guid = strdup(guid))) { free(st); return NULL; }
+    if (!st || !(st->guid = strdup(owner->guid))) { free(st); return NULL; }
+    st->owner = owner;
     st->inner = inner;
     pthread_mutex_lock(&states_lock);
     st->next = states;
@@ -941,6 +955,28 @@ static void state_forget(ShimState *st)
     pthread_mutex_unlock(&states_lock);
     free(st->guid);
     free(st);
+}
+
+/* Free every state instance `s` made and the host did not free (fmi2FreeInstance frees
+ * all the instance's resources; a host that forgets states must not grow the process). */
+static void free_owned_states(Shim *s)
+{
+    ShimState *mine = NULL;
+    pthread_mutex_lock(&states_lock);
+    for (ShimState **p = &states; *p;) {
+        ShimState *st = *p;
+        if (st->owner == s) { *p = st->next; st->next = mine; mine = st; }
+        else p = &st->next;
+    }
+    pthread_mutex_unlock(&states_lock);
+    while (mine) {
+        ShimState *next = mine->next;
+        fmi2FMUstate inner = mine->inner;
+        if (inner) real_fmi2FreeFMUstate(s->inner, &inner);   /* a reference drop only */
+        free(mine->guid);
+        free(mine);
+        mine = next;
+    }
 }
 
 /* The state `st` if this FMU may use it, else NULL with an error logged. */
@@ -995,9 +1031,10 @@ fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *st)
         fmi2FMUstate previous = old->inner;
         real_fmi2FreeFMUstate(s->inner, &previous);
         old->inner = inner;
+        old->owner = s;
         return merge(s, status);
     }
-    ShimState *fresh = state_new(s->guid, inner);
+    ShimState *fresh = state_new(s, inner);
     if (!fresh) {
         real_fmi2FreeFMUstate(s->inner, &inner);
         shim_log(s, fmi2Error, "fmi2GetFMUstate: out of memory");
@@ -1135,9 +1172,10 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte b[], size_t s
         fmi2FMUstate previous = old->inner;
         real_fmi2FreeFMUstate(s->inner, &previous);
         old->inner = inner;
+        old->owner = s;
         return merge(s, status);
     }
-    ShimState *fresh = state_new(s->guid, inner);
+    ShimState *fresh = state_new(s, inner);
     if (!fresh) {
         real_fmi2FreeFMUstate(s->inner, &inner);
         shim_log(s, fmi2Error, "%s: out of memory", call);
