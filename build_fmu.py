@@ -128,7 +128,8 @@ else:  # first import: every package of requirements.txt, or an error that names
     import re as _re
 
     with open(_os.path.join(_os.path.dirname(__file__), "requirements.txt")) as _f:
-        _names = [_re.split(r"[<>=!~;\\[ ]", _r.strip())[0] for _r in _f if _r.strip()]
+        _names = [_re.split(r"[<>=!~;\\[ ]", _r.strip())[0] for _r in _f
+                  if _r.strip() and "# optional at start-up" not in _r]
     _missing = [_n for _n in _names if _util.find_spec(_n) is None]
     if _missing:
         raise ImportError(

