@@ -255,6 +255,16 @@ def _default_variability(causality: str, type_tag: str) -> str:
     return "continuous" if type_tag == "Real" else "discrete"
 
 
+def rebuild_stale(out: Path, names: list[str] | None = None) -> list[str]:
+    """Rebuild, in a fresh process, the FMUs of ``out`` older than their sources (all
+    of ``names``, or every FMU); the names rebuilt. For benchmarks and tools."""
+    stale = stale_fmus(out, names)
+    if stale:
+        subprocess.run([sys.executable, str(ROOT / "build_fmu.py"), "--out", str(out),
+                        *stale], cwd=ROOT, check=True, capture_output=True, timeout=3600)
+    return stale
+
+
 def _format_number(value: float | int) -> str:
     return str(int(value)) if isinstance(value, int) else f"{float(value):.16g}"
 

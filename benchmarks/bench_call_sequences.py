@@ -60,10 +60,7 @@ def main(argv: list[str] | None = None) -> int:
         sys.path.insert(0, str(ROOT))
         import build_fmu
 
-        if build_fmu.stale_fmus(args.fmu_dir, args.names or None):
-            subprocess.run([sys.executable, str(ROOT / "build_fmu.py"), "--out",
-                            str(args.fmu_dir)], cwd=ROOT, check=True, capture_output=True,
-                           timeout=1800)
+        build_fmu.rebuild_stale(args.fmu_dir, args.names or None)
     print(f"{args.sequences} random sequences per FMU, up to {args.steps} calls each")
     print(f"{'FMU':16} {'sequences':>9} {'calls':>7} {'legal':>6} {'illegal':>7} "
           f"{'refused':>7} {'steps':>6} {'fatal':>5} {'s':>6}  outcome")

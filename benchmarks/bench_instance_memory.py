@@ -58,10 +58,7 @@ def main(argv: list[str] | None = None) -> int:
         sys.path.insert(0, str(ROOT))
         import build_fmu
 
-        if build_fmu.stale_fmus(args.fmu_dir, args.names or None):
-            subprocess.run([sys.executable, str(ROOT / "build_fmu.py"), "--out",
-                            str(args.fmu_dir)], cwd=ROOT, check=True, capture_output=True,
-                           timeout=1800)
+        build_fmu.rebuild_stale(args.fmu_dir, args.names or None)
     print(f"{args.cycles} cycles after {args.warmup} (instantiate, initialise, "
           f"{args.steps} steps, states{'' if args.keep_states else ' + one forgotten'}, "
           "terminate, free); target <= 5 KB per cycle")

@@ -256,3 +256,24 @@ class FmuSlave:
         """Terminate and free the instance, keeping the shared library loaded."""
         self.fmu.terminate()
         self.fmu.fmi2FreeInstance(self.fmu.component)
+
+
+@pytest.fixture(scope="session")
+def c_host(tmp_path_factory) -> Path:
+    """tests/host/gd_fmi2_host.c, the C host of the host tests, compiled with warnings as
+    errors."""
+    import shutil
+
+    import fmpy
+
+    cc = shutil.which("cc") or shutil.which("gcc")
+    assert cc, "a C compiler (cc) is needed, as for build_fmu.py's status shim"
+    exe = tmp_path_factory.mktemp("host") / "gd_fmi2_host"
+    headers = Path(fmpy.__file__).parent / "c-code"
+    source = Path(__file__).resolve().parent / "host" / "gd_fmi2_host.c"
+    proc = subprocess.run([cc, "-std=c11", "-O2", "-Wall", "-Wextra", "-Werror",
+                           f"-I{headers}", "-o", str(exe), str(source), "-ldl"],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    return exe
+

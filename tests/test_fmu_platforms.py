@@ -12,18 +12,21 @@ told so (issue 37 item 3; docs/fmu.md "Platforms").
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
 import sys
 import zipfile
 from pathlib import Path
 
-import fmpy
 import numpy as np
 import pytest
 
 HERE = Path(__file__).resolve().parent
 HOST_SOURCE = HERE / "host" / "gd_fmi2_host.c"
+
+
+@pytest.fixture(scope="module")
+def host(c_host) -> Path:
+    return c_host
 FMUS = ("Aircraft", "DTG", "Diagnoser", "FaultInjector", "HRG", "PitchController")
 
 
@@ -34,20 +37,6 @@ def test_only_linux_binaries_with_the_shim_are_shipped(fmu_dir, name):
         docs = zf.read("documentation/index.html").decode()
     assert binaries == [f"binaries/linux64/{name}.so", "binaries/linux64/pythonfmu-export.so"]
     assert "Linux x86-64 only" in docs
-
-
-@pytest.fixture(scope="module")
-def host(tmp_path_factory) -> Path:
-    """The C host, compiled with warnings as errors."""
-    cc = shutil.which("cc") or shutil.which("gcc")
-    assert cc, "a C compiler (cc) is needed, as for build_fmu.py's status shim"
-    exe = tmp_path_factory.mktemp("host") / "gd_fmi2_host"
-    headers = Path(fmpy.__file__).parent / "c-code"
-    proc = subprocess.run([cc, "-std=c11", "-O2", "-Wall", "-Wextra", "-Werror",
-                           f"-I{headers}", "-o", str(exe), str(HOST_SOURCE), "-ldl"],
-                          capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr
-    return exe
 
 
 @pytest.fixture(scope="module")
