@@ -107,6 +107,8 @@ REQUIREMENTS = ["numpy>=1.24", "scipy>=1.10  # optional at start-up"]
 VARIABLE_META: dict[str, dict[str, Any]] = {}
 #: Lower bound declared for parameters that must be > 0 (FMI bounds are inclusive).
 POSITIVE = 1e-9
+#: Default df.gust_sigma_w: MIL-F-8785C's severe low-altitude turbulence, m/s.
+DF_GUST_SIGMA_W = 2.3
 #: Value of a Real (AUTO) or Integer (AUTO_INT) parameter that takes its automatic value.
 AUTO = -1.0
 AUTO_INT = -1
@@ -702,6 +704,22 @@ class Diagnoser(FacadeBase):
           "q, models/dtg/gd_dtg_readout.py; relative paths are in the FMU's resources): "
           "every input and every other sensor go through the same G (matched filtering); "
           "empty: every sensor is y = Cx")
+        p("df.gust_sigma_w", "Real", "parameter", DF_GUST_SIGMA_W,
+          "Sequential: Dryden vertical gust intensity sigma_w the residual model allows "
+          "for (turbulence up to it is not a fault; MIL-F-8785C light 0.77, moderate "
+          "1.5, severe 2.3); the gust enters through the alpha and q columns of df.A in "
+          "the alpha-dot and q-dot rows; 0: no turbulence model")
+        _meta("df.gust_sigma_w", "m/s", 0.0, 100.0)
+        p("df.gust_scale_length", "Real", "parameter", 50.0,
+          "Sequential: Dryden scale length L_w of the gust model (below 1000 ft: the "
+          "altitude)")
+        _meta("df.gust_scale_length", "m", POSITIVE)
+        p("df.gust_airspeed", "Real", "parameter", 272.24,
+          "Sequential: true airspeed V of the gust model")
+        _meta("df.gust_airspeed", "m/s", POSITIVE)
+        p("df.gust_wingspan", "Real", "parameter", 10.0,
+          "Sequential: wing span b of the gust model's pitch-rate filter 4b/(pi V)")
+        _meta("df.gust_wingspan", "m", POSITIVE)
         p("df.calibrate_s", "Real", "parameter", 10.0,
           "Fault-free calibration window for the alignment, noise and thresholds; 0: "
           "none (paper rule: df.threshold[i]; sequential rule: df.noise_std[i])")
@@ -880,7 +898,20 @@ class Diagnoser(FacadeBase):
                                   for i in range(DF_M)],
             x0=vector("x0", DF_N),
             sensor_dynamics=sensor_dynamics,
+            gust=self._df_gust(),
         )
+
+    def _df_gust(self) -> Any:
+        """The gust model of df.gust_*, or None when df.gust_sigma_w is 0."""
+        from gyrodiag.df.gust import GustModel
+
+        v = self.values
+        sigma = float(v["df.gust_sigma_w"])
+        if sigma == 0.0:
+            return None
+        return GustModel(sigma_w=sigma, scale_length=float(v["df.gust_scale_length"]),
+                         airspeed=float(v["df.gust_airspeed"]),
+                         wingspan=float(v["df.gust_wingspan"]))
 
     def _copy_df(self, out: DFChannelOutput) -> None:
         v = self.values

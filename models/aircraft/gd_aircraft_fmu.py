@@ -35,6 +35,8 @@ VARIABLE_META: dict[str, dict] = {"throttle": {"unit": "1"}, "elevator": {"unit"
                                   "turbulence_sigma_w": {"unit": "m/s", "min": 0.0},
                                   "turbulence_scale_length": {"unit": "m", "min": 1e-3},
                                   "turbulence_wingspan": {"unit": "m", "min": 1e-3},
+                                  "turbulence_start_s": {"unit": "s"},
+                                  "turbulence_stop_s": {"unit": "s"},
                                   "gust_alpha": {"unit": "rad"},
                                   "gust_q": {"unit": "rad/s"}}
 for _n in OUTPUT_NAMES:
@@ -106,6 +108,17 @@ class Aircraft(GuardedSlave):
             "turbulence_sigma_w", causality=P.parameter, variability=V.tunable,
             description="Dryden vertical gust intensity sigma_w (0: no turbulence; "
                         "MIL-F-8785C low altitude: light 0.77, moderate 1.5, severe 2.3)"))
+        self._t0 = 0.0
+        self.turbulence_start_s = 0.0
+        self.turbulence_stop_s = 1e300
+        self.register_variable(Real(
+            "turbulence_start_s", causality=P.parameter, variability=V.fixed,
+            description="turbulence_sigma_w acts from this time on (entering turbulence); "
+                        "before it the air is calm"))
+        self.register_variable(Real(
+            "turbulence_stop_s", causality=P.parameter, variability=V.fixed,
+            description="calm air again from this time on (leaving turbulence; the gust "
+                        "present decays with the Dryden filter's own dynamics)"))
         self.register_variable(Real(
             "turbulence_scale_length", causality=P.parameter, variability=V.fixed,
             description="Dryden vertical gust scale length L_w (MIL-F-8785C below 1000 ft: "
@@ -121,15 +134,24 @@ class Aircraft(GuardedSlave):
                 getter=(lambda j=j: float(self._gust_out[j])),
                 setter=(lambda v, j=j: self._gust_out.__setitem__(j, v))))
 
-    def _gust(self) -> DrydenGust:
-        return DrydenGust(self.turbulence_sigma_w, self.turbulence_scale_length,
-                          wingspan=self.turbulence_wingspan)
+    def _gust(self, t: float, tol: float = 0.0) -> DrydenGust:
+        # an onset within tol of t (half a step) counts as at t: events on the grid
+        on = self.turbulence_start_s <= t + tol and t + tol < self.turbulence_stop_s
+        return DrydenGust(self.turbulence_sigma_w if on else 0.0,
+                          self.turbulence_scale_length, wingspan=self.turbulence_wingspan)
+
+    def setup_experiment(self, start_time: float, stop_time: float | None = None,
+                         tolerance: float | None = None) -> None:
+        self._t0 = float(start_time)
 
     def exit_initialization_mode(self) -> None:
         if not self.parameters_in_range(VARIABLE_META):
             return
         try:
-            self.model.gust = self._gust()
+            if not self.turbulence_stop_s > self.turbulence_start_s:
+                raise ValueError(f"turbulence_stop_s ({self.turbulence_stop_s}) must be > "
+                                 f"turbulence_start_s ({self.turbulence_start_s})")
+            self.model.gust = self._gust(self._t0)
             self.model.check()
             self.model.reset()
             self._publish()
@@ -140,8 +162,9 @@ class Aircraft(GuardedSlave):
         if not self.check_step(step_size):
             return True
         try:
-            if self.turbulence_sigma_w != self.model.gust.sigma_w:
-                self.model.set_gust(self._gust())
+            gust = self._gust(current_time, 0.5 * step_size)
+            if gust.sigma_w != self.model.gust.sigma_w:
+                self.model.set_gust(gust)
             self.model.check()
             self.model.step(step_size, self._u)
             self._publish()

@@ -60,10 +60,16 @@ from ..common._validation import (
 from ..common.state import migrate, stamp
 from .filter import DetectionFilter, ResidualThresholds, design_detection_filter
 from .isolation import ENERGY_MIN_SAMPLES, FaultType, SensorFaultIsolator
+from .gust import GustModel
 from .plant import seed_aircraft
 from .residual import ResidualModel, estimate_sensor_variances
 from .sensor_dynamics import SensorDynamics, SensorDynamicsEqualiser
-from .sequential_diagnosis import FaultKind, SequentialDiagnoser, SequentialSettings
+from .sequential_diagnosis import (
+    FaultKind,
+    SequentialDiagnoser,
+    SequentialSettings,
+    _gust_disturbance,
+)
 
 __all__ = ["DECISIONS", "DECISION_AUTO", "DFChannel", "DFChannelConfig", "DFChannelOutput",
            "decision_rule"]
@@ -185,6 +191,11 @@ class DFChannelConfig:
         match, before anything else (so the outputs describe the sample max(e) earlier).
         None (default): all zeros. The harness sets it from its coupling plan
         (:mod:`harness.cosim.timing`).
+    gust : GustModel, optional
+        Sequential rule: turbulence its residual model includes (the whitened residual
+        is then the innovation of the plant augmented with the Dryden filter, white in
+        turbulence of the design intensity, and smaller in calmer air). None: sensor
+        noise only.
     """
 
     A: ArrayLike = field(default_factory=_seed_a)
@@ -216,6 +227,7 @@ class DFChannelConfig:
     x0: ArrayLike | None = None
     sensor_dynamics: SensorDynamics | None = None
     sensor_delay_samples: Sequence[int] | None = None
+    gust: GustModel | None = None
 
     def matrices(self) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
         """Validated (A, B, C, eigenvalues, x0) as float arrays."""
@@ -740,7 +752,8 @@ class DFChannel:
         else:
             assert u is not None and y is not None
             f = DetectionFilter(self.A, self.B, self.C, self.K, self.T)
-            model = ResidualModel(f.closed_loop_matrix, f.discrete_gain, self.C)
+            model = ResidualModel(f.closed_loop_matrix, f.discrete_gain, self.C,
+                                  _gust_disturbance(c.gust, self.A, self.T, np.eye(self.n)))
             variances = estimate_sensor_variances(
                 self._residuals(u, y, x_start)[burn:], model)
             # A noise-free sensor would make rounding look like faults: floor at 1e−7
@@ -749,7 +762,7 @@ class DFChannel:
             variances = np.maximum(variances, (1e-7 * rms + 1e-12) ** 2)
         self._noise_std = np.sqrt(variances)
         engine = SequentialDiagnoser(self.A, self.B, self.C, self.K, self.T, variances,
-                                     c.settings(), x0=self._x0)
+                                     c.settings(), x0=self._x0, gust=c.gust)
         if u is not None and y is not None:
             engine.calibrate_scales(np.hstack([u, y]), burn, x_start=x_start)
         self._engine = engine

@@ -36,7 +36,10 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..common._validation import check_finite_array, check_in_range
 
-__all__ = ["ResidualModel", "Whitening", "estimate_sensor_variances"]
+#: Lags (samples) whose autocovariances separate a disturbance from sensor noise.
+DISTURBANCE_LAGS = (0, 1, 2, 3, 5, 8, 13, 21)
+
+__all__ = ["Disturbance", "ResidualModel", "Whitening", "estimate_sensor_variances"]
 
 _FloatArray = NDArray[np.float64]
 
@@ -70,6 +73,35 @@ class Whitening:
         return self.F - self.K @ self.C
 
 
+@dataclass(frozen=True)
+class Disturbance:
+    """A coloured disturbance that drives the observer error: e⁺ = F e + G g + …,
+    g⁺ = Fd g + w_g, with Q the covariance of the white noise [w_e; w_g] it adds to
+    [e; g] per sample (e.g. :meth:`gyrodiag.df.gust.GustModel.discrete`).
+
+    Attributes
+    ----------
+    G : ndarray, shape (n, d)
+    Fd : ndarray, shape (d, d)
+        Stable disturbance dynamics.
+    Q : ndarray, shape (n + d, n + d)
+    """
+
+    G: _FloatArray
+    Fd: _FloatArray
+    Q: _FloatArray
+
+    def check(self, n: int) -> None:
+        """Raise ValueError unless the shapes fit an n-state error and Fd is stable."""
+        d = self.Fd.shape[0]
+        if self.G.shape != (n, d) or self.Fd.shape != (d, d) or self.Q.shape != (n + d,) * 2:
+            raise ValueError(f"disturbance shapes G {self.G.shape}, Fd {self.Fd.shape}, "
+                             f"Q {self.Q.shape} do not fit {n} states")
+        radius = float(np.max(np.abs(np.linalg.eigvals(self.Fd)), initial=0.0))
+        if not radius < 1.0:
+            raise ValueError(f"disturbance Fd must be stable, spectral radius {radius:.6g}")
+
+
 class ResidualModel:
     """Fault-free residual of a discrete observer: e⁺ = F e − L v, r = C e + v.
 
@@ -81,9 +113,14 @@ class ResidualModel:
         Observer gain.
     C : array_like, shape (m, n)
         Output matrix of the sensors the observer uses.
+    disturbance : Disturbance, optional
+        A coloured process disturbance (e.g. turbulence) that also drives e; the
+        whitening then models it (the innovations of the plant's Kalman filter
+        augmented with the disturbance).
     """
 
-    def __init__(self, F: ArrayLike, L: ArrayLike, C: ArrayLike) -> None:
+    def __init__(self, F: ArrayLike, L: ArrayLike, C: ArrayLike,
+                 disturbance: Disturbance | None = None) -> None:
         f = check_finite_array("F", F, ndim=2)
         n = f.shape[0]
         if f.shape != (n, n):
@@ -96,6 +133,21 @@ class ResidualModel:
             raise ValueError(f"F must be stable (spectral radius < 1), got {radius:.6g}")
         self.F, self.L, self.C = f, gain, c
         self.n, self.m = n, m
+        self.disturbance = disturbance
+        # augmented state [e; g]: the disturbance state g drives e and is not observed
+        d = 0 if disturbance is None else disturbance.Fd.shape[0]
+        self._fa = np.zeros((n + d, n + d))
+        self._fa[:n, :n] = f
+        self._la = np.zeros((n + d, m))
+        self._la[:n] = gain
+        self._ca = np.zeros((m, n + d))
+        self._ca[:, :n] = c
+        self._qa = np.zeros((n + d, n + d))
+        if disturbance is not None:
+            disturbance.check(n)
+            self._fa[:n, n:] = disturbance.G
+            self._fa[n:, n:] = disturbance.Fd
+            self._qa = disturbance.Q.copy()
 
     def _noise_cov(self, sensor_variances: ArrayLike) -> _FloatArray:
         var = check_finite_array("sensor_variances", sensor_variances, shape=(self.m,))
@@ -103,34 +155,51 @@ class ResidualModel:
             raise ValueError("sensor_variances must be >= 0")
         return np.diag(var)
 
+    def _augmented_covariance(self, sensor_variances: ArrayLike,
+                              disturbance_scale: float = 1.0) -> _FloatArray:
+        r = self._noise_cov(sensor_variances)
+        q = self._la @ r @ self._la.T + disturbance_scale * self._qa
+        return scipy.linalg.solve_discrete_lyapunov(self._fa, q)
+
     def state_covariance(self, sensor_variances: ArrayLike) -> _FloatArray:
-        """Stationary covariance of e for white sensor noise of the given variances."""
-        r = self._noise_cov(sensor_variances)
-        return scipy.linalg.solve_discrete_lyapunov(self.F, self.L @ r @ self.L.T)
+        """Stationary covariance of e for white sensor noise of the given variances
+        (and the disturbance, if any)."""
+        return self._augmented_covariance(sensor_variances)[:self.n, :self.n]
 
-    def residual_covariance(self, sensor_variances: ArrayLike) -> _FloatArray:
-        """Stationary covariance of r (lag 0), residual units squared."""
+    def residual_covariance(self, sensor_variances: ArrayLike,
+                            disturbance_scale: float = 1.0) -> _FloatArray:
+        """Stationary covariance of r (lag 0), residual units squared;
+        ``disturbance_scale`` multiplies the disturbance's covariance."""
         r = self._noise_cov(sensor_variances)
-        p = self.state_covariance(sensor_variances)
-        return self.C @ p @ self.C.T + r
+        p = self._augmented_covariance(sensor_variances, disturbance_scale)
+        return self._ca @ p @ self._ca.T + r
 
-    def autocovariance(self, sensor_variances: ArrayLike, lag: int) -> _FloatArray:
+    def autocovariance(self, sensor_variances: ArrayLike, lag: int,
+                       disturbance_scale: float = 1.0) -> _FloatArray:
         """E[r_{k+lag} r_kᵀ] for lag >= 0."""
         if lag == 0:
-            return self.residual_covariance(sensor_variances)
+            return self.residual_covariance(sensor_variances, disturbance_scale)
         r = self._noise_cov(sensor_variances)
-        p = self.state_covariance(sensor_variances)
-        f_pow = np.linalg.matrix_power(self.F, lag - 1)
-        return self.C @ f_pow @ (self.F @ p @ self.C.T - self.L @ r)
+        p = self._augmented_covariance(sensor_variances, disturbance_scale)
+        f_pow = np.linalg.matrix_power(self._fa, lag - 1)
+        return self._ca @ f_pow @ (self._fa @ p @ self._ca.T - self._la @ r)
 
     def variance_map(self) -> _FloatArray:
-        """M with diag(residual covariance) = M @ sensor_variances (linear in them)."""
+        """M with diag(residual covariance) = M @ sensor_variances (linear in them);
+        without the disturbance (see :meth:`disturbance_variances`)."""
         cols = []
         for j in range(self.m):
             unit = np.zeros(self.m)
             unit[j] = 1.0
-            cols.append(np.diag(self.residual_covariance(unit)))
+            cols.append(np.diag(self.residual_covariance(unit, disturbance_scale=0.0)))
         return np.column_stack(cols)
+
+    def disturbance_variances(self) -> _FloatArray:
+        """diag of the residual covariance the disturbance alone causes (zeros without
+        one)."""
+        if self.disturbance is None:
+            return np.zeros(self.m)
+        return np.diag(self.residual_covariance(np.zeros(self.m)))
 
     def dc_gain(self) -> _FloatArray:
         """Steady residual per unit constant offset on each sensor: I − C (I − F)⁻¹ L."""
@@ -157,27 +226,30 @@ class ResidualModel:
         # tolerances, then scale P back (the gain does not change).
         size = float(np.max(np.diag(r)))
         r_unit = r / size
-        cross = -self.L @ r_unit  # E[(−L v_k) (v_k)ᵀ]: process and measurement noise share v
+        fa, ca, la = self._fa, self._ca, self._la
+        cross = -la @ r_unit  # E[(−L v_k) (v_k)ᵀ]: process and measurement noise share v
+        q = la @ r_unit @ la.T + self._qa / size
         p = size * scipy.linalg.solve_discrete_are(
-            self.F.T, self.C.T, self.L @ r_unit @ self.L.T, r_unit * (1.0 + rho), s=cross
+            fa.T, ca.T, 0.5 * (q + q.T), r_unit * (1.0 + rho), s=cross
         )
         cross = cross * size
-        s = self.C @ p @ self.C.T + r * (1.0 + rho)
+        s = ca @ p @ ca.T + r * (1.0 + rho)
         s = 0.5 * (s + s.T)
-        gain = (self.F @ p @ self.C.T + cross) @ np.linalg.inv(s)
-        closed = self.F - gain @ self.C
+        gain = (fa @ p @ ca.T + cross) @ np.linalg.inv(s)
+        closed = fa - gain @ ca
         radius = float(np.max(np.abs(np.linalg.eigvals(closed)), initial=0.0))
         if not radius < 1.0:
             raise ValueError(f"whitening filter is not stable (spectral radius {radius:.6g}); "
                              "increase the regularisation")
-        return Whitening(F=self.F.copy(), C=self.C.copy(), K=gain, S=s,
+        return Whitening(F=fa.copy(), C=ca.copy(), K=gain, S=s,
                          scale=np.sqrt(np.diag(s)))
 
 
 def estimate_sensor_variances(residuals: ArrayLike, model: ResidualModel) -> _FloatArray:
     """Sensor noise variances that explain the variances of fault-free residuals.
 
-    The residual variances are linear in the sensor variances (``model.variance_map()``);
+    The residual variances are linear in the sensor variances (``model.variance_map()``)
+    and, with a disturbance model, in its intensity squared (estimated alongside);
     solved by non-negative least squares, relative to each channel's variance so that
     channels of different units weigh alike.
 
@@ -208,5 +280,31 @@ def estimate_sensor_variances(residuals: ArrayLike, model: ResidualModel) -> _Fl
     from scipy.optimize import nnls
 
     m = model.variance_map()
-    sol, _ = nnls(m * weight[:, None], var * weight)
-    return sol
+    if model.disturbance is None:
+        sol, _ = nnls(m * weight[:, None], var * weight)
+        return sol
+    # The disturbance's intensity is unknown too. Lag-0 variances cannot tell it from
+    # sensor noise (each sensor's noise alone explains its channel); its colour can:
+    # fit the autocovariances at lags 0 … DISTURBANCE_LAGS as well.
+    # Fit the first differences' auto-covariances (lags 0, 1, all channel pairs): the
+    # disturbance is smooth, so they weigh sensor noise far more than lag 0 does.
+    diff = np.diff(res, axis=0)
+    n = diff.shape[0]
+    eye = np.eye(model.m)
+
+    def model_cov(var: _FloatArray, scale: float, lag: int) -> _FloatArray:
+        g = [model.autocovariance(var, j, scale) for j in range(lag + 2)]
+        back = g[lag - 1].T if lag == 1 else g[lag - 1]
+        return 2.0 * g[lag] - g[lag + 1] - back
+
+    rows, target = [], []
+    for lag in (0, 1):
+        cols = [model_cov(eye[j], 0.0, lag).ravel() for j in range(model.m)]
+        cols.append(model_cov(np.zeros(model.m), 1.0, lag).ravel())
+        rows.append(np.column_stack(cols))
+        target.append((diff[lag:].T @ diff[:n - lag]).ravel() / n)
+    a, b = np.vstack(rows), np.concatenate(target)
+    dw = 1.0 / np.sqrt(np.maximum(np.diag(target[0].reshape(model.m, model.m)), 1e-300))
+    pair = np.tile(np.outer(dw, dw).ravel(), 2)
+    sol, _ = nnls(a * pair[:, None], b * pair)
+    return sol[:model.m]

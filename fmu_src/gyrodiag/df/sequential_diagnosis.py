@@ -75,7 +75,8 @@ from ..common.cusum import (
 )
 from .filter import DetectionFilter, observable_subspace, zoh_discretise
 from .isolation import place_observer_gain
-from .residual import ResidualModel, Whitening
+from .gust import GustModel
+from .residual import Disturbance, ResidualModel, Whitening
 
 __all__ = [
     "MULTIPLE",
@@ -204,14 +205,15 @@ def design_residual_generator(
     A: _FloatArray, B: _FloatArray, C: _FloatArray, sample_period_s: float,
     excluded: tuple[int, ...], sensor_variances: _FloatArray, *,
     main_gain: _FloatArray | None = None, eigenvalues: _FloatArray | None = None,
-    regularisation: float = 0.01,
+    regularisation: float = 0.01, gust: GustModel | None = None,
 ) -> ResidualGenerator:
     """Design one generator (inputs are assumed validated by the caller).
 
     The main generator (``excluded = ()``) takes the Beard–Jones gain ``main_gain``
     discretised as :class:`~gyrodiag.df.filter.DetectionFilter` does; the others
     place the poles exp(λ T) of their observable subspace, λ = ``eigenvalues`` (default
-    −1, −2, …).
+    −1, −2, …). With ``gust`` the whitening models the turbulence too (its residual is
+    the innovation of the Kalman filter of the plant augmented with the gust filter).
     """
     m = C.shape[0]
     used = np.array([i for i in range(m) if i not in excluded], dtype=int)
@@ -234,7 +236,7 @@ def design_residual_generator(
         gain_o = place_observer_gain(phi_o, c_o, np.exp(lam * sample_period_s))
     gain = basis @ gain_o
     f_o = phi_o - gain_o @ c_o
-    model = ResidualModel(f_o, gain_o, c_o)
+    model = ResidualModel(f_o, gain_o, c_o, _gust_disturbance(gust, A, sample_period_s, basis))
     var_used = sensor_variances[used]
     whitening = model.whitening(var_used, regularisation)
     estimates, stds, dc_stds = [], [], []
@@ -255,6 +257,19 @@ def design_residual_generator(
         estimate_std=tuple(stds), c_excluded=C[list(excluded)].reshape(len(excluded), C.shape[1]),
         dc_noise_std=tuple(dc_stds), basis=basis,
     )
+
+
+def _gust_disturbance(gust: GustModel | None, A: _FloatArray, sample_period_s: float,
+                      basis: _FloatArray) -> Disturbance | None:
+    """The gust as a disturbance of the observer error in the coordinates ``basis``."""
+    if gust is None:
+        return None
+    phi_xg, phi_g, q = gust.discrete(A, sample_period_s)
+    n, n_o, d = A.shape[0], basis.shape[1], phi_g.shape[0]
+    proj = np.zeros((n_o + d, n + d))
+    proj[:n_o, :n] = basis.T
+    proj[n_o:, n:] = np.eye(d)
+    return Disturbance(G=basis.T @ phi_xg, Fd=phi_g, Q=proj @ q @ proj.T)
 
 
 class ObserverStack:
@@ -340,12 +355,22 @@ class ObserverStack:
         return (self._ab[:, :ns].copy(), self._ab[:, ns:].copy(),
                 self._cd[:self.n_out, :ns].copy(), self._cd[:self.n_out, ns:].copy())
 
-    def set_observer_state(self, index: int, xhat: _FloatArray) -> None:
+    def set_observer_state(self, index: int, xhat: _FloatArray,
+                           disturbance: _FloatArray | None = None) -> None:
         """Observer of generator ``index`` to the full-state estimate ``xhat``, its
-        whitening state to zero."""
+        whitening state to zero, or with ``disturbance`` (the main generator's whitening
+        state [ê; ĝ], with a gust model) to the same error and gust estimates."""
         sl = self.state_slices[index]
         self.x[sl] = 0.0
         self.x[sl.start:sl.start + self.n] = xhat
+        if disturbance is not None and disturbance.size:
+            # the main filter's whitening state [ê (n); ĝ]: its error estimate in this
+            # generator's observable coordinates, and the disturbance estimate as is
+            gen = self.generators[index]
+            n_d = disturbance.size - self.n
+            start = sl.start + self.n
+            self.x[start:start + gen.basis.shape[1]] = gen.basis.T @ disturbance[:self.n]
+            self.x[sl.stop - n_d:sl.stop] = disturbance[self.n:]
 
     def observer_state(self, index: int) -> _FloatArray:
         """Full-state estimate x̂ of generator ``index`` (a-priori for the next sample)."""
@@ -499,6 +524,10 @@ _STATUS = ("none", "not isolated", "single", "pair", "multiple")
 #: means the fault is (1 − 1/g)·y).
 _BIAS, _RAMP, _GAIN = range(3)
 _N_REG = 3
+#: With a gust model, no refit while the presence test's statistic is at this fraction
+#: of its threshold: a fault's whitened signature is short, and a refit (a ramp for a
+#: burst that ended) would explain away the misfit that ends the episode.
+PRESENCE_HOLD = 0.5
 #: How the presence of an isolated fault is followed.
 _PRESENCE_NONE, _PRESENCE_MODEL, _PRESENCE_VARIANCE, _PRESENCE_CONSTANT = range(4)
 
@@ -520,6 +549,8 @@ class SequentialDiagnoser:
     settings : SequentialSettings
     x0 : array_like, shape (n,), optional
         Initial state estimate of the main filter.
+    gust : GustModel, optional
+        Turbulence the whitening filters model (None: sensor noise only).
 
     Notes
     -----
@@ -541,8 +572,9 @@ class SequentialDiagnoser:
     def __init__(self, A: ArrayLike, B: ArrayLike, C: ArrayLike, K: ArrayLike,
                  sample_period_s: float, sensor_variances: ArrayLike,
                  settings: SequentialSettings | None = None,
-                 x0: ArrayLike | None = None) -> None:
+                 x0: ArrayLike | None = None, gust: GustModel | None = None) -> None:
         self.settings = settings or SequentialSettings()
+        self.gust = gust
         self.settings.validate()
         a = check_finite_array("A", A, ndim=2)
         n = a.shape[0]
@@ -560,17 +592,19 @@ class SequentialDiagnoser:
         lam = None if st.bank_eigenvalues is None else np.asarray(st.bank_eigenvalues, float)
         reg = st.regularisation
         self.main_generator = design_residual_generator(
-            a, b, c, self.T, (), var, main_gain=gain, regularisation=reg)
+            a, b, c, self.T, (), var, main_gain=gain, regularisation=reg, gust=gust)
         hyps: list[tuple[int, ...]] = [(i,) for i in range(self.m)]
         if st.max_faults >= 2:
             hyps += list(itertools.combinations(range(self.m), 2))
         self.hypotheses = hyps
         self.bank_generators = [
             design_residual_generator(a, b, c, self.T, h, var, eigenvalues=lam,
-                                      regularisation=reg)
+                                      regularisation=reg, gust=gust)
             for h in hyps
         ]
         self.main = ObserverStack([self.main_generator], self.p, self.m, residuals=True)
+        #: size of the disturbance (gust) state at the end of every whitening state
+        self._n_dist = 0 if gust is None else self.main.n_state - self.n
         self.bank = ObserverStack(self.bank_generators, self.p, self.m)
         self.c_matrix = c
 
@@ -706,6 +740,7 @@ class SequentialDiagnoser:
         self._count = 0
         self._hist_w = np.zeros((self._n_hist, self.p + m))
         self._hist_x = np.zeros((self._n_hist, self.n))
+        self._hist_d = np.zeros((self._n_hist, self._n_dist))
         self._hist_z = np.zeros((self._n_hist, m))
         self._in_episode = False
         self._wait_clear = False
@@ -762,6 +797,8 @@ class SequentialDiagnoser:
         slot = k % self._n_hist
         self._hist_w[slot] = w
         self._hist_x[slot] = self.main.x[:self.n]
+        if self._n_dist:
+            self._hist_d[slot] = self.main.x[self.main.n_state - self._n_dist:]
         z, residual = self.main.update(w)
         self._hist_z[slot] = z
         alarm = self.main_cusum.update(z)
@@ -829,9 +866,10 @@ class SequentialDiagnoser:
         self._record_episodes = 1
         self._previous = ((), np.zeros(self.m, dtype=int), np.zeros(self.m))
         xhat = self._hist_x[start % self._n_hist]
+        gust = self._hist_d[start % self._n_hist]
         self.bank.reset()
         for g in range(len(self.bank_generators)):
-            self.bank.set_observer_state(g, xhat)
+            self.bank.set_observer_state(g, xhat, gust)
         self.bank_cusum.reset(start)
         self._inconsistent[:] = False
         self._bank_active = True
@@ -1059,6 +1097,9 @@ class SequentialDiagnoser:
         that follows the end of the fault is the presence test's to judge.
         """
         if self._presence_mode == _PRESENCE_MODEL:
+            if (self._presence is not None and self._n_dist
+                    and float(self._presence.statistic().max()) >= PRESENCE_HOLD):
+                return  # the presence test is judging a misfit: no refit under it
             saved = (self._types.copy(), self._mags.copy(), self._mag_valid.copy(),
                      self._model_cols.copy(), self._theta.copy())
             self._type_now(k)
@@ -1243,7 +1284,7 @@ class SequentialDiagnoser:
             "presence": None if self._presence is None else self._presence.get_state(),
             "count": int(self._count),
             "hist_w": self._hist_w.copy(), "hist_x": self._hist_x.copy(),
-            "hist_z": self._hist_z.copy(),
+            "hist_z": self._hist_z.copy(), "hist_d": self._hist_d.copy(),
             "in_episode": int(self._in_episode), "episodes": int(self._episodes),
             "wait_clear": int(self._wait_clear),
             "bank_active": int(self._bank_active), "last_end": int(self._last_end),
@@ -1287,6 +1328,8 @@ class SequentialDiagnoser:
                 "hist_w": arr("hist_w", self._hist_w.shape),
                 "hist_x": arr("hist_x", self._hist_x.shape),
                 "hist_z": arr("hist_z", self._hist_z.shape),
+                "hist_d": (arr("hist_d", self._hist_d.shape) if "hist_d" in state
+                           else np.zeros(self._hist_d.shape)),
                 "sig": arr("sig", (self.main.n_state, nr)),
                 "gram_c": arr("gram_c", (m, nr, nr)), "gz_c": arr("gz_c", (m, nr)),
                 "zz_c": arr("zz_c", (m,)),
@@ -1337,6 +1380,7 @@ class SequentialDiagnoser:
         self.main.x, self.bank.x = got["main_x"], got["bank_x"]
         self.main_cusum, self.bank_cusum, self._presence = main_cusum, bank_cusum, presence
         self._hist_w, self._hist_x, self._hist_z = got["hist_w"], got["hist_x"], got["hist_z"]
+        self._hist_d = got["hist_d"]
         self._sig, self._gram_c = got["sig"], got["gram_c"]
         self._gz_c, self._zz_c = got["gz_c"], got["zz_c"]
         self._g_last, self._z_last = got["g_last"], got["z_last"]
