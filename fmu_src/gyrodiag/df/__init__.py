@@ -10,6 +10,8 @@ isolation
     Observer banks, isolability analysis and sensor fault isolation.
 residual
     Residual covariance model and whitening; sensor noise variances.
+gust
+    Dryden turbulence as a disturbance model of the plant.
 sensor_dynamics
     Sensor read-out dynamics and their equaliser.
 sequential_diagnosis
@@ -54,6 +56,9 @@ _EXPORTS = {
     "design_observer_bank": "isolation",
     "isolability_analysis": "isolation",
     "place_observer_gain": "isolation",
+    "Disturbance": "residual",
+    "GustModel": "gust",
+    "seed_gust_input": "gust",
     "ResidualModel": "residual",
     "Whitening": "residual",
     "estimate_sensor_variances": "residual",

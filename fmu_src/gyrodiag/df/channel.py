@@ -59,8 +59,8 @@ from ..common._validation import (
 )
 from ..common.state import migrate, stamp
 from .filter import DetectionFilter, ResidualThresholds, design_detection_filter
-from .isolation import ENERGY_MIN_SAMPLES, FaultType, SensorFaultIsolator
 from .gust import GustModel
+from .isolation import ENERGY_MIN_SAMPLES, FaultType, SensorFaultIsolator
 from .plant import seed_aircraft
 from .residual import ResidualModel, estimate_sensor_variances
 from .sensor_dynamics import SensorDynamics, SensorDynamicsEqualiser

@@ -74,8 +74,8 @@ from ..common.cusum import (
     variance_cusum_threshold,
 )
 from .filter import DetectionFilter, observable_subspace, zoh_discretise
-from .isolation import place_observer_gain
 from .gust import GustModel
+from .isolation import place_observer_gain
 from .residual import Disturbance, ResidualModel, Whitening
 
 __all__ = [
