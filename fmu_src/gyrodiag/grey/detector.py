@@ -52,6 +52,15 @@ _STATE_LAYOUT = (
 _UNJUDGED = Verdict(False, 0.0)
 
 
+def _in_layout_order(state: dict[str, Any]) -> dict[str, Any]:
+    """``state`` with its keys in the saved layout's order: the predictor's, then
+    :data:`_STATE_LAYOUT`, then the rest as they came."""
+    ordered = {k: v for k, v in state.items() if k.startswith("predictor.")}
+    ordered.update((k, state[k]) for k in _STATE_LAYOUT)
+    ordered.update((k, v) for k, v in state.items() if k not in ordered)
+    return ordered
+
+
 @fast_init
 @dataclass(frozen=True)
 class GreyDetectorOutput:
@@ -114,10 +123,8 @@ class GreyFaultDetector:
     reseed_length : int or None, optional
         Measured samples kept for re-seeding; default ``predictor.min_samples``.
     envelope_margin : float, optional
-        Bound on the substituted prediction, in units of the fault-free span (>= 0,
-        dimensionless): while in alarm ŷ is kept within
-        [lo − margin·(hi − lo), hi + margin·(hi − lo)], lo/hi the smallest and largest
-        fault-free sample seen since reset. Default 1.
+        Widening of the fault-free envelope that bounds the substitute, in spans (>= 0,
+        default 1; :class:`~gyrodiag.grey.substitution.Substitution`).
     calibrate_samples : int, optional
         > 0: a *calibrated* detector (see below). ``threshold`` is then the smallest
         threshold allowed (signal units), a floor for a noise-free signal.
@@ -128,33 +135,25 @@ class GreyFaultDetector:
         ``cusum_k``, threshold for ``false_alarms_per_h`` by
         :func:`~gyrodiag.common.cusum.mean_cusum_threshold`).
     false_alarms_per_h, cusum_k : float, optional
-        Design false-alarm rate (1/h, default 1e-3) and reference (σ_e, default 1.5: the
-        faults a grey predictor sees are steps of 4 σ_e and more; see docs/notes.md,
-        grey detector).
+        Design false-alarm rate (1/h, default 1e-3) and CUSUM reference (σ_e, default
+        1.5; docs/notes.md, grey detector).
     suspicion_sigma : float, optional
         Calibrated: a sample with |e| > suspicion_sigma·σ_e (or a CUSUM above half its
         threshold) is not fed to the predictor, so that a step is not absorbed before
-        the test has decided (default 4; lower values lock the model into false alarms
-        in noise, see docs/notes.md, grey detector).
+        the test has decided (default 4).
     hold_after : int, optional
         Calibrated: suspect samples not followed by an alarm are substituted for at
-        most this many samples in a row (default 1: a step of 4 σ_e gives two samples
-        of evidence before the predictor absorbs it); in alarm the substitute is held
-        after this many samples (see :meth:`_substitute`; longer runs false-alarm where
-        the signal moves fast, see docs/notes.md, grey detector).
+        most this many samples in a row, and in alarm the substitute is held after
+        this many (default 1; :meth:`~gyrodiag.grey.substitution.Substitution.substitute`).
     candidates : sequence of predictors, optional
-        Calibrated: other predictors (same window) run beside ``predictor`` during the
-        warm-up and calibration; the one with the least root-mean-square error on the
-        calibration window is kept (e.g. the improved model with residual orders 2, 1
-        and 0: the quadratic residual fit is exact on a smooth noise-free signal and
-        amplifies noise).
+        Calibrated: other predictors (same window) compared with ``predictor`` on the
+        calibration window (:class:`~gyrodiag.grey.calibration.PredictorChoice`).
     lag_max : int, optional
         Sequential: the lagged step test looks at the last 1..lag_max samples (0..4,
         default 3; 0 turns it off and the CUSUM decides alone; :mod:`gyrodiag.grey.lagged`).
     reference_window : int, optional
         Lagged test: longest reference window M, samples (default 60, in
-        [reference_order + 3, 400]); the test starts with min(M, 20) samples after the
-        start or an alarm and uses up to M as they come in.
+        [reference_order + 3, 400]).
     reference_order : int, optional
         Lagged test: degree of the reference polynomial (0..3, default 3).
 
@@ -582,10 +581,7 @@ class GreyFaultDetector:
         state.update(self.rule.get_state())
         # every rule's state has the CUSUM slot (zeros without a CUSUM)
         state.setdefault("cusum", np.zeros(2))
-        ordered = {k: v for k, v in state.items() if k.startswith("predictor.")}
-        ordered.update((k, state[k]) for k in _STATE_LAYOUT)
-        ordered.update((k, v) for k, v in state.items() if k not in ordered)
-        return ordered
+        return _in_layout_order(state)
 
     def set_state(self, state: Mapping[str, Any]) -> None:
         """Restore a state from :meth:`get_state` of an identically built detector.
