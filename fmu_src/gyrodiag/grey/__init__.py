@@ -11,7 +11,9 @@ gm11
 predictor
     Classic and improved moving-window grey predictors; prediction error metric.
 detector
-    The grey fault detector: the predictor composed with one decision rule.
+    The grey fault detector: the predictor side composed with one decision rule.
+residual
+    The predictor side: predictions, re-seeding, substitutes, candidate predictors.
 rules
     The per-sample decision rules (fixed threshold, k-sigma, CUSUM and lagged step
     test) as strategy objects behind one interface.
@@ -65,6 +67,7 @@ _EXPORTS = {
     "PredictorChoice": "calibration",
     "calibrated_sigma": "calibration",
     "Substitution": "substitution",
+    "GreyResidual": "residual",
     "DEFAULT_LEARN_END_S": "decision",
     "MIN_CALIBRATION_ERRORS": "decision",
     "REFERENCE_MAX_SAMPLES": "decision",

@@ -8,9 +8,7 @@ A sample farther than a threshold from the one-step prediction of a
 
 from __future__ import annotations
 
-import copy
 import math
-from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -23,7 +21,7 @@ from ..common._validation import (
     check_nonnegative,
     check_positive,
 )
-from .calibration import ErrorScale, PredictorChoice
+from .calibration import ErrorScale
 from .lagged import (  # noqa: F401  (re-exported, see below)
     LAG_MAX_LIMIT,
     LONGEST_LAG_SHARE,
@@ -32,8 +30,8 @@ from .lagged import (  # noqa: F401  (re-exported, see below)
     lag_test_threshold,
 )
 from .predictor import GreyPredictor
+from .residual import GreyResidual
 from .rules import DecisionRule, FixedThreshold, KSigmaTest, SequentialTest, Verdict
-from .substitution import Substitution
 
 __all__ = ["GreyDetectorOutput", "GreyFaultDetector"]
 
@@ -199,7 +197,6 @@ class GreyFaultDetector:
         for attr in ("update", "reset", "get_state", "set_state", "min_samples", "ready"):
             if not hasattr(predictor, attr):
                 raise TypeError(f"predictor must provide {attr!r}, got {type(predictor)!r}")
-        self.predictor = predictor
         self.threshold = check_positive("threshold", threshold)
         self.calibrate_samples = check_int("calibrate_samples", calibrate_samples)
         self.k_sigma = check_positive("k_sigma", k_sigma)
@@ -209,22 +206,19 @@ class GreyFaultDetector:
         self.suspicion_sigma = check_positive("suspicion_sigma", suspicion_sigma)
         self.hold_after = (
             1 if hold_after is None else check_int("hold_after", hold_after, minimum=1))
-        # fault-free samples kept (re-seeding, diagnostics)
-        self.trend_samples = max(20, 4 * predictor.min_samples)
         if self.sequential and self.calibrate_samples == 0:
             raise ValueError("sequential needs calibrate_samples > 0 (the CUSUM works on "
                              "errors in units of their calibrated standard deviation)")
         if self.calibrate_samples and self.calibrate_samples < 10:
             raise ValueError(f"calibrate_samples must be 0 or >= 10, got {calibrate_samples}")
-        self.candidates = list(candidates)
-        for cand in self.candidates:
+        candidates = list(candidates)
+        for cand in candidates:
             if cand.min_samples != predictor.min_samples:
                 raise ValueError("candidates must need as many samples as the predictor "
                                  f"({predictor.min_samples}), got {cand.min_samples}")
-        if self.candidates and not self.calibrate_samples:
+        if candidates and not self.calibrate_samples:
             raise ValueError("candidates need calibrate_samples > 0 (they are compared on "
                              "the calibration window)")
-        self._configured = predictor
         self.sample_period_s = check_positive("sample_period_s", sample_period_s)
         self.clear_after_s = (
             None if clear_after_s is None else check_positive("clear_after_s", clear_after_s)
@@ -248,31 +242,20 @@ class GreyFaultDetector:
         #: shortest reference window the lagged test starts with (it grows to
         #: ``reference_window`` as measured samples come in)
         self.reference_min = min(self.reference_window, max(self.reference_order + 3, 20))
-        self.rule = self._decision_rule()
+        self.rule = _rule_for(self)
         self.cusum_threshold = self.rule.cusum_threshold
         #: thresholds on |z| of the lagged test, lag 1 first (empty without it)
         self.lag_thresholds: list[float] = list(self.rule.lag_thresholds)
-        self._substitution = Substitution(self.envelope_margin, self.hold_after)
+        self._residual = GreyResidual(predictor, candidates, self.reseed_length,
+                                      self.envelope_margin, self.hold_after)
+        self.candidates = self._residual.choice.candidates
+        #: fault-free samples kept (learned rules)
+        self.trend_samples = self._residual.trend_samples
         self._scale = ErrorScale(self.calibrate_samples, self.threshold / self.k_sigma,
                                  self.suspicion_sigma)
-        self._choice = PredictorChoice(self.candidates)
         self._step = (self._update_calibrated if self.rule.calibrated
                       else self._update_fixed)
         self.reset()
-
-    def _decision_rule(self) -> DecisionRule:
-        """The rule the constructor's arguments name (class notes)."""
-        if not self.calibrated:
-            return FixedThreshold(self.threshold)
-        if not self.sequential:
-            return KSigmaTest(self.k_sigma, self.threshold, self.suspicion_sigma)
-        lag_test = None
-        if self.lag_max:
-            lag_test = LaggedStepTest(
-                self.lag_max, self.reference_window, self.reference_order,
-                self.false_alarms_per_h, self.sample_period_s, self.threshold / self.k_sigma)
-        return SequentialTest(self.false_alarms_per_h, self.sample_period_s, self.cusum_k,
-                              self.suspicion_sigma, lag_test)
 
     @property
     def calibrated(self) -> bool:
@@ -281,22 +264,19 @@ class GreyFaultDetector:
 
     def reset(self) -> None:
         """Return to the state right after construction."""
-        self.predictor = self._configured
-        self._choice.reset()
-        self.predictor.reset()
-        self._substitution.reset()
+        self._residual.reset()
         self._scale.reset()
         self.rule.reset()
-        self._pending = math.nan
         self._in_alarm = False
         self._onset = math.nan
-        # the newest measured samples (re-seeding); a bounded deque, not np.append per sample
-        self._recent: deque[float] = deque(maxlen=self.reseed_length)
         self._n_accepted = 0
         self._statistic = 0.0  # of the last valid sample (held over skipped ones)
-        self._clean: list[float] = []   # last fault-free samples (calibrated rules)
-        self._n_clean = 0               # fault-free samples accepted so far
         self._settle = 0  # samples left to settle after a timed clearing
+
+    @property
+    def predictor(self) -> GreyPredictor:
+        """The predictor in use (the configured one, or the candidate chosen)."""
+        return self._residual.predictor
 
     @property
     def sigma(self) -> float:
@@ -324,19 +304,19 @@ class GreyFaultDetector:
         """Prediction for the next sample (signal units), NaN during warm-up.
 
         Bounded while in alarm (the value the next output will report)."""
-        return self._pending
+        return self._residual.pending
 
     @property
     def envelope(self) -> tuple[float, float]:
         """(min, max) of the fault-free samples seen since reset, signal units.
 
         (inf, −inf) before the first sample."""
-        return self._substitution.envelope
+        return self._residual.substitution.envelope
 
     @property
     def chosen_predictor(self) -> int:
         """0: the configured predictor is in use, i: ``candidates[i − 1]``."""
-        return self._choice.chosen
+        return self._residual.choice.chosen
 
     @property
     def noise_sigma(self) -> float:
@@ -388,7 +368,7 @@ class GreyFaultDetector:
             t = float(time_s)
             if not math.isfinite(t):
                 raise ValueError(f"time_s must be finite, got {time_s!r}")
-        predicted = self._pending
+        predicted = self._residual.pending
         if not math.isfinite(value):
             return GreyDetectorOutput(
                 t, value, predicted, math.nan, self._in_alarm, self._onset, False, False,
@@ -407,7 +387,7 @@ class GreyFaultDetector:
         """One valid sample of a rule that is not calibrated (the paper's detector)."""
         was_ready = self.predictor.ready
         self._n_accepted += 1
-        self._recent.append(value)
+        self._residual.record(value)
         error = value - predicted
         verdict = (self.rule.decide(error, math.nan, self._in_alarm, self.predictor,
                                     predicted) if was_ready else _UNJUDGED)
@@ -415,20 +395,14 @@ class GreyFaultDetector:
         if alarm and not self._in_alarm:
             self._onset = t
         if alarm and self._clear_due(t):
-            self._reseed()
+            self._residual.reseed()
             self._in_alarm = False
             self._onset = math.nan
             return GreyDetectorOutput(t, value, predicted, error, False, math.nan, True, True)
-        substitute = alarm and math.isfinite(predicted)
-        if not alarm:
-            self._substitution.widen(value)
-        self._pending = self.predictor.update(predicted if substitute else value)
+        self._residual.paper_step(value, predicted, alarm)
         self._in_alarm = alarm
-        if alarm:
-            self._pending = self._substitution.bounded(self._pending)
-        else:
+        if not alarm:
             self._onset = math.nan
-            self._substitution.release()
         self._statistic = verdict.statistic
         return GreyDetectorOutput(
             t, value, predicted, error, alarm, self._onset, True, False, False,
@@ -439,11 +413,11 @@ class GreyFaultDetector:
         """One valid sample of a calibrated rule (class notes)."""
         was_ready = self.predictor.ready
         self._n_accepted += 1
-        self._recent.append(value)
+        self._residual.record(value)
         self.rule.observe(value)
         if not was_ready:
             self._accept(value)
-            self._choice.feed(value)
+            self._residual.choice.feed(value)
             out = GreyDetectorOutput(t, value, predicted, math.nan, False, math.nan, True,
                                      False, True, 0.0)
         elif self._settle > 0:
@@ -464,16 +438,10 @@ class GreyFaultDetector:
         """A calibration sample: fault-free by assumption."""
         error = value - predicted
         full = self._scale.collect(error)
-        self._choice.feed(value)
+        self._residual.choice.feed(value)
         self._accept(value)
         if full:
-            if self.candidates:
-                chosen, ratio = self._choice.choose(self._scale.square_sum())
-                if chosen:
-                    self.predictor = self.candidates[chosen - 1]
-                    self._pending = self._choice.pending[chosen - 1]
-                    # the calibration errors of the chosen one (only σ is used)
-                    self._scale.rescale(ratio)
+            self._residual.choose(self._scale)
             self._scale.learn()
         return GreyDetectorOutput(t, value, predicted, error, False, math.nan, True,
                                   False, self._scale.learning, 0.0)
@@ -487,12 +455,10 @@ class GreyFaultDetector:
         if alarm and not self._in_alarm:
             self._onset = t
         if alarm and self._clear_due(t):
-            self._reseed()
-            self._clean = [float(v) for v in self._recent]
+            self._residual.reseed(keep=True)
             self.rule.clear()
             self._in_alarm = False
             self._onset = math.nan
-            self._substitution.end_run()
             # the re-seeded window may hold the fault's last samples and the fault may
             # have ended with them (the seed timeline's faults last exactly the 20 s of
             # the clearing): one window of measured samples settles the model before
@@ -503,18 +469,16 @@ class GreyFaultDetector:
                                       True, False, verdict.statistic)
         self._in_alarm = alarm
         if verdict.lag:
-            self._roll_back(verdict.lag)
-        elif alarm or (verdict.suspect and not self._substitution.exhausted):
+            state, pending = self.rule.rollback_point(verdict.lag)
             self.rule.interrupt()
-            self._pending = self.predictor.update(self._substitution.substitute(predicted))
-            if alarm:
-                # the prediction the next sample is judged against stays bounded too
-                self._pending = self._substitution.clip(self._pending)
+            self._residual.roll_back(state, pending, verdict.lag)
+        elif alarm or (verdict.suspect and not self._residual.substitution.exhausted):
+            self.rule.interrupt()
+            self._residual.substitute(predicted, alarm)
         else:
-            self._substitution.end_run()
             self._onset = math.nan
-            self._pending = self.predictor.update(value)
-            self._accept(value, predict=False)
+            self._residual.take(value)
+            self.rule.accept(value)
             self._scale.refine(error)
         if alarm:
             self.rule.restart()
@@ -522,62 +486,22 @@ class GreyFaultDetector:
                                   self._onset if alarm else math.nan, True, False, False,
                                   verdict.statistic)
 
-    def _roll_back(self, lag: int) -> None:
-        """A step in the last ``lag`` samples: the predictor goes back to its state
-        before them and is fed the bounded substitute for each (as in alarm), so that
-        the alarm's substitute extrapolates the signal from before the step."""
-        state, pending = self.rule.rollback_point(lag)
-        self.predictor.set_state(state)
-        self.rule.interrupt()
-        self._substitution.end_run()
-        pred = pending
-        for _ in range(lag):
-            pred = self.predictor.update(self._substitution.substitute(pred))
-        self._pending = self._substitution.clip(pred)
-
-    def _accept(self, value: float, predict: bool = True) -> None:
-        """A fault-free sample: envelope, the kept fault-free samples, the rule,
-        (optionally) the predictor."""
-        if predict:
-            self._pending = self.predictor.update(value)
-        self._substitution.widen(value)
-        self._clean.append(value)
-        if len(self._clean) > self.trend_samples:
-            del self._clean[0]
-        self._n_clean += 1
+    def _accept(self, value: float) -> None:
+        """A fault-free sample, fed to the predictor and seen by the rule."""
+        self._residual.accept(value)
         self.rule.accept(value)
-
-    def _reseed(self) -> None:
-        """Timed clearing: the predictor starts again on the newest measured samples."""
-        self.predictor.reset()
-        self._pending = math.nan
-        self._substitution.release()
-        # the re-seeded samples are the new reference signal (the paper's clearing
-        # accepts them), so they count as fault-free for the envelope too
-        for v in self._recent:
-            self._substitution.widen(float(v))
-            self._pending = self.predictor.update(float(v))
 
     def get_state(self) -> dict[str, Any]:
         """Full state as a flat plain dict (deep copy); predictor keys are prefixed."""
-        state: dict[str, Any] = {
-            f"predictor.{key}": copy.deepcopy(val)
-            for key, val in self.predictor.get_state().items()
-        }
+        state = self._residual.get_state()
         state.update(
-            pending_prediction=float(self._pending),
             in_alarm=int(self._in_alarm),
             onset_time_s=float(self._onset),
-            recent=np.array(self._recent, dtype=float),
             n_accepted=int(self._n_accepted),
             statistic=float(self._statistic),
-            clean=np.asarray(self._clean, dtype=float),
-            n_clean=int(self._n_clean),
             settle=int(self._settle),
         )
-        state.update(self._substitution.get_state())
         state.update(self._scale.get_state())
-        state.update(self._choice.get_state())
         state.update(self.rule.get_state())
         # every rule's state has the CUSUM slot (zeros without a CUSUM)
         state.setdefault("cusum", np.zeros(2))
@@ -594,32 +518,30 @@ class GreyFaultDetector:
         missing = set(_STATE_LAYOUT) - set(state)
         if missing:
             raise ValueError(f"state is missing keys {sorted(missing)}")
-        recent = np.array(state["recent"], dtype=float).reshape(-1)
         clean = np.array(state["clean"], dtype=float).reshape(-1)
         cusum = np.array(state["cusum"], dtype=float).reshape(-1)
         if clean.size > self.trend_samples or cusum.shape != (2,):
             raise ValueError("state['clean'] / state['cusum'] do not fit this detector")
-        if recent.size > self.reseed_length:
-            raise ValueError(
-                f"state['recent'] holds {recent.size} samples, "
-                f"reseed_length is {self.reseed_length}"
-            )
-        self._choice.set_state(state)
-        chosen = self._choice.chosen
-        self.predictor = self._configured if chosen == 0 else self.candidates[chosen - 1]
-        prefix = "predictor."
-        self.predictor.set_state(
-            {k[len(prefix):]: copy.deepcopy(v) for k, v in state.items() if k.startswith(prefix)}
-        )
-        self._pending = float(state["pending_prediction"])
+        self._residual.set_state(state)
         self._in_alarm = bool(state["in_alarm"])
         self._onset = float(state["onset_time_s"])
-        self._recent = deque((float(x) for x in recent), maxlen=self.reseed_length)
         self._n_accepted = int(state["n_accepted"])
         self._statistic = float(state["statistic"])
-        self._clean = [float(x) for x in clean]
-        self._n_clean = int(state["n_clean"])
         self._settle = int(state["settle"])
-        self._substitution.set_state(state)
         self._scale.set_state(state)
         self.rule.set_state(state)
+
+
+def _rule_for(det: GreyFaultDetector) -> DecisionRule:
+    """The rule a detector's constructor arguments name (see its class notes)."""
+    if not det.calibrated:
+        return FixedThreshold(det.threshold)
+    if not det.sequential:
+        return KSigmaTest(det.k_sigma, det.threshold, det.suspicion_sigma)
+    lag_test = None
+    if det.lag_max:
+        lag_test = LaggedStepTest(
+            det.lag_max, det.reference_window, det.reference_order,
+            det.false_alarms_per_h, det.sample_period_s, det.threshold / det.k_sigma)
+    return SequentialTest(det.false_alarms_per_h, det.sample_period_s, det.cusum_k,
+                          det.suspicion_sigma, lag_test)
