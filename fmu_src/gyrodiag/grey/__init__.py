@@ -11,10 +11,21 @@ gm11
 predictor
     Classic and improved moving-window grey predictors; prediction error metric.
 detector
-    The grey fault detector (one-step and lagged step tests, calibrated thresholds).
+    The grey fault detector: the predictor side composed with one decision rule.
+residual
+    The predictor side: predictions, re-seeding, substitutes, candidate predictors.
+rules
+    The per-sample decision rules (fixed threshold, k-sigma, CUSUM and lagged step
+    test) as strategy objects behind one interface.
+lagged
+    The lagged step test of the sequential rule (weights, thresholds, its state).
+calibration
+    σ_e learned on a fault-free start; the choice among candidate predictors.
+substitution
+    The fault-free envelope and the bounded substitute fed to the predictor.
 decision
-    The decision rules (paper's fixed threshold, calibrated sequential, calibrated
-    k-sigma) as strategy objects that build the detector.
+    The rules' configurations (paper's fixed threshold, calibrated sequential,
+    calibrated k-sigma) that build the detector.
 
 Every public name of these modules is importable from the package too
 (``from gyrodiag.grey import ...``); it is imported from its module at first use,
@@ -40,12 +51,23 @@ _EXPORTS = {
     "GreyPredictor": "predictor",
     "ImprovedGreyPredictor": "predictor",
     "prediction_errors_percent": "predictor",
-    "LAG_MAX_LIMIT": "detector",
-    "LONGEST_LAG_SHARE": "detector",
     "GreyDetectorOutput": "detector",
     "GreyFaultDetector": "detector",
-    "lag_step_weights": "detector",
-    "lag_test_threshold": "detector",
+    "LAG_MAX_LIMIT": "lagged",
+    "LONGEST_LAG_SHARE": "lagged",
+    "LaggedStepTest": "lagged",
+    "lag_step_weights": "lagged",
+    "lag_test_threshold": "lagged",
+    "DecisionRule": "rules",
+    "FixedThreshold": "rules",
+    "KSigmaTest": "rules",
+    "SequentialTest": "rules",
+    "Verdict": "rules",
+    "ErrorScale": "calibration",
+    "PredictorChoice": "calibration",
+    "calibrated_sigma": "calibration",
+    "Substitution": "substitution",
+    "GreyResidual": "residual",
     "DEFAULT_LEARN_END_S": "decision",
     "MIN_CALIBRATION_ERRORS": "decision",
     "REFERENCE_MAX_SAMPLES": "decision",

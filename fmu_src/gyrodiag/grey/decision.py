@@ -1,7 +1,8 @@
-"""Decision rules of the grey channel: strategy objects that build the fault detector.
+"""Configurations of the grey channel's decision rules, which build the fault detector.
 
-Each rule turns a streaming predictor into a :class:`~gyrodiag.grey.detector.GreyFaultDetector`
-that decides by that rule (docs/methods.md §3):
+Each configuration turns a streaming predictor into a
+:class:`~gyrodiag.grey.detector.GreyFaultDetector` that decides by its rule (the
+per-sample rule objects are in :mod:`gyrodiag.grey.rules`; docs/methods.md §3):
 
 * :class:`PaperThreshold`: [B]'s fixed threshold on the one-step prediction error.
 * :class:`CalibratedSequential`: the threshold learned from the prediction errors of a
