@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 from ..common.estimators import RLS, ForgettingRLS, SlidingWindowLS
 from ..common.prefilter import ButterworthPrefilter
 from ..common.state import migrate, stamp
-from .blocks import OMEGA_SPREAD_FLOOR, ReferenceBlocks  # noqa: F401
+from .blocks import OMEGA_SPREAD_FLOOR, ReferenceBlocks  # noqa: F401  (re-exported)
 from .case_rate import CaseRateDTGRegressor, physical_from_theta_central
 from .classifier import ChannelClassifier
 from .config import (  # noqa: F401  (re-exported: importable from here as before)
