@@ -38,7 +38,9 @@ class ChannelClassifier(ABC):
     Parameters
     ----------
     host : DTGChannel
-        The channel it classifies for (read for its θ, θ0, reference and buffers).
+        The channel it classifies for: read for its θ, θ0, reference, block sizes and
+        block buffers (the pattern rule also rolls its estimators back and refines its
+        θ0).
     """
 
     #: The ``DTGChannelConfig.classifier`` value it implements.
