@@ -107,7 +107,7 @@ def test_power_cusum_is_the_capped_likelihood_ratio_recursion(records):
     rec = _with_noise(records[32], 3, 0.2, 5)
     n_end = round(5.0 / T)
     _, power, ch = _run(rec[:n_end + 1500])
-    mon = ch._monitor
+    mon = ch.monitor
     assert mon is not None
     ref = mon.reference
     blocks = mon._block_index          # blocks since learning ended, all fresh

@@ -3,6 +3,8 @@ state is migrated and continues exactly, a newer version is refused by name."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from _aircraft_loop import DT
@@ -38,6 +40,30 @@ def _dtg_record(n: int, seed: int) -> np.ndarray:
     return np.column_stack([tx + noise[:, 0], ty + noise[:, 1], ux, uy])
 
 
+def _dtg_as_version_1(saved: dict, cfg: DTGChannelConfig) -> dict:
+    """What the same state looked like before the classifier strategies (version 1): the
+    classifier's keys at the top, the unused ones of the other classifier as a fresh
+    channel has them (a paper channel never filled the monitor and rollback, a pattern
+    channel never the windowed features and θ0 sums)."""
+    other = "paper" if cfg.classifier == "pattern" else "pattern"
+    fresh = DTGChannel(replace(cfg, classifier=other, signatures={},
+                               patterns=None)).get_state()["classifier"]
+    old = {k: v for k, v in saved.items() if k != "classifier"}
+    return {**old, **fresh, **saved["classifier"], STATE_VERSION_KEY: 1}
+
+
+def _dtg_continue_equally(cfg: DTGChannelConfig, old: dict, rec: np.ndarray,
+                          ref: list) -> None:
+    restored = DTGChannel(cfg)
+    restored.set_state(old)
+    again = [restored.update(*row) for row in rec]
+    for a, b in zip(ref, again, strict=True):
+        np.testing.assert_array_equal(a.theta, b.theta)
+        np.testing.assert_array_equal(a.eta, b.eta)
+        assert (a.alarm, a.fault_code, a.diagnosis.block) == (b.alarm, b.fault_code,
+                                                              b.diagnosis.block)
+
+
 def test_dtg_channel_state_is_versioned_and_an_unversioned_one_still_restores() -> None:
     cfg = DTGChannelConfig(sample_period_s=T, learn_start_s=0.2, learn_end_s=0.5, p0=1e8)
     rec = _dtg_record(1500, seed=4)
@@ -45,20 +71,32 @@ def test_dtg_channel_state_is_versioned_and_an_unversioned_one_still_restores() 
     for row in rec[:800]:
         ch.update(*row)
     saved = ch.get_state()
-    assert saved[STATE_VERSION_KEY] == dtg_channel.STATE_VERSION == 1
+    assert saved[STATE_VERSION_KEY] == dtg_channel.STATE_VERSION == 2
     # what a state saved before versioning looked like: no tag, no case-rate part, no
     # alignment queue (this channel has neither in use)
-    old = {k: v for k, v in saved.items() if k not in (STATE_VERSION_KEY, "omega",
-                                                        "alignment")}
+    old = {k: v for k, v in _dtg_as_version_1(saved, cfg).items()
+           if k not in (STATE_VERSION_KEY, "omega", "alignment")}
     ref = [ch.update(*row) for row in rec[800:]]
-    restored = DTGChannel(cfg)
-    restored.set_state(old)
-    again = [restored.update(*row) for row in rec[800:]]
-    for a, b in zip(ref, again, strict=True):
-        np.testing.assert_array_equal(a.theta, b.theta)
-        assert (a.alarm, a.fault_code) == (b.alarm, b.fault_code)
-    with pytest.raises(ValueError, match="DTG channel state version 2"):
-        DTGChannel(cfg).set_state({**saved, STATE_VERSION_KEY: 2})
+    _dtg_continue_equally(cfg, old, rec[800:], ref)
+    with pytest.raises(ValueError, match="DTG channel state version 3"):
+        DTGChannel(cfg).set_state({**saved, STATE_VERSION_KEY: 3})
+
+
+@pytest.mark.parametrize("classifier", ["pattern", "paper"])
+def test_dtg_channel_version_1_state_restores_and_migrates_to_the_saved_one(
+        classifier: str) -> None:
+    cfg = DTGChannelConfig(sample_period_s=T, learn_start_s=0.2, learn_end_s=0.5, p0=1e8,
+                           classifier=classifier, low=0.9, high=1.1)  # type: ignore[arg-type]
+    rec = _dtg_record(1500, seed=5)
+    ch = DTGChannel(cfg)
+    for row in rec[:900]:
+        ch.update(*row)
+    saved = ch.get_state()
+    v1 = _dtg_as_version_1(saved, cfg)
+    migrated = migrate(v1, 2, dtg_channel._MIGRATIONS, "DTG channel")
+    assert set(migrated["classifier"]) >= set(saved["classifier"])
+    ref = [ch.update(*row) for row in rec[900:]]
+    _dtg_continue_equally(cfg, v1, rec[900:], ref)
 
 
 def test_df_channel_state_is_versioned_and_an_unversioned_one_still_restores() -> None:

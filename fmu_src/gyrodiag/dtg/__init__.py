@@ -16,6 +16,20 @@ learning
     Learning the pattern library from training runs (numpy only).
 decision
     The paper's decision: ratio thresholds, log10 features, nearest signature.
+config
+    Settings of the DTG channel.
+outputs
+    Outputs of the DTG channel.
+classifier
+    The interface of the DTG channel's classifiers.
+paper_rule
+    The paper's classifier: ratio band, decade signatures.
+pattern_rule
+    The pattern classifier: residual tests, pattern library.
+pairing
+    Pairing of the voltages with the case rate (the aligner's queue).
+blocks
+    The channel's reference blocks and the case rate's block statistics.
 channel
     The DTG channel of the Diagnoser: all of the above on streamed samples.
 
@@ -85,12 +99,21 @@ _EXPORTS = {
     "median_feature": "decision",
     "parameter_ratios": "decision",
     "signature_distance": "decision",
-    "AUTO_SETTINGS": "channel",
-    "CLASSIFIERS": "channel",
-    "ESTIMATOR_KINDS": "channel",
+    "AUTO_SETTINGS": "config",
+    "CLASSIFIERS": "config",
+    "ESTIMATOR_KINDS": "config",
+    "DTGChannelConfig": "config",
+    "DTGChannelOutput": "outputs",
+    "DTGDiagnosis": "outputs",
+    "ChannelClassifier": "classifier",
+    "PaperRule": "paper_rule",
+    "MASKED_SIGNAL_FIT": "pattern_rule",
+    "OMEGA_EXCITATION_Z": "pattern_rule",
+    "PatternRule": "pattern_rule",
+    "CaseRatePairing": "pairing",
+    "OMEGA_SPREAD_FLOOR": "blocks",
+    "ReferenceBlocks": "blocks",
     "DTGChannel": "channel",
-    "DTGChannelConfig": "channel",
-    "DTGChannelOutput": "channel",
 }
 
 __all__ = sorted(_EXPORTS)
