@@ -940,6 +940,8 @@ class Diagnoser(FacadeBase):
             return
         self._df_copied = (out.calibrating, out.sensor_fault_type, out.sensor_magnitude)
         assert self._df is not None
+        if prev is not None and prev[0] and not out.calibrating and self._df.gust_note:
+            self.report_warning(f"df: {self._df.gust_note}")
         thresholds = self._df.thresholds
         for k, value in zip(_DF_THRESHOLD_KEYS, [0.0] * DF_M if thresholds is None
                             else _as_list(thresholds[0]), strict=True):

@@ -2,6 +2,8 @@
 the closed-loop seed aircraft (tests/_aircraft_loop.py, and the paper-rule cases on the
 loop of test_isolation_closed_loop)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from _aircraft_loop import DT, NOISE_STD
@@ -118,7 +120,13 @@ def test_sequential_rule_detects_a_two_sigma_bias_that_the_paper_rule_misses():
     onset = round(10.0 / DT)
     assert not any(o.detected for o in seq[:onset])
     first = next(k for k, o in enumerate(seq) if o.detected)
-    assert t[first] - 10.0 < 1.0
+    # the default gust model (severe turbulence allowed for) costs calm-air delay; a
+    # 2 sigma bias is still found well inside the 6 s of issue 33's calm-air figure
+    assert t[first] - 10.0 < 2.0
+    calm = _run(DFChannel(dataclasses.replace(SEQ, gust=None)), u, y)
+    first_calm = next(k for k, o in enumerate(calm) if o.detected)
+    assert t[first_calm] - 10.0 < 1.0
+    assert t[first_calm] <= t[first]
     last = seq[-1]
     assert (last.isolated_sensor, last.fault_type) == (3, int(FaultKind.BIAS))
     assert last.magnitude == pytest.approx(2e-3, rel=0.2)

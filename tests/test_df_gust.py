@@ -195,3 +195,38 @@ def test_q_bias_of_5_sigma_in_moderate_turbulence_is_isolated_and_typed() -> Non
     assert end.isolated_sensor == 3
     assert end.fault_type == 1
     assert end.magnitude == pytest.approx(5e-3, rel=0.2)
+
+
+# -------------------------------------------------------------- decoupled analysis
+
+
+def test_decoupled_isolability_analytic_cases() -> None:
+    from gyrodiag.df.decoupling import decoupled_isolability
+
+    # a disturbance along sensor 1's own state: it can imitate that sensor's bias exactly
+    a = -np.eye(3)
+    rep = decoupled_isolability(a, np.eye(3), np.array([[1.0], [0.0], [0.0]]),
+                                ("s1", "s2", "s3"))
+    np.testing.assert_allclose(rep.visibility[:, 0], 0.0, atol=1e-12)
+    np.testing.assert_allclose(rep.visibility[:, 1:], 1.0, atol=1e-12)
+    assert rep.isolable_from("s1") == ()
+    assert rep.isolable_from("s2") == ("s3",)
+    # the seed gust never reaches the airspeed: v stays fully visible; rank 2
+    seed = decoupled_isolability(A, C, seed_gust_input(A), PLANT.output_names)
+    np.testing.assert_allclose(seed.visibility[:, 0], 1.0, atol=1e-12)
+    assert list(seed.disturbance_rank) == [2, 2, 2]
+    assert "h" not in seed.isolable_from("q")
+    with pytest.raises(ValueError, match="frequencies"):
+        decoupled_isolability(A, C, seed_gust_input(A), PLANT.output_names, frequencies=[0.0])
+
+
+def test_harness_isolability_report_shows_the_decoupled_table() -> None:
+    import json
+
+    from harness.verification.isolability import render, seed_isolability_report
+
+    report = seed_isolability_report()
+    data = json.loads(render(report, "json"))
+    names = [s["name"] for s in data["gust_decoupled"]["sensors"]]
+    assert names == list(PLANT.output_names)
+    assert "With the disturbance decoupled" in render(report, "text")

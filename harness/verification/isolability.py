@@ -18,6 +18,11 @@ Per sensor the report gives
   main filter or by the observer-bank pattern (union of the two lists, also given apart);
 * ``redundant``: whether the other sensors reproduce it (the plant stays observable).
 
+A second table answers what stays isolable once the gust is decoupled: the visibility of
+a bias on each sensor outside the output directions the Dryden gust takes
+(:func:`gyrodiag.df.decoupling.decoupled_isolability`, docs/methods.md §4.6), at a slow,
+a manoeuvre and a gust frequency.
+
 Output formats: text (the library's detailed report after a summary table), JSON (the
 same content as data) and a standalone HTML page.
 """
@@ -57,6 +62,23 @@ def seed_isolability_report(eigenvalues: list[float] | None = None) -> Any:
     model = seed_aircraft()
     return isolability_analysis(model.A, model.C, list(model.output_names),
                                 eigenvalues=eigenvalues)
+
+
+def seed_gust_decoupling() -> Any:
+    """The decoupling analysis of the seed aircraft's gust input (α and q columns of A in
+    the α̇ and q̇ rows).
+
+    Returns
+    -------
+    gyrodiag.df.decoupling.DecouplingReport
+    """
+    from gyrodiag.df.decoupling import decoupled_isolability
+    from gyrodiag.df.gust import seed_gust_input
+    from gyrodiag.df.plant import seed_aircraft
+
+    model = seed_aircraft()
+    return decoupled_isolability(model.A, model.C, seed_gust_input(model.A),
+                                 list(model.output_names))
 
 
 def _detectable(entry: Any) -> str:
@@ -106,6 +128,18 @@ def isolability_data(report: Any) -> dict[str, Any]:
         "cosines": _floats(report.cosines),
         "bank_signatures": _floats(report.bank_signatures),
         "sensors": sensors,
+        "gust_decoupled": _decoupling_data(seed_gust_decoupling()),
+    }
+
+
+def _decoupling_data(dec: Any) -> dict[str, Any]:
+    return {
+        "frequencies_rad_s": [float(w) for w in dec.frequencies],
+        "disturbance_rank": [int(r) for r in dec.disturbance_rank],
+        "collinear_cos": float(dec.collinear_cos),
+        "sensors": [{"name": name, "visibility": [float(v) for v in dec.visibility[:, i]],
+                     "isolable_from": list(dec.isolable_from(name))}
+                    for i, name in enumerate(dec.sensor_names)],
     }
 
 
@@ -145,7 +179,7 @@ def render(report: Any, fmt: str = "text") -> str:
     if fmt == "json":
         return json.dumps(data, indent=2) + "\n"
     summary = _summary_text(data)
-    detail = report.to_text()
+    detail = report.to_text() + "\n\n" + seed_gust_decoupling().to_text()
     if fmt == "text":
         return f"Isolability of the six aircraft sensors (seed aircraft)\n\n{summary}\n\n" \
                f"{detail}\n"

@@ -191,11 +191,13 @@ class DFChannelConfig:
         match, before anything else (so the outputs describe the sample max(e) earlier).
         None (default): all zeros. The harness sets it from its coupling plan
         (:mod:`harness.cosim.timing`).
-    gust : GustModel, optional
+    gust : GustModel or None
         Sequential rule: turbulence its residual model includes (the whitened residual
         is then the innovation of the plant augmented with the Dryden filter, white in
-        turbulence of the design intensity, and smaller in calmer air). None: sensor
-        noise only.
+        turbulence of the design intensity, and smaller in calmer air). Default: severe
+        turbulence (σ_w 2.3 m/s) through the seed aircraft's gust input, as the FMU;
+        a plant of another state layout gives ``input_matrix`` or None (sensor noise
+        only).
     """
 
     A: ArrayLike = field(default_factory=_seed_a)
@@ -227,7 +229,7 @@ class DFChannelConfig:
     x0: ArrayLike | None = None
     sensor_dynamics: SensorDynamics | None = None
     sensor_delay_samples: Sequence[int] | None = None
-    gust: GustModel | None = None
+    gust: GustModel | None = field(default_factory=GustModel)
 
     def matrices(self) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
         """Validated (A, B, C, eigenvalues, x0) as float arrays."""
@@ -335,6 +337,16 @@ class DFChannelConfig:
             if g.sensor >= m:
                 raise ValueError(f"sensor_dynamics: sensor {g.sensor + 1} (1-based) exceeds "
                                  f"the {m} sensors of C")
+        if self.gust is not None:
+            if not isinstance(self.gust, GustModel):
+                raise TypeError(f"gust must be a GustModel or None, got "
+                                f"{type(self.gust).__name__}")
+            A, _, _, _, _ = self.matrices()
+            if self.gust.input_matrix is None and A.shape != (5, 5):
+                raise ValueError("gust: the seed gust input needs the seed aircraft's "
+                                 "5 states [v, alpha, q, theta, h]; give "
+                                 "GustModel(input_matrix=...) or gust=None")
+            self.gust.input_for(A)
         if self.aligns and calibrate == 0.0:
             raise ValueError("align_auto needs a calibration window (calibrate_s > 0); "
                              "set input_delay_samples and align_auto = False")
@@ -454,6 +466,7 @@ class DFChannel:
         self._engine: SensorFaultIsolator | SequentialDiagnoser | None = None
         self._thresholds: list[NDArray[np.float64]] | None = None
         self._noise_std: NDArray[np.float64] | None = None
+        self._gust_note = ""
         self._monitor.reset(self._x0)
         if self._equaliser is not None:
             self._equaliser.reset()
@@ -499,6 +512,17 @@ class DFChannel:
     def noise_std(self) -> NDArray[np.float64] | None:
         """Sensor noise standard deviations in use (sensor units), once calibrated."""
         return None if self._noise_std is None else self._noise_std.copy()
+
+    @property
+    def gust_note(self) -> str:
+        """Why the gust model is not in use after calibration ("" when it is, or when
+        none is configured)."""
+        return self._gust_note
+
+    @property
+    def gust_in_use(self) -> bool:
+        """The sequential engine models the turbulence."""
+        return isinstance(self._engine, SequentialDiagnoser) and self._engine.gust is not None
 
     @property
     def engine(self) -> SensorFaultIsolator | SequentialDiagnoser | None:
@@ -761,8 +785,19 @@ class DFChannel:
             rms = np.sqrt(np.mean(y**2, axis=0))
             variances = np.maximum(variances, (1e-7 * rms + 1e-12) ** 2)
         self._noise_std = np.sqrt(variances)
-        engine = SequentialDiagnoser(self.A, self.B, self.C, self.K, self.T, variances,
-                                     c.settings(), x0=self._x0, gust=c.gust)
+        try:
+            engine = SequentialDiagnoser(self.A, self.B, self.C, self.K, self.T,
+                                         variances, c.settings(), x0=self._x0, gust=c.gust)
+            self._gust_note = ""
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            if c.gust is None:
+                raise
+            # a gust far above the noise (a noise-free window, very slow sampling)
+            # leaves no stable whitening: monitor without the turbulence model
+            engine = SequentialDiagnoser(self.A, self.B, self.C, self.K, self.T,
+                                         variances, c.settings(), x0=self._x0)
+            self._gust_note = (f"gust model not used (its whitening filter failed: {exc}); "
+                               "turbulence may raise alarms")
         if u is not None and y is not None:
             engine.calibrate_scales(np.hstack([u, y]), burn, x_start=x_start)
         self._engine = engine
@@ -785,6 +820,7 @@ class DFChannel:
             "noise_std": None if self._noise_std is None else self._noise_std.copy(),
             # the variances the engine was built from, exactly (σ² of a saved σ may
             # differ in the last bit, and so would every matrix designed from it)
+            "gust_note": self._gust_note,
             "noise_var": (engine.sensor_variances.copy()
                           if isinstance(engine, SequentialDiagnoser) else None),
             "engine": None if engine is None else engine.get_state(),
@@ -836,9 +872,10 @@ class DFChannel:
                 self._install(None, None) if self._n_cal == 0 else self._rebuild_paper(state)
             else:
                 variances = np.asarray(state["noise_var"], dtype=float)
+                self._gust_note = str(state.get("gust_note", ""))
                 self._engine = SequentialDiagnoser(
                     self.A, self.B, self.C, self.K, self.T, variances, c.settings(),
-                    x0=self._x0)
+                    x0=self._x0, gust=None if self._gust_note else c.gust)
                 self._noise_std = np.asarray(noise, dtype=float).copy()
                 self._thresholds = None
             assert self._engine is not None
