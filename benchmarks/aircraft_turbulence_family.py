@@ -40,17 +40,13 @@ from typing import Any
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-for _sub in ("fmu_src", "models/aircraft", "models/pitch_controller"):
+for _sub in ("fmu_src", "tests"):
     sys.path.insert(0, str(ROOT / _sub))
 
-from gd_aircraft_core import AircraftModel  # noqa: E402
-from gd_aircraft_turbulence import DrydenGust  # noqa: E402
-from gd_pitch_controller_design import PitchController, design_pitch_controller  # noqa: E402
+from _turbulence_loop import NOISE, T, fly  # noqa: E402
 
 from gyrodiag.df.channel import DFChannel, DFChannelConfig  # noqa: E402
 
-T = 0.01
-NOISE = np.array([0.05, 1e-3, 1e-3, 1e-3, 1e-3, 0.2])
 SENSORS = {2: "alpha", 3: "q", 4: "theta"}  # 1-based, as df.isolated_sensor
 LEVELS = {"calm": 0.0, "light": 0.77, "moderate": 1.5, "severe": 2.3}
 #: nominal conditions: (before, after) intensities; a change happens at a drawn time
@@ -61,31 +57,6 @@ NOMINAL = {"calm": ("calm", "calm"), "light": ("light", "light"),
 FAULTS = ([("bias", s) for s in (2.0, 5.0, 10.0, 20.0, 50.0)]
           + [("gain", 1.2), ("gain", 1.5), ("stuck", 0.0), ("noise", 3.0), ("ramp", 2e-3)])
 TYPE_CODE = {"bias": 1, "gain": 2, "stuck": 3, "noise": 5, "ramp": 6}
-
-
-def fly(duration_s: float, sigma: Any, seed: int, fault: Any = None, jacobi: bool = False
-        ) -> tuple[np.ndarray, np.ndarray]:
-    """(u, y) as the Diagnoser receives them (Gauss-Seidel, or Jacobi: y one sample
-    late)."""
-    plane = AircraftModel(noise_std=NOISE, seed=seed, gust=DrydenGust(sigma(0.0)))
-    law = PitchController(design_pitch_controller())
-    n = round(duration_s / T)
-    u, y = np.zeros((n, 2)), np.zeros((n, 6))
-    meas = plane.measure()
-    elevator = law.elevator(meas[1], meas[2], meas[3], 0.0)
-    for k in range(n):
-        t = k * T
-        if sigma(t) != plane.gust.sigma_w:
-            plane.set_gust(DrydenGust(sigma(t)))
-        if fault is not None:
-            meas = fault(t, meas)
-        u[k], y[k] = (0.0, elevator), meas
-        plane.step(T, u[k])
-        elevator = law.update(T, meas[1], meas[2], meas[3], 0.0)
-        meas = plane.measure()
-    if jacobi:
-        y = np.vstack([y[:1], y[:-1]])
-    return u, y
 
 
 def sensor_fault(kind: str, size: float, sensor: int, onset: float, rng_seed: int) -> Any:

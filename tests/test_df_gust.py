@@ -12,58 +12,24 @@
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
+from _turbulence_loop import NOISE, T, fly
+from gd_aircraft_turbulence import DrydenGust  # on the path via _turbulence_loop
 
-ROOT = Path(__file__).resolve().parents[1]
-for sub in ("models/aircraft", "models/pitch_controller"):
-    if str(ROOT / sub) not in sys.path:
-        sys.path.insert(0, str(ROOT / sub))
-
-from gd_aircraft_core import AircraftModel  # noqa: E402
-from gd_aircraft_turbulence import DrydenGust  # noqa: E402
-from gd_pitch_controller_design import PitchController, design_pitch_controller  # noqa: E402
-
-from gyrodiag.df.channel import DFChannel, DFChannelConfig  # noqa: E402
-from gyrodiag.df.filter import DetectionFilter, design_detection_filter  # noqa: E402
-from gyrodiag.df.gust import GustModel, seed_gust_input  # noqa: E402
-from gyrodiag.df.plant import seed_aircraft  # noqa: E402
-from gyrodiag.df.residual import ResidualModel, estimate_sensor_variances  # noqa: E402
-from gyrodiag.df.sequential_diagnosis import (  # noqa: E402
+from gyrodiag.df.channel import DFChannel, DFChannelConfig
+from gyrodiag.df.filter import DetectionFilter, design_detection_filter
+from gyrodiag.df.gust import GustModel, seed_gust_input
+from gyrodiag.df.plant import seed_aircraft
+from gyrodiag.df.residual import ResidualModel, estimate_sensor_variances
+from gyrodiag.df.sequential_diagnosis import (
     SequentialDiagnoser,
     _gust_disturbance,
 )
 
-T = 0.01
-NOISE = np.array([0.05, 1e-3, 1e-3, 1e-3, 1e-3, 0.2])
 PLANT = seed_aircraft()
 A, B, C = np.array(PLANT.A), np.array(PLANT.B), np.array(PLANT.C)
 K = design_detection_filter(A, C, np.eye(5), -np.arange(1.0, 6.0))
-
-
-def fly(duration_s: float, sigma, seed: int, fault=None) -> tuple[np.ndarray, np.ndarray]:
-    """(u, y) of the seed loop at 100 Hz as a Gauss-Seidel master pairs them: level
-    flight, σ_w(t) m/s, ``fault(t, y)`` on the sensors."""
-    plane = AircraftModel(noise_std=NOISE, seed=seed, gust=DrydenGust(sigma(0.0)))
-    law = PitchController(design_pitch_controller())
-    n = round(duration_s / T)
-    u, y = np.zeros((n, 2)), np.zeros((n, 6))
-    meas = plane.measure()
-    elevator = law.elevator(meas[1], meas[2], meas[3], 0.0)
-    for k in range(n):
-        t = k * T
-        if sigma(t) != plane.gust.sigma_w:
-            plane.set_gust(DrydenGust(sigma(t)))
-        if fault is not None:
-            meas = fault(t, meas)
-        u[k], y[k] = (0.0, elevator), meas
-        plane.step(T, u[k])
-        elevator = law.update(T, meas[1], meas[2], meas[3], 0.0)
-        meas = plane.measure()
-    return u, y
 
 
 def residuals(u: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -92,7 +58,7 @@ def test_library_gust_filter_is_the_aircraft_fmus() -> None:
 
 
 def test_seed_gust_input_is_the_aircraft_models() -> None:
-    from gd_aircraft_core import E_GUST
+    from gd_aircraft_core import E_GUST  # _turbulence_loop put models/aircraft on the path
 
     np.testing.assert_array_equal(seed_gust_input(A), E_GUST)
     with pytest.raises(ValueError, match="A must be square"):
