@@ -721,6 +721,9 @@ class DFChannel:
             u, y = self._pairs(d)
             burn = min(self._n_burn, max(u.shape[0] - 10, 0))
             res = self._residuals(u, y)[burn:]
+            if c.gust is not None:
+                scores[d] = self._innovation_score(res)
+                continue
             var = res.var(axis=0, ddof=1)
             scores[d] = float(np.sum(np.log(np.maximum(var, 1e-300))))
         best = min(scores.values())
@@ -729,6 +732,33 @@ class DFChannel:
         if configured in scores and scores[configured] - best <= 1e-9 * max(1.0, abs(best)):
             return configured
         return min(scores, key=scores.__getitem__)
+
+    def _innovation_score(self, res: NDArray[np.float64]) -> float:
+        """−2 log-likelihood per sample of residuals ``res`` under the gust model.
+
+        In turbulence the raw residual's variance is mostly the gust's, and the pitch
+        controller answers the gust, so a wrong pairing can look smaller there; the
+        innovations of the model with the gust leave only what it cannot explain."""
+        c = self.config
+        model = ResidualModel(self._monitor.closed_loop_matrix, self._monitor.discrete_gain,
+                              self.C, _gust_disturbance(c.gust, self.A, self.T, np.eye(self.n)))
+        variances = estimate_sensor_variances(res, model)
+        rms = np.sqrt(np.mean(res**2, axis=0))
+        variances = np.maximum(variances, (1e-3 * rms + 1e-12) ** 2)
+        try:
+            w = model.whitening(variances)
+        except (ValueError, np.linalg.LinAlgError):
+            var = res.var(axis=0, ddof=1)
+            return float(np.sum(np.log(np.maximum(var, 1e-300))))
+        s_inv = np.linalg.inv(w.S)
+        closed, gain = w.F - w.K @ w.C, w.K
+        e = np.zeros(w.F.shape[0])
+        total = 0.0
+        for r in res:
+            eps = r - w.C @ e
+            total += float(eps @ s_inv @ eps)
+            e = closed @ e + gain @ r
+        return total / res.shape[0] + float(np.linalg.slogdet(w.S)[1])
 
     def _finish_calibration(self) -> None:
         self._delay = self._choose_alignment()
