@@ -179,7 +179,7 @@ def summarise(nominal: list[dict[str, Any]], faults: list[dict[str, Any]]) -> di
 def provenance() -> dict[str, str]:
     def git(*a: str) -> str:
         return subprocess.run(["git", *a], cwd=ROOT, capture_output=True, text=True,
-                              check=False).stdout.strip()
+                              check=False, timeout=60).stdout.strip()
     h = hashlib.sha256()
     for p in sorted((ROOT / "fmu_src" / "gyrodiag").rglob("*.py")):
         h.update(p.read_bytes())
