@@ -47,6 +47,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from gd_fmu_base import FacadeBase, sample_instants, samples_in_step
 from pythonfmu import DefaultExperiment
+from pythonfmu.enums import Fmi2Status
 
 from gyrodiag.df.plant import seed_aircraft
 from gyrodiag.dtg.case_rate import CASE_RATE_SCHEMES
@@ -941,7 +942,8 @@ class Diagnoser(FacadeBase):
         self._df_copied = (out.calibrating, out.sensor_fault_type, out.sensor_magnitude)
         assert self._df is not None
         if prev is not None and prev[0] and not out.calibrating and self._df.gust_note:
-            self.report_warning(f"df: {self._df.gust_note}")
+            # an ok-status log line: some hosts (Ecos) stop a run on fmi2Warning
+            self.log(f"df: {self._df.gust_note}", Fmi2Status.ok)
         thresholds = self._df.thresholds
         for k, value in zip(_DF_THRESHOLD_KEYS, [0.0] * DF_M if thresholds is None
                             else _as_list(thresholds[0]), strict=True):

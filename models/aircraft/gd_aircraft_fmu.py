@@ -35,8 +35,8 @@ VARIABLE_META: dict[str, dict] = {"throttle": {"unit": "1"}, "elevator": {"unit"
                                   "turbulence_sigma_w": {"unit": "m/s", "min": 0.0},
                                   "turbulence_scale_length": {"unit": "m", "min": 1e-3},
                                   "turbulence_wingspan": {"unit": "m", "min": 1e-3},
-                                  "turbulence_start_s": {"unit": "s"},
-                                  "turbulence_stop_s": {"unit": "s"},
+                                  "turbulence_start_s": {"unit": "s", "min": 0.0},
+                                  "turbulence_stop_s": {"unit": "s", "min": 0.0},
                                   "gust_alpha": {"unit": "rad"},
                                   "gust_q": {"unit": "rad/s"}}
 for _n in OUTPUT_NAMES:
@@ -148,8 +148,8 @@ class Aircraft(GuardedSlave):
         if not self.parameters_in_range(VARIABLE_META):
             return
         try:
-            if not self.turbulence_stop_s > self.turbulence_start_s:
-                raise ValueError(f"turbulence_stop_s ({self.turbulence_stop_s}) must be > "
+            if self.turbulence_stop_s < self.turbulence_start_s:
+                raise ValueError(f"turbulence_stop_s ({self.turbulence_stop_s}) must be >= "
                                  f"turbulence_start_s ({self.turbulence_start_s})")
             self.model.gust = self._gust(self._t0)
             self.model.check()

@@ -717,11 +717,15 @@ class DFChannel:
         if not c.aligns:
             return int(c.input_delay_samples)
         scores = {}
+        # every pairing scored alike: by the gust model's innovations when each window
+        # is long enough to fit a noise model to, else by the residual variance
+        by_model = (c.gust is not None and
+                    self._n_cal - self._n_burn - int(c.align_max) >= 4 * CAL_MIN_SAMPLES)
         for d in range(-int(c.align_max), int(c.align_max) + 1):
             u, y = self._pairs(d)
             burn = min(self._n_burn, max(u.shape[0] - 10, 0))
             res = self._residuals(u, y)[burn:]
-            if c.gust is not None:
+            if by_model:
                 scores[d] = self._innovation_score(res)
                 continue
             var = res.var(axis=0, ddof=1)
@@ -733,6 +737,24 @@ class DFChannel:
             return configured
         return min(scores, key=scores.__getitem__)
 
+    def _variances(self, u: NDArray[np.float64] | None, y: NDArray[np.float64] | None,
+                   x_start: NDArray[np.float64], burn: int, gust: GustModel | None
+                   ) -> NDArray[np.float64]:
+        """Sensor noise variances: given, or those that explain the window's residuals
+        (with the gust model ``gust`` if any)."""
+        c = self.config
+        if c.noise_std is not None:
+            return np.asarray(c.noise_std, dtype=float) ** 2
+        assert u is not None and y is not None
+        f = DetectionFilter(self.A, self.B, self.C, self.K, self.T)
+        model = ResidualModel(f.closed_loop_matrix, f.discrete_gain, self.C,
+                              _gust_disturbance(gust, self.A, self.T, np.eye(self.n)))
+        variances = estimate_sensor_variances(self._residuals(u, y, x_start)[burn:], model)
+        # A noise-free sensor would make rounding look like faults: floor at 1e−7 of the
+        # signal's RMS (plus 1e−12 absolute).
+        rms = np.sqrt(np.mean(y**2, axis=0))
+        return np.maximum(variances, (1e-7 * rms + 1e-12) ** 2)
+
     def _innovation_score(self, res: NDArray[np.float64]) -> float:
         """−2 log-likelihood per sample of residuals ``res`` under the gust model.
 
@@ -740,6 +762,8 @@ class DFChannel:
         controller answers the gust, so a wrong pairing can look smaller there; the
         innovations of the model with the gust leave only what it cannot explain."""
         c = self.config
+        var = res.var(axis=0, ddof=1)
+        plain = float(np.sum(np.log(np.maximum(var, 1e-300))))
         model = ResidualModel(self._monitor.closed_loop_matrix, self._monitor.discrete_gain,
                               self.C, _gust_disturbance(c.gust, self.A, self.T, np.eye(self.n)))
         variances = estimate_sensor_variances(res, model)
@@ -748,8 +772,7 @@ class DFChannel:
         try:
             w = model.whitening(variances)
         except (ValueError, np.linalg.LinAlgError):
-            var = res.var(axis=0, ddof=1)
-            return float(np.sum(np.log(np.maximum(var, 1e-300))))
+            return plain
         s_inv = np.linalg.inv(w.S)
         closed, gain = w.F - w.K @ w.C, w.K
         e = np.zeros(w.F.shape[0])
@@ -801,19 +824,7 @@ class DFChannel:
             self._calibrated = True
             return
         x_start = self._x0 if u is None or y is None else self._initial_state(u, y)
-        if c.noise_std is not None:
-            variances = np.asarray(c.noise_std, dtype=float) ** 2
-        else:
-            assert u is not None and y is not None
-            f = DetectionFilter(self.A, self.B, self.C, self.K, self.T)
-            model = ResidualModel(f.closed_loop_matrix, f.discrete_gain, self.C,
-                                  _gust_disturbance(c.gust, self.A, self.T, np.eye(self.n)))
-            variances = estimate_sensor_variances(
-                self._residuals(u, y, x_start)[burn:], model)
-            # A noise-free sensor would make rounding look like faults: floor at 1e−7
-            # of the signal's RMS (plus 1e−12 absolute).
-            rms = np.sqrt(np.mean(y**2, axis=0))
-            variances = np.maximum(variances, (1e-7 * rms + 1e-12) ** 2)
+        variances = self._variances(u, y, x_start, burn, c.gust)
         self._noise_std = np.sqrt(variances)
         try:
             engine = SequentialDiagnoser(self.A, self.B, self.C, self.K, self.T,
@@ -823,7 +834,10 @@ class DFChannel:
             if c.gust is None:
                 raise
             # a gust far above the noise (a noise-free window, very slow sampling)
-            # leaves no stable whitening: monitor without the turbulence model
+            # leaves no stable whitening: monitor without the turbulence model, with the
+            # noise as that model explains the window
+            variances = self._variances(u, y, x_start, burn, None)
+            self._noise_std = np.sqrt(variances)
             engine = SequentialDiagnoser(self.A, self.B, self.C, self.K, self.T,
                                          variances, c.settings(), x0=self._x0)
             self._gust_note = (f"gust model not used (its whitening filter failed: {exc}); "
