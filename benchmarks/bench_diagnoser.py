@@ -28,7 +28,8 @@ turn, step by step, so that their ratios do not depend on the load of a shared m
   has gets sin(7 t) plus 1e-3 white noise: the DF calibrates on it over 0.5 s and detects,
   the DTG learns its reference over 0.2-0.8 s and is in alarm from about 1 s on; what each
   channel says is printed) stepped in turn with FaultInjector.fmu after a 1 s warm-up: the
-  host step's median, p99 and maximum, and the cost of reading every output after a step,
+  host step's median, p99 and maximum (wall time, and the thread's CPU time, which a
+  shared machine's preemptions do not inflate), and the cost of reading every output after a step,
   as one fmi2GetReal/Integer/Boolean call per type (fmpy, and the same calls through ctypes
   with the arrays built once, as a C host makes them) and as one call per variable.
 
@@ -309,18 +310,21 @@ def measure_states(specs: dict[str, dict], warmup: int, steps: int) -> dict:
         readers[name] = _Reader(instances[name],
                                 [v for v in md.modelVariables if v.causality == "output"])
     step = {name: np.empty(n) for name in specs}
+    cpu = {name: np.empty(n) for name in specs}
     reads: dict[str, dict[str, list]] = {
         name: {"fmpy": [], "ctypes": [], "per_variable": []} for name in diag_names}
     flags_at: dict[str, dict] = {}
-    perf = time.perf_counter
+    perf, thread_time = time.perf_counter, time.thread_time
     for k in range(n):
         for name, inst in instances.items():
             slave = inst.slave
+            c0 = thread_time()
             t0 = perf()
             if inst.in_vr:
                 slave.setReal(inst.in_vr, inst.rows[k])
             slave.doStep(currentCommunicationPoint=k * H, communicationStepSize=H)
             step[name][k] = perf() - t0
+            cpu[name][k] = thread_time() - c0
             if name not in readers or k < warmup:
                 continue
             how = ("fmpy", "ctypes", "per_variable")[k % 3]
@@ -335,10 +339,12 @@ def measure_states(specs: dict[str, dict], warmup: int, steps: int) -> dict:
                 flags_at.setdefault(name, {})["start" if k == warmup else "end"] = flags
     timed = slice(warmup, None)
     inj = step["injector"][timed]
-    out: dict = {"injector": _stats(inj)}
+    inj_cpu = cpu["injector"][timed]
+    out: dict = {"injector": _stats(inj), "injector_cpu": _stats(inj_cpu)}
     for name in diag_names:
         d = step[name][timed]
         res = {"step": _stats(d), "ratio_median": float(np.median(d / inj)),
+               "cpu": _stats(cpu[name][timed]),
                "flags": flags_at[name]}
         for how in ("fmpy", "ctypes"):
             per = 1e6 * np.array(reads[name][how])
@@ -392,19 +398,20 @@ def print_states(results: dict[str, dict], steps: int) -> None:
         f = r["alarm"]["flags"]
         print(f"    {config:5s} " + "  ".join(
             f"{key} {f['start'][key]!s}/{f['end'][key]!s}" for key in f["start"]))
-    print(f"\n  host step µs: {'channels':8s} {'state':7s} {'median':>8s} {'p99':>8s} "
-          f"{'max':>9s} {'/ FaultInj':>11s} {'p99/FI med':>11s} {'FI med':>7s}")
+    print("\n  host step µs (wall; CPU time of the thread in brackets):")
+    print(f"    {'channels':8s} {'state':7s} {'median':>8s} {'p99':>17s} {'max':>19s} "
+          f"{'/ FaultInj':>11s} {'p99 CPU/FI med':>15s} {'FI med':>7s}")
     for config, r in results.items():
         fi = r["injector"]["median"]
         for state in ("nominal", "alarm"):
-            s = r[state]["step"]
-            print(f"  {'':13s} {config:8s} {state:7s} {s['median']:8.1f} {s['p99']:8.1f} "
-                  f"{s['max']:9.1f} {r[state]['ratio_median']:10.2f}x "
-                  f"{s['p99'] / fi:10.1f}x {fi:7.1f}")
+            s, c = r[state]["step"], r[state]["cpu"]
+            print(f"    {config:8s} {state:7s} {s['median']:8.1f} {s['p99']:8.1f} "
+                  f"({c['p99']:7.1f}) {s['max']:9.1f} ({c['max']:7.1f}) "
+                  f"{r[state]['ratio_median']:10.2f}x {c['p99'] / fi:14.1f}x {fi:7.1f}")
     print("\n  reading every output after a step, µs (medians; the first call, Real, "
           "includes the outputs' copy):")
     kinds = first["alarm"]["n_outputs"]
-    print(f"  {'':13s} {'channels':8s} {'state':7s} {'host':7s} "
+    print(f"    {'channels':8s} {'state':7s} {'host':7s} "
           + " ".join(f"{k + f' ({n})':>14s}" for k, n in kinds.items())
           + f" {'total':>8s} {'total p99':>10s} {'/ FI step':>10s} {'per variable':>13s}")
     for config, r in results.items():
@@ -414,7 +421,7 @@ def print_states(results: dict[str, dict], steps: int) -> None:
             for how in ("fmpy", "ctypes"):
                 rd = d[f"read_{how}"]
                 per_var = f"{d['read_per_variable']:13.1f}" if how == "fmpy" else ""
-                print(f"  {'':13s} {config:8s} {state:7s} {how:7s} "
+                print(f"    {config:8s} {state:7s} {how:7s} "
                       + " ".join(f"{rd[k]:14.1f}" for k in kinds)
                       + f" {rd['total']:8.1f} {rd['total_p99']:10.1f} "
                       f"{rd['total'] / fi:9.1f}x {per_var}")
