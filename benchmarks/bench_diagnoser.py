@@ -3,7 +3,7 @@
 Usage::
 
     .venv/bin/python benchmarks/bench_diagnoser.py [--steps 3000] [--warmup 1500] [--no-chain]
-    .venv/bin/python benchmarks/bench_diagnoser.py --states-only [--steps 3000]
+    .venv/bin/python benchmarks/bench_diagnoser.py --states-only [--steps 3000] [--fmu-dir DIR]
 
 Measures, in one run, through fmpy, on the same input records at 1 kHz, in one fresh
 process per Diagnoser configuration (docs/methods.md §6.11) in which three FMUs are stepped in
@@ -539,6 +539,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warmup", type=int, default=1500, help="untimed steps first")
     parser.add_argument("--no-chain", action="store_true",
                         help="skip the DTG chain (dtg_nominal, 60 s simulated)")
+    parser.add_argument("--fmu-dir", type=Path, default=None,
+                        help="take the FMUs from here as they are (default: build/fmus, "
+                             "rebuilt first if older than their sources)")
     parser.add_argument("--states-only", action="store_true",
                         help="only the nominal / in-alarm comparison and the output reads")
     parser.add_argument("--_measure", nargs=2, dest="measure", help=argparse.SUPPRESS)
@@ -555,7 +558,7 @@ def main(argv: list[str] | None = None) -> int:
     sys.path.insert(0, str(ROOT / "fmu_src"))
     n = max(args.warmup, STATE_WARMUP) + args.steps
     rec = make_records(n)
-    fmu_dir = built_fmus(["Diagnoser", "FaultInjector", "DTG"])
+    fmu_dir = args.fmu_dir or built_fmus(["Diagnoser", "FaultInjector", "DTG"])
     results: dict[tuple[str, str], dict] = {}
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
