@@ -26,9 +26,7 @@ import functools
 import json
 import math
 import operator
-import threading
 import traceback
-from array import array
 from collections.abc import Callable
 from typing import Any
 
@@ -86,13 +84,6 @@ def decode(obj: Any) -> Any:
         return [decode(v) for v in obj]
     return obj
 
-
-#: The slave the last fmi2Instantiate or fmi2Reset on this thread created: the status shim
-#: takes it from here right after pythonfmu returns, for its bulk reads (_gd_read_into).
-_created = threading.local()
-#: fmi2Get* type → (conversion, array type code of the host's C values)
-_BULK_KINDS: dict[str, tuple[Callable[[Any], Any], str]] = {
-    "Real": (float, "d"), "Integer": (int, "i"), "Boolean": (bool, "i")}
 
 #: Tag of the FMU state layout written by :class:`GuardedSlave`.
 STATE_FORMAT = "gyrodiag-fmu-state/1"
@@ -477,29 +468,6 @@ class FacadeBase(GuardedSlave):
         self.values: dict[str, Any] = {}
         self.kinds: dict[str, str] = {}
         self.causalities: dict[str, str] = {}
-        _created.slave = self
-
-    def _gd_read_into(self, kind: str, refs: memoryview, out: memoryview) -> bool:
-        """The status shim's bulk read: the values of the value references in ``refs``
-        (the host's C array) written into ``out`` (the host's value array), without a
-        Python object per reference. False, with nothing written, if the call must take
-        pythonfmu's path: initialisation, messages to deliver (they reach the host through
-        pythonfmu's log buffer), a reference of another kind (its errors) or a value that
-        does not fit the C type (pythonfmu converts it)."""
-        if self._in_initialisation:
-            return False
-        self._sync_outputs()
-        if self.log_queue:
-            return False
-        convert, code = _BULK_KINDS[kind]
-        values = self._fast_get(kind, refs.cast("I").tolist(), convert)
-        if values is None:
-            return False
-        try:
-            out.cast(code)[:] = array(code, values)
-        except (OverflowError, TypeError, ValueError):
-            return False
-        return True
 
     # -- variables ------------------------------------------------------------
     def add_variable(

@@ -106,7 +106,6 @@ typedef struct {
     VarInfo *vars;               /* modelDescription.xml's variables sorted by vr, or NULL */
     size_t n_vars;
     Mode mode;
-    void *py_self;               /* the Python slave, for bulk reads (a reference), or NULL */
 } Shim;
 
 /* The shim's own messages: through the host's logger, counted like the inner ones. */
@@ -743,92 +742,6 @@ static int check_mode(Shim *s, const char *call, unsigned allowed, const char *r
 const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
 const char *fmi2GetVersion(void) { return fmi2Version; }
 
-/* ---------------------------------------------------------------------------------------
- * Bulk reads: fmi2GetReal/Integer/Boolean in step mode, after the checks above, go to the
- * slave's _gd_read_into (gd_fmu_base.py) with memoryviews over the host's arrays: one
- * Python call, no Python object per value reference. The slave answers False (nothing
- * written) whenever the call must take pythonfmu's path: messages to deliver, a value
- * that does not fit, initialisation. The slave is the one gd_fmu_base._created holds
- * right after pythonfmu created it (fmi2Instantiate, fmi2Reset).
- * ------------------------------------------------------------------------------------- */
-static struct {
-    int ready;   /* 0 not resolved, 1 usable, -1 not available */
-    int (*gil_ensure)(void);
-    void (*gil_release)(int);
-    void *(*memview)(char *, long, int);
-    void *(*call_method)(void *, const char *, const char *, ...);
-    int (*is_true)(void *);
-    void (*err_clear)(void);
-    void (*dec_ref)(void *);
-    void *(*import)(const char *);
-    void *(*get_attr)(void *, const char *);
-    int (*set_attr)(void *, const char *, void *);
-    int (*has_attr)(void *, const char *);
-} py;
-
-static int py_api(void)
-{
-    if (py.ready) return py.ready > 0;
-#define SYM(field, name) *(void **)&py.field = dlsym(RTLD_DEFAULT, name); if (!py.field) ok = 0;
-    int ok = 1;
-    SYM(gil_ensure, "PyGILState_Ensure") SYM(gil_release, "PyGILState_Release")
-    SYM(memview, "PyMemoryView_FromMemory") SYM(call_method, "PyObject_CallMethod")
-    SYM(is_true, "PyObject_IsTrue") SYM(err_clear, "PyErr_Clear") SYM(dec_ref, "Py_DecRef")
-    SYM(import, "PyImport_ImportModule") SYM(get_attr, "PyObject_GetAttrString")
-    SYM(set_attr, "PyObject_SetAttrString") SYM(has_attr, "PyObject_HasAttrString")
-#undef SYM
-    py.ready = ok ? 1 : -1;
-    return ok;
-}
-
-/* The slave pythonfmu has just created on this thread (a new reference), or NULL. */
-static void *take_created_slave(void)
-{
-    if (!py_api()) return NULL;
-    int gil = py.gil_ensure();
-    void *slave = NULL, *mod = py.import("gd_fmu_base");
-    void *created = mod ? py.get_attr(mod, "_created") : NULL;
-    if (created && py.has_attr(created, "slave")) {
-        slave = py.get_attr(created, "slave");
-        py.set_attr(created, "slave", NULL);   /* taken: never handed out twice */
-    }
-    if (slave && !py.has_attr(slave, "_gd_read_into")) { py.dec_ref(slave); slave = NULL; }
-    py.err_clear();
-    if (created) py.dec_ref(created);
-    if (mod) py.dec_ref(mod);
-    py.gil_release(gil);
-    return slave;
-}
-
-static void drop_slave(Shim *s)
-{
-    if (!s->py_self) return;
-    int gil = py.gil_ensure();
-    py.dec_ref(s->py_self);
-    py.gil_release(gil);
-    s->py_self = NULL;
-}
-
-/* 1 if the slave wrote the n values of vr[] into v[] (items of `size` bytes), else 0:
- * the caller takes pythonfmu's path. */
-static int bulk_get(Shim *s, const char *kind, const fmi2ValueReference vr[], size_t n,
-                    void *v, size_t size)
-{
-    if (!s->py_self || s->mode != MODE_STEP || n == 0) return 0;
-    int gil = py.gil_ensure();
-    void *refs = py.memview((char *)vr, (long)(n * sizeof vr[0]), 0x100 /* PyBUF_READ */);
-    void *out = py.memview((char *)v, (long)(n * size), 0x200 /* PyBUF_WRITE */);
-    void *r = refs && out ? py.call_method(s->py_self, "_gd_read_into", "sOO", kind, refs,
-                                           out) : NULL;
-    int ok = r && py.is_true(r) == 1;
-    if (!r) py.err_clear();
-    if (r) py.dec_ref(r);
-    if (out) py.dec_ref(out);
-    if (refs) py.dec_ref(refs);
-    py.gil_release(gil);
-    return ok;
-}
-
 fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
                               fmi2String fmuResourceLocation,
                               const fmi2CallbackFunctions *functions, fmi2Boolean visible,
@@ -897,7 +810,6 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
         free(s);
         return NULL;
     }
-    s->py_self = take_created_slave();
     return s;
 }
 
@@ -914,7 +826,6 @@ void fmi2FreeInstance(fmi2Component c)
     /* an instance pythonfmu gave up is not freed by it again: its destructor would release
      * the Python objects a second time (a use after free); its few bytes are leaked */
     if (s->mode != MODE_DEAD) real_fmi2FreeInstance(s->inner);
-    drop_slave(s);
     free_vars(s->vars, s->n_vars);
     free(s->guid);
     free(s->name);
@@ -972,27 +883,18 @@ fmi2Status fmi2Reset(fmi2Component c)
     SHIM(c)
     LIVE("fmi2Reset")
     s->mode = MODE_INSTANTIATED;
-    s->worst = fmi2OK;
-    fmi2Status status = merge(s, real_fmi2Reset(s->inner));
-    drop_slave(s);   /* pythonfmu has created a new slave */
-    if (s->mode != MODE_DEAD) s->py_self = take_created_slave();
-    return status;
+    CALL(real_fmi2Reset(s->inner));
 }
 #define GET_SET(kind, letter, set, ...) \
     SHIM(c) \
     if (!check_access(s, "fmi2" #kind, letter, set, vr, n, v)) return fmi2Error; \
     CALL(real_fmi2##kind(s->inner, vr, n, v));
-#define BULK_GET(kind, letter) \
-    SHIM(c) \
-    if (!check_access(s, "fmi2Get" #kind, letter, 0, vr, n, v)) return fmi2Error; \
-    if (bulk_get(s, #kind, vr, n, v, sizeof v[0])) return fmi2OK; \
-    CALL(real_fmi2Get##kind(s->inner, vr, n, v));
 fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Real v[])
-{ BULK_GET(Real, 'R') }
+{ GET_SET(GetReal, 'R', 0) }
 fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Integer v[])
-{ BULK_GET(Integer, 'I') }
+{ GET_SET(GetInteger, 'I', 0) }
 fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Boolean v[])
-{ BULK_GET(Boolean, 'B') }
+{ GET_SET(GetBoolean, 'B', 0) }
 fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2String v[])
 { GET_SET(GetString, 'S', 0) }
 fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Real v[])
