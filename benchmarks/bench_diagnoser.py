@@ -3,6 +3,7 @@
 Usage::
 
     .venv/bin/python benchmarks/bench_diagnoser.py [--steps 3000] [--warmup 1500] [--no-chain]
+    .venv/bin/python benchmarks/bench_diagnoser.py --states-only [--steps 3000] [--fmu-dir DIR]
 
 Measures, in one run, through fmpy, on the same input records at 1 kHz, in one fresh
 process per Diagnoser configuration (docs/methods.md §6.11) in which three FMUs are stepped in
@@ -21,6 +22,16 @@ turn, step by step, so that their ratios do not depend on the load of a shared m
   (DTG → FaultInjector → two Diagnoser DTG channels, 60 s) through the harness, as
   simulated time over the process's CPU time (and over wall time, which a loaded machine
   inflates).
+
+* nominal against in alarm (issue 35), default install, per channel and all together:
+  a nominal Diagnoser (the records above) and one in alarm (every Real input the channel
+  has gets sin(7 t) plus 1e-3 white noise: the DF calibrates on it over 0.5 s and detects,
+  the DTG learns its reference over 0.2-0.8 s and is in alarm from about 1 s on; what each
+  channel says is printed) stepped in turn with FaultInjector.fmu after a 1 s warm-up: the
+  host step's median, p99 and maximum (wall time, and the thread's CPU time, which a
+  shared machine's preemptions do not inflate), and the cost of reading every output after a step,
+  as one fmi2GetReal/Integer/Boolean call per type (fmpy, and the same calls through ctypes
+  with the arrays built once, as a C host makes them) and as one call per variable.
 
 Prints figures only (no assertions); medians of per-step times. The detection filter
 calibrates over the warm-up (0.5 s), so the timed steps are steady-state monitoring.
@@ -57,6 +68,19 @@ CONFIGS = {
     "DF": (("df",), list(range(5, 13))),
     "all": (("dtg", "grey", "df"), list(range(13))),
 }
+
+#: every Real input of the Diagnoser per channel configuration, for the in-alarm state
+ALARM_INPUTS = {
+    "DTG": ["dtg.Utx", "dtg.Uty", "dtg.Ux", "dtg.Uy", "dtg.case_rate_x", "dtg.case_rate_y"],
+    "grey": ["grey.y"],
+    "DF": ["df.u[1]", "df.u[2]"] + [f"df.y[{i}]" for i in range(1, 7)],
+}
+ALARM_INPUTS["all"] = ALARM_INPUTS["DTG"] + ALARM_INPUTS["grey"] + ALARM_INPUTS["DF"]
+#: warm-up of the nominal/in-alarm comparison: the DTG reference ends at 0.8 s
+STATE_WARMUP = 1000
+#: outputs that tell whether the instance in alarm is
+ALARM_FLAGS = ("dtg.alarm", "dtg.learning", "df.detected", "df.calibrating", "grey.alarm",
+               "any_alarm")
 
 TRIVIAL_SCRIPT = '''
 from pythonfmu import Fmi2Causality, Fmi2Slave, Real
@@ -155,6 +179,7 @@ class _Instance:
         self.reads = [(getters[kind], refs) for kind in ("Real", "Integer", "Boolean")
                       if (refs := [v.valueReference for v in outputs if v.type == kind])]
         self.n_inputs, self.n_outputs = len(self.in_vr), len(outputs)
+        self.vr = vr
 
     def step(self, k: int) -> tuple[float, float]:
         """(host step, host step + reading every output) in seconds."""
@@ -204,14 +229,214 @@ def measure_fmus(specs: dict[str, dict], warmup: int, steps: int) -> dict:
     return out
 
 
+# ------------------------------------------------------------------ nominal and in alarm
+def make_alarm_records(n: int, n_inputs: int, seed: int = 2) -> np.ndarray:
+    """Every column sin(7 t) + 1e-3 white noise at 1 kHz: the DF and DTG channels alarm."""
+    t = np.arange(n) * H
+    noise = 1e-3 * np.random.default_rng(seed).standard_normal((n, n_inputs))
+    return np.sin(7.0 * t)[:, None] + noise
+
+
+class _Reader:
+    """Reads every output of an instance: per type through fmpy, per type through ctypes
+    with the arrays built once (as a C host does), and one fmpy call per variable."""
+
+    KINDS = ("Real", "Integer", "Boolean")
+
+    def __init__(self, inst: _Instance, md_outputs: list) -> None:
+        from fmpy.fmi2 import fmi2Boolean, fmi2Integer, fmi2Real, fmi2ValueReference
+
+        slave = inst.slave
+        self.fmpy = {"Real": slave.getReal, "Integer": slave.getInteger,
+                     "Boolean": slave.getBoolean}
+        raw = {"Real": (slave.fmi2GetReal, fmi2Real),
+               "Integer": (slave.fmi2GetInteger, fmi2Integer),
+               "Boolean": (slave.fmi2GetBoolean, fmi2Boolean)}
+        self.refs = {k: [v.valueReference for v in md_outputs if v.type == k]
+                     for k in self.KINDS}
+        self.raw = {}
+        for kind, (call, ctype) in raw.items():
+            refs = self.refs[kind]
+            self.raw[kind] = (call, slave.component, (fmi2ValueReference * len(refs))(*refs),
+                              len(refs), (ctype * len(refs))())
+
+    def per_type(self, how: str) -> list[float]:
+        """Seconds of each type's call, in KINDS order (the first includes any output
+        copying the FMU defers to the first read after a step)."""
+        perf = time.perf_counter
+        times = []
+        for kind in self.KINDS:
+            if how == "fmpy":
+                get, refs = self.fmpy[kind], self.refs[kind]
+                t0 = perf()
+                get(refs)
+            else:
+                call, comp, vrs, n, out = self.raw[kind]
+                t0 = perf()
+                if call(comp, vrs, n, out) != 0:
+                    raise RuntimeError(f"fmi2Get{kind} failed")
+            times.append(perf() - t0)
+        return times
+
+    def per_variable(self) -> float:
+        """Seconds for every output read by one fmpy call of its own."""
+        perf = time.perf_counter
+        t0 = perf()
+        for kind in self.KINDS:
+            get = self.fmpy[kind]
+            for ref in self.refs[kind]:
+                get([ref])
+        return perf() - t0
+
+
+def _stats(x: np.ndarray) -> dict:
+    us = 1e6 * x
+    return {"median": float(np.median(us)), "p99": float(np.percentile(us, 99)),
+            "max": float(us.max())}
+
+
+def measure_states(specs: dict[str, dict], warmup: int, steps: int) -> dict:
+    """Runs in a fresh process: nominal and in-alarm Diagnosers and the FaultInjector
+    stepped in turn; after each Diagnoser step its outputs are read, alternately per type
+    (fmpy and ctypes, in turn) and per variable, so that each read pays the output copy."""
+    from fmpy import read_model_description
+
+    n = warmup + steps
+    instances = {name: _Instance(spec["fmu"], spec, n) for name, spec in specs.items()}
+    diag_names = [name for name in specs if name != "injector"]
+    readers = {}
+    for name in diag_names:
+        md = read_model_description(specs[name]["fmu"])
+        readers[name] = _Reader(instances[name],
+                                [v for v in md.modelVariables if v.causality == "output"])
+    step = {name: np.empty(n) for name in specs}
+    cpu = {name: np.empty(n) for name in specs}
+    reads: dict[str, dict[str, list]] = {
+        name: {"fmpy": [], "ctypes": [], "per_variable": []} for name in diag_names}
+    flags_at: dict[str, dict] = {}
+    perf, thread_time = time.perf_counter, time.thread_time
+    for k in range(n):
+        for name, inst in instances.items():
+            slave = inst.slave
+            c0 = thread_time()
+            t0 = perf()
+            if inst.in_vr:
+                slave.setReal(inst.in_vr, inst.rows[k])
+            slave.doStep(currentCommunicationPoint=k * H, communicationStepSize=H)
+            step[name][k] = perf() - t0
+            cpu[name][k] = thread_time() - c0
+            if name not in readers or k < warmup:
+                continue
+            how = ("fmpy", "ctypes", "per_variable")[k % 3]
+            r = readers[name]
+            reads[name][how].append(r.per_variable() if how == "per_variable"
+                                    else r.per_type(how))
+        if k in (warmup, n - 1):
+            for name in diag_names:
+                inst = instances[name]
+                flags = {f: bool(inst.slave.getBoolean([inst.vr[f]])[0]) for f in ALARM_FLAGS}
+                flags["fault_code"] = inst.slave.getInteger([inst.vr["fault_code"]])[0]
+                flags_at.setdefault(name, {})["start" if k == warmup else "end"] = flags
+    timed = slice(warmup, None)
+    inj = step["injector"][timed]
+    inj_cpu = cpu["injector"][timed]
+    out: dict = {"injector": _stats(inj), "injector_cpu": _stats(inj_cpu)}
+    for name in diag_names:
+        d = step[name][timed]
+        res = {"step": _stats(d), "ratio_median": float(np.median(d / inj)),
+               "cpu": _stats(cpu[name][timed]),
+               "flags": flags_at[name]}
+        for how in ("fmpy", "ctypes"):
+            per = 1e6 * np.array(reads[name][how])
+            res[f"read_{how}"] = {kind: float(np.median(per[:, i]))
+                                  for i, kind in enumerate(_Reader.KINDS)}
+            res[f"read_{how}"]["total"] = float(np.median(per.sum(axis=1)))
+            res[f"read_{how}"]["total_p99"] = float(np.percentile(per.sum(axis=1), 99))
+        res["read_per_variable"] = float(np.median(1e6 * np.array(reads[name]["per_variable"])))
+        res["n_outputs"] = {kind: len(readers[name].refs[kind]) for kind in _Reader.KINDS}
+        out[name] = res
+    for inst in instances.values():
+        inst.close()
+    return out
+
+
+def run_states(fmu_dir: Path, tmp: Path, steps: int) -> dict[str, dict]:
+    """measure_states per channel configuration, one fresh process each."""
+    nominal = np.load(tmp / "records.npy")
+    n = STATE_WARMUP + steps
+    results = {}
+    for config, (channels, columns) in CONFIGS.items():
+        params = dict(BASE_PARAMS)
+        for ch in ("dtg", "grey", "df"):
+            params[f"{ch}.enabled"] = ch in channels
+        names = ALARM_INPUTS[config]
+        np.save(tmp / f"alarm_{config}.npy", make_alarm_records(n, len(names)))
+        np.save(tmp / f"nominal_{config}.npy", nominal[:n])
+        diag = str(fmu_dir / "Diagnoser.fmu")
+        specs = {
+            "nominal": {"fmu": diag, "params": params, "columns": columns,
+                        "records": str(tmp / f"nominal_{config}.npy"),
+                        "inputs": [IN_NAMES[c] for c in columns]},
+            "alarm": {"fmu": diag, "params": params, "columns": list(range(len(names))),
+                      "records": str(tmp / f"alarm_{config}.npy"), "inputs": names},
+            "injector": {"fmu": str(fmu_dir / "FaultInjector.fmu")},
+        }
+        results[config] = run_measurement(specs, STATE_WARMUP, steps, states=True)
+    return results
+
+
+def print_states(results: dict[str, dict], steps: int) -> None:
+    first = results["all"]
+    inj = first["injector"]
+    print(f"\nNominal and in alarm (issue 35), default install, {steps} timed steps after "
+          f"{STATE_WARMUP} warm-up steps; per process (one per row): Diagnoser nominal, "
+          "Diagnoser in alarm and FaultInjector.fmu stepped in turn")
+    print(f"  e.g. FaultInjector host step median {inj['median']:.1f} µs, p99 "
+          f"{inj['p99']:.1f}, max {inj['max']:.1f}")
+    print("  what the in-alarm instance says at the first timed step / at the end:")
+    for config, r in results.items():
+        f = r["alarm"]["flags"]
+        print(f"    {config:5s} " + "  ".join(
+            f"{key} {f['start'][key]!s}/{f['end'][key]!s}" for key in f["start"]))
+    print("\n  host step µs (wall; CPU time of the thread in brackets):")
+    print(f"    {'channels':8s} {'state':7s} {'median':>8s} {'p99':>17s} {'max':>19s} "
+          f"{'/ FaultInj':>11s} {'p99 CPU/FI med':>15s} {'FI med':>7s}")
+    for config, r in results.items():
+        fi = r["injector"]["median"]
+        for state in ("nominal", "alarm"):
+            s, c = r[state]["step"], r[state]["cpu"]
+            print(f"    {config:8s} {state:7s} {s['median']:8.1f} {s['p99']:8.1f} "
+                  f"({c['p99']:7.1f}) {s['max']:9.1f} ({c['max']:7.1f}) "
+                  f"{r[state]['ratio_median']:10.2f}x {c['p99'] / fi:14.1f}x {fi:7.1f}")
+    print("\n  reading every output after a step, µs (medians; the first call, Real, "
+          "includes the outputs' copy):")
+    kinds = first["alarm"]["n_outputs"]
+    print(f"    {'channels':8s} {'state':7s} {'host':7s} "
+          + " ".join(f"{k + f' ({n})':>14s}" for k, n in kinds.items())
+          + f" {'total':>8s} {'total p99':>10s} {'/ FI step':>10s} {'per variable':>13s}")
+    for config, r in results.items():
+        fi = r["injector"]["median"]
+        for state in ("nominal", "alarm"):
+            d = r[state]
+            for how in ("fmpy", "ctypes"):
+                rd = d[f"read_{how}"]
+                per_var = f"{d['read_per_variable']:13.1f}" if how == "fmpy" else ""
+                print(f"    {config:8s} {state:7s} {how:7s} "
+                      + " ".join(f"{rd[k]:14.1f}" for k in kinds)
+                      + f" {rd['total']:8.1f} {rd['total_p99']:10.1f} "
+                      f"{rd['total'] / fi:9.1f}x {per_var}")
+
+
 def run_measurement(specs: dict[str, dict], warmup: int, steps: int,
-                    fallback: bool = False) -> dict:
+                    fallback: bool = False, states: bool = False) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "result.json"
         spec_file = Path(tmp) / "spec.json"
         spec_file.write_text(json.dumps(specs))
         cmd = [sys.executable, __file__, "--_measure", str(out), str(spec_file),
                "--warmup", str(warmup), "--steps", str(steps)]
+        if states:
+            cmd.append("--_states")
         env = dict(os.environ)
         env.pop("GYRODIAG_KERNELS", None)
         if fallback:
@@ -314,22 +539,34 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warmup", type=int, default=1500, help="untimed steps first")
     parser.add_argument("--no-chain", action="store_true",
                         help="skip the DTG chain (dtg_nominal, 60 s simulated)")
+    parser.add_argument("--fmu-dir", type=Path, default=None,
+                        help="take the FMUs from here as they are (default: build/fmus, "
+                             "rebuilt first if older than their sources)")
+    parser.add_argument("--states-only", action="store_true",
+                        help="only the nominal / in-alarm comparison and the output reads")
     parser.add_argument("--_measure", nargs=2, dest="measure", help=argparse.SUPPRESS)
+    parser.add_argument("--_states", action="store_true", dest="states",
+                        help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.measure:
         out, spec = map(Path, args.measure)
-        res = measure_fmus(json.loads(spec.read_text()), args.warmup, args.steps)
+        measure = measure_states if args.states else measure_fmus
+        res = measure(json.loads(spec.read_text()), args.warmup, args.steps)
         out.write_text(json.dumps(res))
         return 0
 
     sys.path.insert(0, str(ROOT / "fmu_src"))
-    n = args.warmup + args.steps
+    n = max(args.warmup, STATE_WARMUP) + args.steps
     rec = make_records(n)
-    fmu_dir = built_fmus(["Diagnoser", "FaultInjector", "DTG"])
+    fmu_dir = args.fmu_dir or built_fmus(["Diagnoser", "FaultInjector", "DTG"])
     results: dict[tuple[str, str], dict] = {}
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
         np.save(tmp / "records.npy", rec)
+        states = run_states(fmu_dir, tmp, args.steps)
+        if args.states_only:
+            print_states(states, args.steps)
+            return 0
         trivial = str(build_trivial(tmp))
         for kernels in ("default", "fallback"):
             for config, (channels, columns) in CONFIGS.items():
@@ -393,6 +630,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"    {kernels:8s} CPU {c['cpu_s']:6.2f} s, wall {c['wall_s']:6.2f} s: "
                   f"real-time factor {c['sim_s'] / c['cpu_s']:6.2f} on CPU time "
                   f"({c['sim_s'] / c['wall_s']:.2f} on wall time){err}")
+    print_states(states, args.steps)
     return 0
 
 

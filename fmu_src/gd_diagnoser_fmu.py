@@ -137,6 +137,7 @@ _DTG_ETA_KEYS = tuple(tuple(f"dtg.eta_{axis}[{i + 1}]" for i in range(N_THETA))
                       for axis in ("x", "y"))
 _DTG_THETA_FLAT_KEYS = tuple(k for row in _DTG_THETA_KEYS for k in row)
 _DTG_ETA_FLAT_KEYS = tuple(k for row in _DTG_ETA_KEYS for k in row)
+_DTG_THETA_ETA_KEYS = _DTG_THETA_FLAT_KEYS + _DTG_ETA_FLAT_KEYS
 _DTG_THETA0_KEYS = tuple(f"dtg.theta0_used[{i + 1}]" for i in range(N_THETA))
 _DTG_THETA0_Y_KEYS = tuple(f"dtg.theta0_used_y[{i + 1}]" for i in range(N_THETA))
 #: dtg.case_rate codes (0: the paper's regression, the case at rest).
@@ -157,6 +158,11 @@ _DF_GAIN_KEYS = tuple(f"df.fault_gain[{i + 1}]" for i in range(DF_M))
 _DF_RATE_KEYS = tuple(f"df.fault_rate[{i + 1}]" for i in range(DF_M))
 _DF_NOISE_RATIO_KEYS = tuple(f"df.noise_ratio[{i + 1}]" for i in range(DF_M))
 _DF_NOISE_STD_KEYS = tuple(f"df.noise_std_in_use[{i + 1}]" for i in range(DF_M))
+#: outputs of the detection filter written at every sample, in _copy_df's order
+_DF_SAMPLE_KEYS = (*_DF_RESIDUAL_KEYS, *_DF_ALARM_KEYS, *_DF_STATISTIC_KEYS,
+                   "df.calibrating", "df.detected", "df.episodes", "df.isolated_sensor",
+                   "df.isolated_mask", "df.fault_type", "df.fault_magnitude",
+                   "df.fault_magnitude_valid", "df.input_delay_in_use", "df.valid")
 #: df.sensor_fault_type codes whose size goes to each per-sensor output.
 _OFFSET_TYPES, _GAIN_TYPES, _RATE_TYPES, _NOISE_TYPES = {1, 3, 4, 7}, {2}, {6}, {5}
 
@@ -229,6 +235,8 @@ class Diagnoser(FacadeBase):
         self._pending_grey: Any = None
         self._pending_df: Any = None
         self._outputs_pending = False
+        # a copy wrote an output it did not check for finiteness (see _sync_outputs)
+        self._outputs_unchecked = False
         self._ready = False
         self._start_time = 0.0
         # Host time of the first DTG alarm: the channel's own clock counts valid samples
@@ -916,23 +924,19 @@ class Diagnoser(FacadeBase):
 
     def _copy_df(self, out: DFChannelOutput) -> None:
         v = self.values
-        for key, value in zip(_DF_RESIDUAL_KEYS, _as_list(out.residual), strict=True):
-            v[key] = float(value)
-        for key, value in zip(_DF_ALARM_KEYS, _as_list(out.alarms), strict=True):
-            v[key] = bool(value)
-        for key, value in zip(_DF_STATISTIC_KEYS, _as_list(out.statistic), strict=True):
-            v[key] = float(value)
-        v["df.calibrating"] = bool(out.calibrating)
-        v["df.detected"] = bool(out.detected)
-        v["df.episodes"] = int(out.episodes)
-        v["df.isolated_sensor"] = int(out.isolated_sensor)
-        v["df.isolated_mask"] = int(out.isolated_mask)
-        v["df.fault_type"] = int(out.fault_type)
         magnitude_valid = bool(out.magnitude_valid) and math.isfinite(out.magnitude)
-        v["df.fault_magnitude"] = float(out.magnitude) if magnitude_valid else 0.0
-        v["df.fault_magnitude_valid"] = magnitude_valid
-        v["df.input_delay_in_use"] = int(out.input_delay)
-        v["df.valid"] = bool(out.valid)
+        residual, statistic = _as_list(out.residual), _as_list(out.statistic)
+        checked = sum(residual) + sum(statistic)
+        if checked - checked != 0.0:
+            self._outputs_unchecked = True
+        # one dict update of the per-sample outputs (keys in _DF_SAMPLE_KEYS order)
+        v.update(zip(_DF_SAMPLE_KEYS, (
+            *map(float, residual), *map(bool, _as_list(out.alarms)),
+            *map(float, statistic),
+            bool(out.calibrating), bool(out.detected), int(out.episodes),
+            int(out.isolated_sensor), int(out.isolated_mask), int(out.fault_type),
+            float(out.magnitude) if magnitude_valid else 0.0, magnitude_valid,
+            int(out.input_delay), bool(out.valid)), strict=True))
         # the diagnosis and the calibration results change rarely: copy them on change
         # (the channel hands over the same arrays while they do not change)
         prev = self._df_copied
@@ -940,6 +944,7 @@ class Diagnoser(FacadeBase):
                 and prev[1] is out.sensor_fault_type and prev[2] is out.sensor_magnitude):
             return
         self._df_copied = (out.calibrating, out.sensor_fault_type, out.sensor_magnitude)
+        self._outputs_unchecked = True  # thresholds, noise and sizes: the full guard
         assert self._df is not None
         if prev is not None and prev[0] and not out.calibrating and self._df.gust_note:
             # an ok-status log line: some hosts (Ecos) stop a run on fmi2Warning
@@ -1377,13 +1382,17 @@ class Diagnoser(FacadeBase):
         if not self._outputs_pending:
             return
         self._outputs_pending = False
+        # the copies check the Real outputs they write at every sample (one sum) and
+        # flag the rest: the full guard runs only when something may be non-finite
+        self._outputs_unchecked = False
         if self._pending_dtg is not None:
             self._copy_dtg(self._pending_dtg)
         if self._pending_grey is not None:
             self._copy_grey(self._pending_grey)
         if self._pending_df is not None:
             self._copy_df(self._pending_df)
-        self._guard_finite_outputs()
+        if self._outputs_unchecked:
+            self._guard_finite_outputs()
 
     def _copy_grey(self, g: Any) -> None:
         v = self.values
@@ -1397,19 +1406,25 @@ class Diagnoser(FacadeBase):
         v["grey.statistic"] = g.statistic
         assert self._grey is not None
         sigma = self._grey.sigma
-        v["grey.sigma"] = sigma if sigma == sigma else 0.0
+        sigma = sigma if sigma == sigma else 0.0
+        v["grey.sigma"] = sigma
         noise = self._grey.noise_sigma
-        v["grey.noise_sigma"] = noise if noise == noise else 0.0
+        noise = noise if noise == noise else 0.0
+        v["grey.noise_sigma"] = noise
+        checked = g.statistic + sigma + noise
+        if checked - checked != 0.0:
+            self._outputs_unchecked = True
 
     def _copy_dtg(self, out: Any) -> None:
         v = self.values
         # the channel's arrays have fixed shapes (2×5, 2×5, 5): plain zips
-        v.update(zip(_DTG_THETA_FLAT_KEYS, out.theta.ravel().tolist(), strict=True))
-        v.update(zip(_DTG_ETA_FLAT_KEYS, out.eta.ravel().tolist(), strict=True))
+        theta_eta = out.theta.ravel().tolist() + out.eta.ravel().tolist()
+        v.update(zip(_DTG_THETA_ETA_KEYS, theta_eta, strict=True))
         assert self._dtg is not None
         theta0 = self._dtg.theta0
         if theta0 is not self._theta0_copied:  # set once, when learning ends
             self._theta0_copied = theta0
+            self._outputs_unchecked = True
             rows = (_ZEROS_5, _ZEROS_5) if theta0 is None else theta0.reshape(-1, N_THETA)
             v.update(zip(_DTG_THETA0_KEYS, _flat_floats(rows[0]), strict=True))
             v.update(zip(_DTG_THETA0_Y_KEYS, _flat_floats(rows[-1]), strict=True))
@@ -1430,7 +1445,11 @@ class Diagnoser(FacadeBase):
                 self.report_warning(self._unclassified_note)
                 self._unclassified_note = ""
         first = self._dtg_first_alarm_time
-        v["dtg.first_alarm_time"] = -1.0 if math.isnan(first) else first
+        first = -1.0 if math.isnan(first) else first
+        v["dtg.first_alarm_time"] = first
+        checked = sum(theta_eta) + first  # physical: checked above
+        if checked - checked != 0.0:
+            self._outputs_unchecked = True
         v["dtg.valid"] = bool(out.valid)
         v["dtg.case_rate_delay_in_use"] = self._dtg.case_rate_delay
         d = out.diagnosis
@@ -1442,6 +1461,7 @@ class Diagnoser(FacadeBase):
 
     def _copy_dtg_diagnosis(self, out: DTGChannelOutput) -> None:
         """Reference, residual tests and class (sentinels instead of NaN)."""
+        self._outputs_unchecked = True  # a block's outputs: the full guard checks them
         v = self.values
         d = out.diagnosis
         v["dtg.reference_status"] = int(d.reference_status)

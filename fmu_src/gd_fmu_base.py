@@ -25,6 +25,7 @@ from __future__ import annotations
 import functools
 import json
 import math
+import operator
 import traceback
 from collections.abc import Callable
 from typing import Any
@@ -189,15 +190,29 @@ class GuardedSlave(Fmi2Slave):
         if self._in_initialisation:
             self._outputs_stale = True
 
-    # Fast paths for variables registered by add_variable (value in self.values): one
-    # dict lookup per value instead of pythonfmu's getter call and type check. A
-    # reference not in the map (another kind, or registered otherwise) takes
-    # pythonfmu's path for the whole call, which keeps its errors.
+    # Fast paths for variables registered by add_variable (value in self.values). A read
+    # of a set of value references seen before is one C-level gather (an itemgetter over
+    # the names, kept per set) and one C-level conversion; a reference not in the map
+    # (another kind, or registered otherwise) takes pythonfmu's path for the whole call,
+    # which keeps its errors.
+    #: most value-reference sets whose gather is kept per type (hosts read a few sets)
+    _GATHER_CACHE_SIZE = 256
+
     def _fast_get(self, kind: str, vrs: list[int], convert: Callable[[Any], Any]) -> Any:
         try:
-            names = self._vr_names[kind]
             v = self.values
-            return [convert(v[names[vr]]) for vr in vrs]
+            if len(vrs) == 1:
+                return [convert(v[self._vr_names[kind][vrs[0]]])]
+            key = tuple(vrs)
+            gathers = self._gathers[kind]
+            gather = gathers.get(key)
+            if gather is None:
+                names = self._vr_names[kind]
+                gather = operator.itemgetter(*[names[vr] for vr in key]) if key else None
+                if len(gathers) >= self._GATHER_CACHE_SIZE:
+                    gathers.clear()
+                gathers[key] = gather
+            return [] if gather is None else list(map(convert, gather(v)))
         except (KeyError, AttributeError):
             return None
 
@@ -244,19 +259,22 @@ class GuardedSlave(Fmi2Slave):
         return getattr(super(), f"get_{kind.lower()}")(vrs)
 
     def get_real(self, vrs: list[int]) -> list[float]:
-        self._refresh_initial_outputs(vrs)
+        if self._in_initialisation:
+            self._refresh_initial_outputs(vrs)
         self._sync_outputs()
         fast = self._fast_get("Real", vrs, float)
         return self._slow_get("Real", vrs, 0.0) if fast is None else fast
 
     def get_integer(self, vrs: list[int]) -> list[int]:
-        self._refresh_initial_outputs(vrs)
+        if self._in_initialisation:
+            self._refresh_initial_outputs(vrs)
         self._sync_outputs()
         fast = self._fast_get("Integer", vrs, int)
         return self._slow_get("Integer", vrs, 0) if fast is None else fast
 
     def get_boolean(self, vrs: list[int]) -> list[bool]:
-        self._refresh_initial_outputs(vrs)
+        if self._in_initialisation:
+            self._refresh_initial_outputs(vrs)
         self._sync_outputs()
         fast = self._fast_get("Boolean", vrs, bool)
         return self._slow_get("Boolean", vrs, False) if fast is None else fast
@@ -477,7 +495,9 @@ class FacadeBase(GuardedSlave):
         self.register_variable(var, nested=False)
         if not hasattr(self, "_vr_names"):
             self._vr_names: dict[str, dict[int, str]] = {}
+            self._gathers: dict[str, dict[tuple[int, ...], Any]] = {}
         self._vr_names.setdefault(kind, {})[var.value_reference] = name
+        self._gathers.setdefault(kind, {}).clear()
 
     # -- FMU state (docs/methods.md §6.8: save everything, not only registered variables) -
     def _capture_state(self) -> dict[str, Any]:

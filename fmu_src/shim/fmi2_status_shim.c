@@ -687,7 +687,8 @@ static int check_access(Shim *s, const char *call, char type, int set,
     size_t bad = 0;
     for (size_t i = 0; i < n; i++) {
         const VarInfo *v = find_var(s, vr[i]);
-        char problem[1024] = "";
+        char problem[1024];   /* not zero-filled: this loop runs for every value */
+        problem[0] = '\0';
         if (!v) {
             snprintf(problem, sizeof problem, "unknown value reference %u (vr[%zu]): this "
                      "FMU has no such variable", vr[i], i);
