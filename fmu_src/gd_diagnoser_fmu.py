@@ -947,7 +947,7 @@ class Diagnoser(FacadeBase):
         self._outputs_unchecked = True  # thresholds, noise and sizes: the full guard
         assert self._df is not None
         if prev is not None and prev[0] and not out.calibrating and self._df.gust_note:
-            # an ok-status log line: some hosts (Ecos) stop a run on fmi2Warning
+            # information, not a warning status: the step itself succeeded
             self.log(f"df: {self._df.gust_note}", Fmi2Status.ok)
         thresholds = self._df.thresholds
         for k, value in zip(_DF_THRESHOLD_KEYS, [0.0] * DF_M if thresholds is None
