@@ -220,12 +220,13 @@ def main() -> None:
                     "aircraft_turbulence")
     args = ap.parse_args()
     nominal_jobs, fault_jobs = plan(args)
+    origin = provenance()  # the code the runs use, taken before they start
     start = time.perf_counter()
     with ProcessPoolExecutor(args.workers) as pool:
         faults = list(pool.map(fault_run, fault_jobs, chunksize=4))
         nominal = list(pool.map(nominal_run, nominal_jobs))
     summary = summarise(nominal, faults)
-    meta = {**provenance(), "master_seed": args.master_seed,
+    meta = {**origin, "master_seed": args.master_seed,
             "wall_s": round(time.perf_counter() - start, 1),
             "command": "benchmarks/aircraft_turbulence_family.py " + " ".join(sys.argv[1:])}
     args.out.mkdir(parents=True, exist_ok=True)
