@@ -35,6 +35,10 @@ _FloatArray = NDArray[np.float64]
 SEED_AIRSPEED = 272.24
 
 
+#: Discretisations already computed (small: a diagnoser has one plant and period).
+_CACHE: dict[tuple, tuple[_FloatArray, _FloatArray, _FloatArray]] = {}
+
+
 def seed_gust_input(A: ArrayLike) -> _FloatArray:
     """E of a plant with the seed aircraft's state order [v, α, q, ϑ, h]: rows α̇, q̇
     of A's α and q columns (n × 2)."""
@@ -116,12 +120,26 @@ class GustModel:
         """(Φ_xg (n × 3), Φ_g (3 × 3), Q ((n+3) × (n+3))) over one sample.
 
         x⁺ = Φ x + Γ u + Φ_xg g + w_x, g⁺ = Φ_g g + w_g, cov([w_x; w_g]) = Q (Van Loan).
+        Memoised per (model, A, period): every residual generator of a diagnoser asks.
         """
+        a = np.ascontiguousarray(A, dtype=float)
+        e = self.input_for(a)
+        key = (self.sigma_w, self.scale_length, self.airspeed, self.wingspan, a.shape,
+               a.tobytes(), e.tobytes(), float(sample_period_s))
+        if key not in _CACHE:
+            if len(_CACHE) >= 16:
+                _CACHE.clear()
+            _CACHE[key] = self._discrete(a, e, float(sample_period_s))
+        phi_xg, phi_g, q = _CACHE[key]
+        return phi_xg.copy(), phi_g.copy(), q.copy()
+
+    def _discrete(self, A: _FloatArray, E: _FloatArray, sample_period_s: float
+                  ) -> tuple[_FloatArray, _FloatArray, _FloatArray]:
         n = A.shape[0]
         ag, bg, cg = self.filter()
         f = np.zeros((n + 3, n + 3))
         f[:n, :n] = A
-        f[:n, n:] = self.input_for(A) @ cg
+        f[:n, n:] = E @ cg
         f[n:, n:] = ag
         g = np.zeros((n + 3, 1))
         g[n:] = bg
