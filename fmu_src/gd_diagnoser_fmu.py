@@ -36,46 +36,32 @@ burst). Reported times (``dtg.first_alarm_time``) are simulation times.
 from __future__ import annotations
 
 import contextlib
-import json
 import math
 import operator
 import re
 from collections.abc import Iterator
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from gd_diagnoser_vars import MESSAGE_NAMES, TUNABLE, VARIABLE_META, VARIABLES
-from gd_diagnoser_vars import df as df_vars
-from gd_diagnoser_vars import dtg as dtg_vars
-from gd_diagnoser_vars import grey as grey_vars
-from gd_diagnoser_vars.df import DF_DECISION_AUTO, DF_M, DF_P
-from gd_diagnoser_vars.dtg import MAX_SIGNATURES, PHYSICAL_NAMES
-from gd_diagnoser_vars.grey import GREY_DECISIONS
-from gd_diagnoser_vars.spec import config_fields, named_int
+from gd_diagnoser_vars import MESSAGE_NAMES, TUNABLE, VARIABLE_META, VARIABLES, adapters
+from gd_diagnoser_vars.df import DF_M, DF_P
+from gd_diagnoser_vars.dtg import PHYSICAL_NAMES
 from gd_fmu_base import FacadeBase, sample_instants, samples_in_step
 from pythonfmu import DefaultExperiment
 from pythonfmu.enums import Fmi2Status
 
-from gyrodiag.dtg.case_rate import CASE_RATE_SCHEMES
 from gyrodiag.dtg.channel import (
-    CLASSIFIERS,
-    ESTIMATOR_KINDS,
     DTGChannel,
     DTGChannelConfig,
     DTGChannelOutput,
 )
 from gyrodiag.dtg.model import N_THETA
-from gyrodiag.dtg.patterns import PatternLibrary, default_library
 from gyrodiag.dtg.reference import N_CHANNELS
-from gyrodiag.grey import ClassicGreyPredictor, GreyFaultDetector, ImprovedGreyPredictor
-from gyrodiag.grey.decision import CalibratedSequential, GreyDecision, PaperThreshold
+from gyrodiag.grey import GreyFaultDetector
 
 if TYPE_CHECKING:  # imported when the channel is built: it needs SciPy (design time)
     from gyrodiag.df.channel import DFChannel, DFChannelConfig, DFChannelOutput
 
-#: The shipped pattern library in the FMU's resources.
-DEFAULT_LIBRARY_RESOURCE = "gyrodiag/dtg/default_patterns.json"
 #: Fault codes of the summary output ``fault_code``.
 SUMMARY_CODE_BASE = {"dtg": 100, "grey": 200, "df": 300}
 #: Summary code offsets of the detection filter beyond a sensor number.
@@ -102,8 +88,6 @@ _DTG_ETA_FLAT_KEYS = tuple(k for row in _DTG_ETA_KEYS for k in row)
 _DTG_THETA_ETA_KEYS = _DTG_THETA_FLAT_KEYS + _DTG_ETA_FLAT_KEYS
 _DTG_THETA0_KEYS = tuple(f"dtg.theta0_used[{i + 1}]" for i in range(N_THETA))
 _DTG_THETA0_Y_KEYS = tuple(f"dtg.theta0_used_y[{i + 1}]" for i in range(N_THETA))
-#: dtg.case_rate codes (0: the paper's regression, the case at rest).
-DTG_CASE_RATE_CODES = (None, *CASE_RATE_SCHEMES)
 _DTG_PHYSICAL_KEYS = tuple(f"dtg.{name}" for name in PHYSICAL_NAMES)
 _ZEROS_5 = (0.0,) * N_THETA
 _DF_U_KEYS = tuple(f"df.u[{j + 1}]" for j in range(DF_P))
@@ -187,47 +171,8 @@ class Diagnoser(FacadeBase):
                 text += " (tunable: a change applies from the next sample)"
             self.add_variable(var.name, var.kind, var.causality, var.start, text, variability)
 
-    def _df_sensor_dynamics(self, period: float) -> Any:
-        """The :class:`~gyrodiag.df.sensor_dynamics.SensorDynamics` of
-        df.sensor_dynamics_file, or None when it is empty."""
-        from gyrodiag.df.sensor_dynamics import SensorDynamics
-
-        text = str(self.values["df.sensor_dynamics_file"]).strip()
-        if not text:
-            return None
-        path = Path(text)
-        if not path.is_absolute() and self.resources:
-            path = Path(self.resources) / path
-        try:
-            return SensorDynamics.from_json(path, period)
-        except ValueError as exc:
-            raise ValueError(f"df.sensor_dynamics_file: {exc}") from None
-
     def _df_config(self, period: float) -> DFChannelConfig:
-        from gyrodiag.df.channel import DFChannelConfig, decision_rule
-
-        v = self.values
-        noise = config_fields(df_vars.PARAMETERS, v, "noise")["noise_std"]
-        decision = named_int(v, "df.decision")
-        if decision not in (0, 1, DF_DECISION_AUTO):
-            raise ValueError("df.decision must be 0 (paper), 1 (sequential) or 2 (auto), "
-                             f"got {decision}")
-        sensor_dynamics = self._df_sensor_dynamics(period)
-        rule = decision_rule(decision, sensor_dynamics is not None)
-        fields = config_fields(df_vars.PARAMETERS, v, "config")  # checked before the gust
-        return DFChannelConfig(
-            sample_period_s=period, decision=rule,
-            noise_std=None if np.any(noise < 0) else noise,
-            sensor_dynamics=sensor_dynamics, gust=self._df_gust(), **fields)
-
-    def _df_gust(self) -> Any:
-        """The gust model of df.gust_*, or None when df.gust_sigma_w is 0."""
-        from gyrodiag.df.gust import GustModel
-
-        gust = config_fields(df_vars.PARAMETERS, self.values, "gust")
-        if gust["sigma_w"] == 0.0:
-            return None
-        return GustModel(**gust)
+        return adapters.df_config(self.values, period, self.resources)
 
     def _copy_df(self, out: DFChannelOutput) -> None:
         v = self.values
@@ -407,148 +352,23 @@ class Diagnoser(FacadeBase):
                                         "published as 0 (outputs are always finite)")
 
     def _dtg_config(self, period: float) -> DTGChannelConfig:
-        v = self.values
-        kind = int(v["dtg.estimator"])
-        if kind not in range(len(ESTIMATOR_KINDS)):
-            raise ValueError(f"dtg.estimator must be 0, 1 or 2, got {kind}")
-        classifier = str(v["dtg.classifier"]).strip()
-        if classifier not in CLASSIFIERS:
-            raise ValueError(f"dtg.classifier must be one of {', '.join(CLASSIFIERS)}, got "
-                             f"{classifier!r}")
-        case_rate = int(v["dtg.case_rate"])
-        if case_rate not in range(len(DTG_CASE_RATE_CODES)):
-            raise ValueError(f"dtg.case_rate must be 0 (none), 1 (central) or 2 (paper), got "
-                             f"{case_rate}")
-        signatures, patterns = self._dtg_library(classifier, period)
-        fields = config_fields(dtg_vars.PARAMETERS, v, "config")
-        if v["dtg.learn_theta0"]:
-            fields["theta0"] = None  # learned from the learning window
-        return DTGChannelConfig(
-            sample_period_s=period, estimator=ESTIMATOR_KINDS[kind], signatures=signatures,
-            classifier=classifier,  # type: ignore[arg-type]
-            patterns=patterns, case_rate=DTG_CASE_RATE_CODES[case_rate], **fields)
+        return adapters.dtg_config(self.values, period, self.resources,
+                                   self._note_unclassified)
 
-    def _dtg_library(self, classifier: str, period: float
-                     ) -> tuple[dict[str, list[float]], PatternLibrary | None]:
-        """(decade signatures, pattern library) from dtg.signature_file or the table."""
-        v = self.values
-        path_text = str(v["dtg.signature_file"]).strip()
-        n = int(v["dtg.n_signatures"])
-        if not 0 <= n <= MAX_SIGNATURES:
-            raise ValueError(f"dtg.n_signatures must be in [0, {MAX_SIGNATURES}], got {n}")
-        if classifier == "pattern" and n > 0 and not path_text:
-            raise ValueError(
-                f"dtg.n_signatures = {n}: the signature table holds decade signatures of "
-                "dtg.classifier = paper; the pattern classifier reads a pattern library "
-                "from dtg.signature_file")
-        if not path_text:
-            table = {
-                f"signature_{j}": [float(v[f"dtg.signature[{j},{i}]"])
-                                   for i in range(1, N_THETA + 1)]
-                for j in range(1, n + 1)
-            }
-            if classifier == "paper":
-                return table, None
-            return {}, self._shipped_patterns(period)
-        path = Path(path_text)
-        if not path.is_absolute() and self.resources:
-            path = Path(self.resources) / path
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, json.JSONDecodeError) as exc:
-            raise ValueError(f"dtg.signature_file {str(path)!r} cannot be read: {exc}") from None
-        if not isinstance(data, dict):
-            raise ValueError(f"dtg.signature_file {str(path)!r} must hold a JSON object")
-        if classifier == "pattern":
-            if "patterns" not in data:
-                raise ValueError(
-                    f"dtg.signature_file {str(path)!r} holds no 'patterns' library (decade "
-                    "signatures are for dtg.classifier = paper; learn patterns with "
-                    "python -m harness learn-signatures on pattern training scenarios)")
-            try:
-                return {}, PatternLibrary.from_dict(data["patterns"])
-            except (ValueError, TypeError) as exc:
-                raise ValueError(f"dtg.signature_file {str(path)!r}: {exc}") from None
-        sigs = data.get("signatures")
-        if not isinstance(sigs, dict) or not sigs:
-            raise ValueError(
-                f"dtg.signature_file {str(path)!r} must hold a non-empty object "
-                "'signatures': {name: [C1, ..., C5]} for dtg.classifier = paper"
-                + (" (it holds a pattern library: set dtg.classifier = pattern)"
-                   if "patterns" in data else "")
-            )
-        return {str(k): list(s) for k, s in sigs.items()}, None
-
-    def _shipped_patterns(self, period: float) -> PatternLibrary | None:
-        """The shipped pattern library, or None at a sample period it was not learned
-        for: the channel then detects and reports class unknown (a warning at the first
-        alarm says why)."""
-        # this instance's copy: another instance's extracted module may be gone by now
-        own = Path(self.resources) / DEFAULT_LIBRARY_RESOURCE if self.resources else None
-        lib = default_library(own if own is not None and own.exists() else None)
-        if abs(period - lib.sample_period_s) <= 1e-6 * lib.sample_period_s:
-            return lib
-        self._unclassified_note = (  # reported at the first DTG alarm, if any
-            f"{self.instance_name}: dtg: the shipped pattern library was learned at "
-            f"sample_period_s = {lib.sample_period_s:g} s; at {period:g} s DTG faults are "
-            "detected but not classified (learn a library at this period: dtg.signature_file)")
-        return None
+    def _note_unclassified(self, text: str) -> None:
+        """Keep why DTG alarms go unclassified: reported at the first one, if any."""
+        self._unclassified_note = f"{self.instance_name}: {text}"
 
     def _grey_detector(self, period: float) -> GreyFaultDetector:
         v = self.values
-        predictor, candidates = self._grey_predictors()
+        predictor, candidates = adapters.grey_predictors(v)
         clear = float(v["grey.clear_after_s"])
-        rule = self._grey_decision()
+        rule = adapters.grey_decision(v)
         for package in rule.requires:
             _import_or_explain(package, f"grey.decision = {int(v['grey.decision'])} (a "
                                "learned rule; the paper rule, grey.decision = 0, does "
                                "without it)")
         return rule.build(predictor, period, None if clear <= 0 else clear, candidates)
-
-    def _grey_predictors(self) -> tuple[Any, list[Any]]:
-        """The grey predictor, and the improved model's other residual orders that
-        compete on the calibration window (``grey.auto_order``; a learned rule uses
-        them, the paper rule does not)."""
-        v = self.values
-        model = int(v["grey.model"])
-        window = named_int(v, "grey.window")
-        if model == 0:
-            evaluation = named_int(v, "grey.classic_evaluation")
-            if evaluation not in (0, 1):
-                raise ValueError("grey.classic_evaluation must be 0 (careful) or 1 (textbook), "
-                                 f"got {evaluation}")
-            # window 0 stands for None: FMI has no "absent" Integer
-            return ClassicGreyPredictor(
-                None if window == 0 else window,
-                evaluation="textbook" if evaluation == 1 else "careful",
-            ), []
-        if model != 1:
-            raise ValueError(f"grey.model must be 0 (classic) or 1 (improved), got {model}")
-        if window == 0:
-            raise ValueError("grey.window = 0 (whole record) is only available for the "
-                             "classic model (grey.model = 0); the improved model needs "
-                             "a moving window >= 4")
-        options = config_fields(grey_vars.PARAMETERS, v, "improved")  # a_min, residual_order
-        order = options["residual_order"]
-        predictor = ImprovedGreyPredictor(window, **options)
-        candidates = ([ImprovedGreyPredictor(window, **{**options, "residual_order": o})
-                       for o in (1, 0) if o != order] if bool(v["grey.auto_order"]) else [])
-        return predictor, candidates
-
-    def _grey_decision(self) -> GreyDecision:
-        """The rule of ``grey.decision`` with its parameters."""
-        v = self.values
-        code = named_int(v, "grey.decision")
-        rule = GREY_DECISIONS.get(code)
-        if rule is None:
-            raise ValueError(f"grey.decision must be 0 (paper), 1 (sequential) or 2 "
-                             f"(k-sigma), got {code}")
-        if rule is PaperThreshold:
-            return PaperThreshold(**config_fields(grey_vars.PARAMETERS, v, "paper"))
-        learned = config_fields(grey_vars.PARAMETERS, v, "learned")
-        if rule is CalibratedSequential:
-            learned.update(config_fields(grey_vars.PARAMETERS, v, "sequential"))
-        return rule(**learned)
 
     def reset(self) -> None:  # pythonfmu re-creates the instance on fmi2Reset
         pass
