@@ -33,12 +33,14 @@ def _defaults(gv: Any) -> dict:
 
 def check_one_record_per_variable_and_meta_from_the_tables() -> None:
     import gd_diagnoser_vars as gv
+    from gd_diagnoser_vars.spec import SCALAR_CONVERSIONS
 
     names = [v.name for v in gv.VARIABLES]
     assert len(names) == len(set(names))
     assert {v.kind for v in gv.VARIABLES} <= {"Real", "Integer", "Boolean", "String"}
     for v in gv.VARIABLES:
         assert v.unit is None or v.kind == "Real", v.name
+        assert v.to in (*SCALAR_CONVERSIONS, "array", "list"), v.name
         assert (v.to in ("array", "list")) == bool(v.index), v.name
         assert not v.tunable or v.causality == "parameter", v.name
         assert gv.VARIABLE_META.get(v.name, {}) == v.meta
