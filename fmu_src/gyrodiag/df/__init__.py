@@ -14,9 +14,14 @@ gust
     Dryden turbulence as a disturbance model of the plant.
 sensor_dynamics
     Sensor read-out dynamics and their equaliser.
+generators
+    Residual generators of the sequential rule (observer plus whitening) and their
+    joint simulation.
+settings
+    Settings, output record and codes of the sequential rule.
 sequential_diagnosis
-    The sequential decision rule: whitened residual generator, CUSUM
-    (:mod:`gyrodiag.common.cusum`), isolation.
+    The sequential decision rule: episodes, CUSUM (:mod:`gyrodiag.common.cusum`),
+    isolation, typing over the two modules above (whose public names it re-exports).
 gains
     Memo of observer designs, seeded by the table a build ships.
 channel
