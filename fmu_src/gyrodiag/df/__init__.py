@@ -19,9 +19,12 @@ generators
     joint simulation.
 settings
     Settings, output record and codes of the sequential rule.
+fault_typing
+    Fault signatures and the fit of the fault types of the sequential rule.
 sequential_diagnosis
     The sequential decision rule: episodes, CUSUM (:mod:`gyrodiag.common.cusum`),
-    isolation, typing over the two modules above (whose public names it re-exports).
+    isolation and presence tests over the three modules above (whose public names it
+    re-exports).
 gains
     Memo of observer designs, seeded by the table a build ships.
 channel
@@ -79,6 +82,11 @@ _EXPORTS = {
     "SequentialSettings": "sequential_diagnosis",
     "design_residual_generator": "sequential_diagnosis",
     "simulate_fault_free": "sequential_diagnosis",
+    "FaultTyper": "fault_typing",
+    "PRESENCE_CONSTANT": "fault_typing",
+    "PRESENCE_MODEL": "fault_typing",
+    "PRESENCE_NONE": "fault_typing",
+    "PRESENCE_VARIANCE": "fault_typing",
     "DECISIONS": "channel",
     "DECISION_AUTO": "channel",
     "DFChannel": "channel",

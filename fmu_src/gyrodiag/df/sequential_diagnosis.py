@@ -11,6 +11,8 @@ Building blocks
   outputs.
 * :mod:`gyrodiag.df.settings`: :class:`SequentialSettings`, :class:`DiagnosisOutput`,
   :class:`FaultKind` and the ``isolated`` codes.
+* :mod:`gyrodiag.df.fault_typing`: the fault signatures and the fit of the fault types
+  (step 3 below), :class:`~gyrodiag.df.fault_typing.FaultTyper`.
 
 Every name above is importable from this module too, as before the split.
 
@@ -53,7 +55,6 @@ import math
 from typing import Any
 
 import numpy as np
-import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
 from ..common._distributions import chi2_ppf
@@ -69,6 +70,13 @@ from ..common.cusum import (
     mean_cusum_threshold,
     variance_cusum_increment,
     variance_cusum_threshold,
+)
+from .fault_typing import (
+    PRESENCE_CONSTANT,
+    PRESENCE_MODEL,
+    PRESENCE_NONE,
+    PRESENCE_VARIANCE,
+    FaultTyper,
 )
 from .generators import (
     ObserverStack,
@@ -101,21 +109,26 @@ __all__ = [
 _FloatArray = NDArray[np.float64]
 
 
-# -------------------------------------------------------------------------- diagnoser
-
 #: Status codes kept in the saved state.
 _STATUS = ("none", "not isolated", "single", "pair", "multiple")
-#: Fault-signal regressors per sensor, from the episode's change time on: a step
-#: (bias), time since the change in s (ramp) and the sensor's own reading (gain: y = g x
-#: means the fault is (1 − 1/g)·y).
-_BIAS, _RAMP, _GAIN = range(3)
-_N_REG = 3
 #: With a gust model, no refit while the presence test's statistic is at this fraction
 #: of its threshold: a fault's whitened signature is short, and a refit (a ramp for a
 #: burst that ended) would explain away the misfit that ends the episode.
 PRESENCE_HOLD = 0.5
-#: How the presence of an isolated fault is followed.
-_PRESENCE_NONE, _PRESENCE_MODEL, _PRESENCE_VARIANCE, _PRESENCE_CONSTANT = range(4)
+#: Keys of the saved state, in the order :meth:`SequentialDiagnoser.get_state` has
+#: always given them (the fault typer owns some of them).
+_STATE_KEYS = (
+    "main_x", "main_scale", "bank_x", "bank_scale", "main_cusum", "bank_cusum", "presence",
+    "count", "hist_w", "hist_x", "hist_z", "hist_d", "in_episode", "episodes", "wait_clear",
+    "bank_active", "last_end", "change", "record_episodes", "inconsistent", "sig", "gram_c",
+    "gz_c", "zz_c", "n_rec", "n_after", "g_last", "z_last", "y_prev", "status", "isolated",
+    "iso_gen", "model_cols", "theta", "previous_isolated", "previous_types",
+    "previous_mags", "presence_mode", "presence_zero", "presence_start", "hist_c", "types",
+    "mags", "mag_valid",
+)
+#: Integer entries of the saved state the diagnoser itself owns.
+_INT_KEYS = ("count", "in_episode", "episodes", "bank_active", "last_end", "change",
+             "record_episodes", "wait_clear", "presence_zero", "presence_start")
 
 
 class SequentialDiagnoser:
@@ -144,15 +157,9 @@ class SequentialDiagnoser:
     plant from the sample of y on) and does not validate them: the owning channel
     checks each sample once.
 
-    Typing is a generalised likelihood ratio on the main filter's whitened residual z:
-    a fault signal φ on sensor i enters z linearly, z_k = z⁰_k + G_k θ, where the
-    signature G_k is the response of the (whitened) main filter to φ up to k, computed
-    by running a copy of its dynamics on φ. z⁰ is white N(0, I), so least squares on
-    the running sums of GᵀG, Gᵀz and zᵀz is the maximum-likelihood fit and differences
-    of residual sums of squares are χ² tests, whatever the colour of the detection
-    filter's own residual. This uses every sensor, not only a fault-free estimate of
-    the faulty one (the pitch rate's estimate from the other sensors has 42 times the
-    sensor noise at low frequency on the seed aircraft).
+    The episodes, the isolation and the presence tests are this class's; the typing
+    (a generalised likelihood ratio on the main filter's whitened residual) is its
+    :class:`~gyrodiag.df.fault_typing.FaultTyper`'s, ``typer``.
     """
 
     def __init__(self, A: ArrayLike, B: ArrayLike, C: ArrayLike, K: ArrayLike,
@@ -174,7 +181,15 @@ class SequentialDiagnoser:
             raise ValueError("sensor_variances must be > 0 on every sensor")
         self.sensor_variances = var
         self.x0 = np.zeros(n) if x0 is None else check_finite_array("x0", x0, shape=(n,))
+        self._design(a, b, c, gain)
+        self._install_signature_matrices()
+        self.reset()
+
+    def _design(self, a: _FloatArray, b: _FloatArray, c: _FloatArray,
+                gain: _FloatArray) -> None:
+        """Residual generators, CUSUM thresholds, window lengths and the fault typer."""
         st = self.settings
+        var, gust = self.sensor_variances, self.gust
         lam = None if st.bank_eigenvalues is None else np.asarray(st.bank_eigenvalues, float)
         reg = st.regularisation
         self.main_generator = design_residual_generator(
@@ -207,14 +222,12 @@ class SequentialDiagnoser:
         self._n_hist = max(2, round(st.history_s / self.T))
         self._margin = round(st.replay_margin_s / self.T)
         self._memory = round(st.memory_s / self.T)
-        self._type_min = max(2, round(st.type_min_s / self.T))
         self._stuck_n = max(2, round(st.stuck_window_s / self.T))
-        self._reg_sensor = np.repeat(np.arange(self.m), _N_REG)
         self._onset_window = max(10, round(0.1 / self.T))
         self._isolation_window = max(self._onset_window, round(0.5 / self.T))
         self._type_every = max(1, round(st.type_period_s / self.T))
-        self._install_signature_matrices()
-        self.reset()
+        self.typer = FaultTyper(self.m, self.p, self.T, self.sensor_variances, st,
+                                self._n_hist)
 
     def _new_cusum(self, n_channels: int) -> CusumBank:
         st = self.settings
@@ -222,43 +235,8 @@ class SequentialDiagnoser:
                          self.h_variance, st.release)
 
     def _install_signature_matrices(self) -> None:
-        """Main filter dynamics seen from a fault signal on each sensor (with the
-        current channel scales) and, per sensor, the summed variance of z per unit
-        variance of extra white noise on it, per channel (for the size of a noise
-        increase)."""
-        a_c, b_all, c_z, d_all = self.main.system()
-        b_s, d_s = b_all[:, self.p:], d_all[:, self.p:]
-        self._sig_a = a_c
-        self._sig_b = b_s[:, self._reg_sensor]
-        self._sig_c = c_z
-        self._sig_d = d_s[:, self._reg_sensor]
-        power = np.zeros((self.m, self.m))
-        for i in range(self.m):
-            pi = scipy.linalg.solve_discrete_lyapunov(a_c, np.outer(b_s[:, i], b_s[:, i]))
-            power[:, i] = np.diag(c_z @ pi @ c_z.T) + d_s[:, i] ** 2
-        self._noise_power_c = power
-        # z response to a unit step on each sensor, for the onset refinement, and the
-        # expected noise energy a reading used as a regressor brings into the sums
-        steps = np.zeros((self._n_hist, self.m, self.m))
-        impulse = np.zeros((self._n_hist, self.m, self.m))
-        x = np.zeros((a_c.shape[0], self.m))
-        xi = b_s.copy()
-        impulse[0] = d_s
-        for j in range(self._n_hist):
-            steps[j] = c_z @ x + d_s
-            x = a_c @ x + b_s
-            if j > 0:
-                impulse[j] = c_z @ xi
-                xi = a_c @ xi
-        self._step_response = steps
-        # filter state after j samples of a unit step on each sensor (j = 0 … history)
-        state = np.zeros((self._n_hist, a_c.shape[0], self.m))
-        for j in range(1, self._n_hist):
-            state[j] = a_c @ state[j - 1] + b_s
-        self._step_state = state
-        energy = np.cumsum(impulse**2, axis=0)  # (l, channel, sensor): Σ_{j≤l} h(j)²
-        self._noise_sums = np.concatenate([np.zeros((1, self.m, self.m)),
-                                           np.cumsum(energy, axis=0)])
+        """The typer's signature matrices for the current channel scales."""
+        self.typer.install(self.main.system())
 
     # ------------------------------------------------------------------- calibration
 
@@ -322,12 +300,13 @@ class SequentialDiagnoser:
         self.bank.reset()
         self.main_cusum.reset()
         self.bank_cusum.reset()
-        m, nr = self.m, _N_REG * self.m
+        m = self.m
         self._count = 0
         self._hist_w = np.zeros((self._n_hist, self.p + m))
         self._hist_x = np.zeros((self._n_hist, self.n))
         self._hist_d = np.zeros((self._n_hist, self._n_dist))
         self._hist_z = np.zeros((self._n_hist, m))
+        self._hist_c = np.zeros((self._n_hist, m))
         self._in_episode = False
         self._wait_clear = False
         self._episodes = 0
@@ -335,34 +314,18 @@ class SequentialDiagnoser:
         self._last_end = -1
         self._change = -1
         self._record_episodes = 0
-        self._previous: tuple[tuple[int, ...], NDArray[np.int_], _FloatArray] = (
-            (), np.zeros(m, dtype=int), np.zeros(m))
         self._inconsistent = np.zeros(len(self.bank_generators), dtype=bool)
-        self._sig = np.zeros((self.main.n_state, nr))
-        self._gram_c = np.zeros((m, nr, nr))
-        self._gz_c = np.zeros((m, nr))
-        self._zz_c = np.zeros(m)
-        self._n_rec = 0
-        self._n_after = 0
-        self._g_last = np.zeros((m, nr))
-        self._z_last = np.zeros(m)
-        self._y_prev = np.zeros(m)
         self._status = "none"
         self._isolated: tuple[int, ...] = ()
         self._iso_gen = -1
-        self._model_cols = np.zeros(0, dtype=int)
-        self._theta = np.zeros(0)
-        self._presence_mode = _PRESENCE_NONE
         self._presence: CusumBank | None = None
         self._presence_zero = 0
         self._presence_start = 0
-        self._hist_c = np.zeros((self._n_hist, m))
-        self._types = np.zeros(m, dtype=int)
-        self._mags = np.zeros(m)
-        self._mag_valid = np.zeros(m, dtype=bool)
-        self._out_types = self._types.copy()
-        self._out_mags = self._mags.copy()
-        self._out_valid = self._mag_valid.copy()
+        typer = self.typer
+        typer.reset(self.main.n_state)
+        self._out_types = typer.types.copy()
+        self._out_mags = typer.mags.copy()
+        self._out_valid = typer.mag_valid.copy()
         self._last = DiagnosisOutput(
             np.zeros(m), np.zeros(m, dtype=bool), np.zeros(m), False, 0, "none", (),
             self._out_types, self._out_mags, self._out_valid)
@@ -422,12 +385,13 @@ class SequentialDiagnoser:
 
     def _publish(self) -> None:
         """Snapshot the diagnosis for the outputs when it changed."""
-        if not (np.array_equal(self._types, self._out_types)
-                and np.array_equal(self._mags, self._out_mags)
-                and np.array_equal(self._mag_valid, self._out_valid)):
-            self._out_types = self._types.copy()
-            self._out_mags = self._mags.copy()
-            self._out_valid = self._mag_valid.copy()
+        typer = self.typer
+        if not (np.array_equal(typer.types, self._out_types)
+                and np.array_equal(typer.mags, self._out_mags)
+                and np.array_equal(typer.mag_valid, self._out_valid)):
+            self._out_types = typer.types.copy()
+            self._out_mags = typer.mags.copy()
+            self._out_valid = typer.mag_valid.copy()
 
     # ------------------------------------------------------------------ episodes
 
@@ -446,11 +410,11 @@ class SequentialDiagnoser:
         if self._bank_active:
             self._record_episodes += 1
             if self._iso_gen >= 0:
-                self._previous = (self._isolated, self._types.copy(), self._mags.copy())
+                self.typer.remember(self._isolated)
             self._start_signatures(start, k)
             return False
         self._record_episodes = 1
-        self._previous = ((), np.zeros(self.m, dtype=int), np.zeros(self.m))
+        self.typer.remember(None)
         xhat = self._hist_x[start % self._n_hist]
         gust = self._hist_d[start % self._n_hist]
         self.bank.reset()
@@ -505,7 +469,7 @@ class SequentialDiagnoser:
         best, best_j = -1.0, change
         cols = list(sensors)
         for j in range(lo, hi + 1):
-            h = self._step_response[:k + 1 - j]  # (L, channels, sensors)
+            h = self.typer.step_response[:k + 1 - j]  # (L, channels, sensors)
             if not cols:
                 num = np.einsum("lcs,lc->s", h, z[j - lo:])
                 den = np.einsum("lcs,lcs->s", h, h)
@@ -523,74 +487,38 @@ class SequentialDiagnoser:
     def _start_signatures(self, start: int, k: int) -> None:
         """Fault signatures and their sums for this episode, from ``start`` (before the
         change time) to sample k, replayed from the history."""
-        self._y_prev = self._hist_w[(start - 1) % self._n_hist, self.p:].copy()
-        self._sig[:] = 0.0
-        self._gram_c[:] = 0.0
-        self._gz_c[:] = 0.0
-        self._zz_c[:] = 0.0
-        self._n_rec, self._n_after = 0, 0
-        self._clear_diagnosis()
+        self.typer.start(self._hist_w[(start - 1) % self._n_hist, self.p:].copy())
+        self._presence = None
         for j in range(start, k + 1):
             h = j % self._n_hist
-            self._signature_step(self._hist_w[h], self._hist_z[h], j)
+            self.typer.step(self._hist_w[h], self._hist_z[h], j, self._change)
 
     def _record_step(self, w: _FloatArray, z: _FloatArray, j: int) -> None:
         """Hypothesis generators and (in an episode) fault signatures for sample j."""
         self._bank_step(w)
         if self._in_episode:
-            self._signature_step(w, z, j)
+            self.typer.step(w, z, j, self._change)
 
     def _bank_step(self, w: _FloatArray) -> None:
         zb, _ = self.bank.update(w)
         if self.bank_cusum.update(zb):
             self._inconsistent[self._bank_gen_of_channel[self.bank_cusum.alarms]] = True
 
-    def _signature_step(self, w: _FloatArray, z: _FloatArray, j: int) -> None:
-        if j >= self._change:
-            phi = np.empty((self.m, _N_REG))
-            phi[:, _BIAS] = 1.0
-            phi[:, _RAMP] = (j - self._change) * self.T
-            phi[:, _GAIN] = w[self.p:]
-            phi = phi.reshape(-1)
-            self._n_after += 1
-        else:
-            phi = np.zeros(_N_REG * self.m)
-        g = self._sig_c @ self._sig + self._sig_d * phi
-        self._sig = self._sig_a @ self._sig + self._sig_b * phi
-        self._gram_c += g[:, :, None] * g[:, None, :]
-        self._gz_c += g * z[:, None]
-        self._zz_c += z * z
-        self._n_rec += 1
-        self._g_last, self._z_last = g, z
-        self._y_prev = w[self.p:].copy()
-
     def _end_episode(self, k: int, how: str) -> None:
         """Close the episode.
 
-        ``how``: "model" removes the fitted fault's trace from the main filter (its
-        state is linear in the fault: the signature states times θ), so that it
-        monitors on at once; "none" leaves the main filter to forget the fault by
+        ``how``: "model" removes the fitted fault's trace from the main filter, so that
+        it monitors on at once; "none" leaves the main filter to forget the fault by
         itself, and no new episode starts before its alarm has cleared.
         """
         self._in_episode = False
         self._last_end = k
         if how == "model":
-            cols = self._model_cols
-            if cols.size:
-                trace = self._sig[:, cols] @ self._theta
-                # The test saw the end a few samples late: a bias was already gone from
-                # the sample after its statistic was last zero; its response to those
-                # samples is not in the filter (a 20 σ burst left 1–2 σ otherwise,
-                # enough to spoil the next episode's fit)
-                gone = k + 1 - self._presence_zero
-                if 0 < gone < self._step_state.shape[0]:
-                    for pos, col in enumerate(cols):
-                        if col % _N_REG == _BIAS:
-                            trace = trace - self._theta[pos] * self._step_state[
-                                gone, :, col // _N_REG]
+            trace = self.typer.fault_trace(k + 1 - self._presence_zero)
+            if trace is not None:
                 self.main.x = self.main.x - trace
             self.main_cusum.reset(k + 1)
-            self._sig[:] = 0.0
+            self.typer.clear_signatures()
         else:
             self._wait_clear = True
         self._presence = None
@@ -626,194 +554,20 @@ class SequentialDiagnoser:
                     self._start_signatures(
                         max(oldest, onset - self._margin, self._last_end + 1), k)
         if changed or (k - self._change) % self._type_every == 0 or (
-                self._types[list(self._isolated)] == FaultKind.UNKNOWN).any():
+                self.typer.types[list(self._isolated)] == FaultKind.UNKNOWN).any():
             self._type(k)
-
-    def _clear_diagnosis(self) -> None:
-        self._types[:] = int(FaultKind.NONE)
-        self._mags[:] = 0.0
-        self._mag_valid[:] = False
-        self._model_cols = np.zeros(0, dtype=int)
-        self._theta = np.zeros(0)
-        self._presence_mode = _PRESENCE_NONE
-        self._presence = None
 
     # ------------------------------------------------------------------ typing
 
-    def _reading_noise(self) -> _FloatArray:
-        """Expected Σ‖G(v_i)‖² per channel and sensor over the samples since the change,
-        G(v_i) the response to sensor i's own noise (per unit noise variance)."""
-        n = self._n_after
-        sums = self._noise_sums
-        if n < sums.shape[0]:
-            return sums[n]
-        steady = sums[-1] - sums[-2]  # the full impulse-response energy per sample
-        return sums[-1] + (n - sums.shape[0] + 1) * steady
-
-    def _fit(self, cols: list[int]) -> tuple[float, _FloatArray, _FloatArray]:
-        """(residual sum of squares, θ, per-channel residual sums of squares) of z on
-        the signatures ``cols``.
-
-        A gain regressor is the faulty reading itself, noise included: its noise's
-        response is part of z⁰ as well, so both its sum of squares and its cross sum
-        with z carry the expected noise energy, which is taken out (corrected least
-        squares; θ then estimates (g − 1)/g without the pull of the noise)."""
-        if not cols:
-            return float(self._zz_c.sum()), np.zeros(0), self._zz_c.copy()
-        gram_c = self._gram_c[:, cols][:, :, cols].copy()
-        gz_c = self._gz_c[:, cols].copy()
-        gains = [(pos, col // _N_REG) for pos, col in enumerate(cols)
-                 if col % _N_REG == _GAIN]
-        if gains:
-            noise = self._reading_noise()
-            for pos, sensor in gains:
-                e = noise[:, sensor] * self.sensor_variances[sensor]
-                gram_c[:, pos, pos] -= e
-                gz_c[:, pos] -= e
-        gram, xz = gram_c.sum(axis=0), gz_c.sum(axis=0)
-        ridge = 1e-12 * max(float(np.trace(gram)), 1e-300)
-        theta = np.linalg.solve(gram + ridge * np.eye(len(cols)), xz)
-        rss_c = self._zz_c - 2.0 * gz_c @ theta + np.einsum("cij,i,j->c", gram_c, theta, theta)
-        return float(self._zz_c.sum() - theta @ xz), theta, rss_c
-
     def _type(self, k: int) -> None:
-        """Fault type and size of every isolated sensor (class notes).
-
-        A fitted mean model is kept while a new fit is worse than "typed": the misfit
-        that follows the end of the fault is the presence test's to judge.
-        """
-        if self._presence_mode == _PRESENCE_MODEL:
-            if (self._presence is not None and self._n_dist
-                    and float(self._presence.statistic().max()) >= PRESENCE_HOLD):
-                return  # the presence test is judging a misfit: no refit under it
-            saved = (self._types.copy(), self._mags.copy(), self._mag_valid.copy(),
-                     self._model_cols.copy(), self._theta.copy())
-            self._type_now(k)
-            if self._presence_mode == _PRESENCE_NONE:
-                (self._types, self._mags, self._mag_valid, self._model_cols,
-                 self._theta) = saved
-                self._presence_mode = _PRESENCE_MODEL
-            return
-        self._type_now(k)
-
-    def _type_now(self, k: int) -> None:
-        mode, presence = self._presence_mode, self._presence
-        self._clear_diagnosis()
-        self._fit_types(k)
-        if self._presence_mode == mode:
-            self._presence = presence  # the same test goes on
-
-    def _fit_types(self, k: int) -> None:
-        sensors = self._isolated
-        if not sensors:
-            return
-        constant = {i: self._constant_output(i, k) for i in sensors}
-        if self._n_after < self._type_min:
-            for i in sensors:
-                self._types[i] = int(FaultKind.UNKNOWN)
-            return
-        # Greedy model building: a bias on every isolated sensor, then each sensor's
-        # richer model where the likelihood ratio says so. z is white N(0, 1) per
-        # channel when the model fits, but a noise increase raises the variance of the
-        # channels the faulty sensor feeds: an improvement counts only against the
-        # largest per-channel residual variance of the model it improves on (else a
-        # larger noise would make chance improvements look significant).
-        n_rec = self._n_rec
-        tau0 = self.settings.type_significance
-        choice = {i: [_BIAS] for i in sensors}
-
-        def cols_of(ch: dict[int, list[int]]) -> list[int]:
-            return [_N_REG * i + r for i in sensors for r in ch[i]]
-
-        rss_base, _, rss_c = self._fit(cols_of(choice))
-        explained_bias = float(self._zz_c.sum()) - rss_base
-        for i in sensors:
-            alternatives = [[_BIAS, _RAMP]]
-            if self._gain_identifiable(i):
-                alternatives.append([_BIAS, _GAIN])
-            tau = tau0 * max(1.0, float(rss_c.max()) / n_rec)
-            best = (rss_base, choice[i], rss_c)
-            for alt in alternatives:
-                rss, _, rss_alt = self._fit(cols_of({**choice, i: alt}))
-                if rss_base - rss > tau and rss < best[0]:
-                    best = (rss, alt, rss_alt)
-            rss_base, choice[i], rss_c = best
-        cols = cols_of(choice)
-        rss, theta, rss_c = self._fit(cols)
-        level_c = rss_c / n_rec
-        worst = float(level_c.max())
-        noisy = worst > 1.0 + max(0.2, 6.0 * math.sqrt(2.0 / n_rec))
-        pos = 0
-        for i in sensors:
-            kinds = choice[i]
-            values = theta[pos:pos + len(kinds)]
-            pos += len(kinds)
-            if constant[i] is not None:
-                value = constant[i]
-                kind = FaultKind.FAILURE if abs(value) <= 3.0 * math.sqrt(
-                    self.sensor_variances[i]) else FaultKind.STUCK
-                self._set_type(i, kind, 0.0 if kind is FaultKind.FAILURE else value)
-                continue
-            if noisy:
-                if explained_bias < tau0 * worst and kinds == [_BIAS]:
-                    self._set_type(i, FaultKind.NOISE, self._noise_ratio(i, level_c))
-                else:
-                    self._types[i] = int(FaultKind.UNKNOWN)
-                continue
-            if kinds == [_BIAS, _RAMP]:
-                self._set_type(i, FaultKind.RAMP, float(values[1]))
-            elif kinds == [_BIAS, _GAIN]:
-                c = float(values[1])
-                self._set_type(i, FaultKind.GAIN, 1.0 / (1.0 - c) if c < 1.0 else math.inf)
-            elif self._repeats_bias(i, float(values[0])):
-                self._set_type(i, FaultKind.INTERMITTENT, float(values[0]))
-            else:
-                self._set_type(i, FaultKind.BIAS, float(values[0]))
-        self._model_cols, self._theta = np.array(cols, dtype=int), theta
-        types = [FaultKind(int(self._types[i])) for i in sensors]
-        if all(t in (FaultKind.STUCK, FaultKind.FAILURE) for t in types):
-            self._presence_mode = _PRESENCE_CONSTANT
-        elif all(t is FaultKind.NOISE for t in types):
-            self._presence_mode = _PRESENCE_VARIANCE
-        elif all(t in (FaultKind.BIAS, FaultKind.RAMP, FaultKind.GAIN,
-                       FaultKind.INTERMITTENT) for t in types):
-            self._presence_mode = _PRESENCE_MODEL
-        # else (a type unknown, or kinds mixed): the main alarm decides
-
-    def _gain_identifiable(self, sensor: int) -> bool:
-        """The reading's signature varies beyond a constant (the bias signature) by
-        more than its own noise: else a gain cannot be told from a bias (a flat
-        signal, such as the seed aircraft's speed)."""
-        b, g = _N_REG * sensor + _BIAS, _N_REG * sensor + _GAIN
-        gram = self._gram_c[:, [b, g]][:, :, [b, g]].sum(axis=0)
-        noise = float(self._reading_noise()[:, sensor].sum()) * self.sensor_variances[sensor]
-        if gram[0, 0] <= 0.0:
-            return False
-        partial = gram[1, 1] - noise - gram[0, 1] ** 2 / gram[0, 0]
-        return partial > 4.0 * noise
-
-    def _repeats_bias(self, sensor: int, value: float) -> bool:
-        """The previous episode of this record isolated the same sensors and found a
-        bias (or intermittent bias) of about the same size on this sensor."""
-        sensors, types, mags = self._previous
-        return (self._record_episodes >= 2 and tuple(sensors) == self._isolated
-                and int(types[sensor]) in (FaultKind.BIAS, FaultKind.INTERMITTENT)
-                and abs(mags[sensor] - value) <= 0.5 * abs(value))
-
-    def _noise_ratio(self, sensor: int, level_c: _FloatArray) -> float:
-        """Total noise std of ``sensor`` as a multiple of the nominal, from the excess
-        residual variance per channel after the change (least squares over channels
-        of excess_c = (r² − 1)·σ²·power_c, power_c the channel's variance per unit
-        extra noise variance on the sensor)."""
-        excess = np.maximum(level_c - 1.0, 0.0) * self._n_rec / max(self._n_after, 1)
-        power = self._noise_power_c[:, sensor]
-        extra = float(excess @ power / max(float(power @ power), 1e-300))
-        return math.sqrt(1.0 + max(extra, 0.0) / self.sensor_variances[sensor])
-
-    def _set_type(self, sensor: int, kind: FaultKind, value: float) -> None:
-        self._types[sensor] = int(kind)
-        if math.isfinite(value):
-            self._mags[sensor], self._mag_valid[sensor] = value, True
+        """Type the isolated faults (:meth:`FaultTyper.type`); with a gust model, no
+        refit of a mean model while the presence test is judging its misfit."""
+        hold = (self.typer.presence_mode == PRESENCE_MODEL and self._presence is not None
+                and bool(self._n_dist)
+                and float(self._presence.statistic().max()) >= PRESENCE_HOLD)
+        if not self.typer.type(k, self._isolated, self._record_episodes,
+                               self._constant_output, hold):
+            self._presence = None  # a new way of following the fault: a new test
 
     def _constant_output(self, sensor: int, k: int) -> float | None:
         """Mean of the sensor's last samples if they are constant (std below a tenth
@@ -830,37 +584,37 @@ class SequentialDiagnoser:
     # ------------------------------------------------------------------ presence
 
     def _follow_presence(self, k: int) -> None:
-        """End the episode when the isolated fault is gone (class notes), judged with
+        """End the episode when the isolated fault is gone (module notes), judged with
         the fault model of the previous sample."""
-        mode = self._presence_mode
-        if self._iso_gen < 0 or mode == _PRESENCE_NONE:
+        mode = self.typer.presence_mode
+        if self._iso_gen < 0 or mode == PRESENCE_NONE:
             if not self.main_cusum.any_alarm:
                 self._end_episode(k, "none")
             return
-        if mode == _PRESENCE_CONSTANT:
+        if mode == PRESENCE_CONSTANT:
             if all(self._constant_output(i, k) is None for i in self._isolated):
                 self._end_episode(k, "none")
             return
         if self._presence is None:
             self._presence = self._new_cusum(self.m)
             self._presence_zero = self._presence_start = k
-            if mode == _PRESENCE_VARIANCE:
+            if mode == PRESENCE_VARIANCE:
                 self._presence.start_in_alarm()
-        if mode == _PRESENCE_MODEL:
-            c = self._z_last - self._g_last[:, self._model_cols] @ self._theta
+        if mode == PRESENCE_MODEL:
+            c = self.typer.model_misfit()
             self._hist_c[k % self._n_hist] = c
             if self._presence.update(c):
                 oldest = max(self._presence_start, k - self._n_hist + 1)
                 self._presence_zero = self._walk_back(self._presence, self._hist_c, k, oldest)
                 self._end_episode(k, "model")
-        elif not self._presence.update(self._z_last):
+        elif not self._presence.update(self.typer.z_last):
             self._end_episode(k, "model")
 
     # ------------------------------------------------------------------------ state
 
     def get_state(self) -> dict[str, Any]:
         """Every piece of dynamic state (deep copies)."""
-        return {
+        own = {
             "main_x": self.main.x.copy(),
             "main_scale": [s.copy() for s in self.main.channel_scale],
             "bank_x": self.bank.x.copy(),
@@ -876,109 +630,37 @@ class SequentialDiagnoser:
             "bank_active": int(self._bank_active), "last_end": int(self._last_end),
             "change": int(self._change), "record_episodes": int(self._record_episodes),
             "inconsistent": self._inconsistent.astype(float),
-            "sig": self._sig.copy(), "gram_c": self._gram_c.copy(),
-            "gz_c": self._gz_c.copy(), "zz_c": self._zz_c.copy(),
-            "n_rec": int(self._n_rec), "n_after": int(self._n_after),
-            "g_last": self._g_last.copy(), "z_last": self._z_last.copy(),
-            "y_prev": self._y_prev.copy(),
             "status": _STATUS.index(self._status), "isolated": list(self._isolated),
             "iso_gen": int(self._iso_gen),
-            "model_cols": self._model_cols.copy(), "theta": self._theta.copy(),
-            "previous_isolated": list(self._previous[0]),
-            "previous_types": self._previous[1].copy(), "previous_mags": self._previous[2].copy(),
-            "presence_mode": int(self._presence_mode),
             "presence_zero": int(self._presence_zero),
             "presence_start": int(self._presence_start), "hist_c": self._hist_c.copy(),
-            "types": self._types.copy(), "mags": self._mags.copy(),
-            "mag_valid": self._mag_valid.astype(float),
+            **self.typer.get_state(),
         }
+        return {key: own[key] for key in _STATE_KEYS}
 
     def set_state(self, state: dict[str, Any]) -> None:
         """Restore :meth:`get_state` output of an identically built diagnoser; checked
         first, so a bad state leaves this one untouched."""
-        m, n_gen, nr = self.m, len(self.bank_generators), _N_REG * self.m
-
-        def arr(key: str, shape: tuple[int, ...]) -> _FloatArray:
-            return check_finite_array(f"state[{key!r}]", state[key], shape=shape)
-
         try:
-            main_scale = [check_finite_array("state['main_scale']", s, shape=(g.n_channels,))
-                          for s, g in zip(state["main_scale"], self.main.generators,
-                                          strict=True)]
-            bank_scale = [check_finite_array("state['bank_scale']", s, shape=(g.n_channels,))
-                          for s, g in zip(state["bank_scale"], self.bank.generators,
-                                          strict=True)]
-            got = {
-                "main_x": arr("main_x", (self.main.n_state,)),
-                "bank_x": arr("bank_x", (self.bank.n_state,)),
-                "hist_w": arr("hist_w", self._hist_w.shape),
-                "hist_x": arr("hist_x", self._hist_x.shape),
-                "hist_z": arr("hist_z", self._hist_z.shape),
-                "hist_d": (arr("hist_d", self._hist_d.shape) if "hist_d" in state
-                           else np.zeros(self._hist_d.shape)),
-                "sig": arr("sig", (self.main.n_state, nr)),
-                "gram_c": arr("gram_c", (m, nr, nr)), "gz_c": arr("gz_c", (m, nr)),
-                "zz_c": arr("zz_c", (m,)),
-                "g_last": arr("g_last", (m, nr)), "z_last": arr("z_last", (m,)),
-                "y_prev": arr("y_prev", (m,)),
-                "hist_c": arr("hist_c", self._hist_c.shape),
-                "mags": arr("mags", (m,)),
-            }
-            incons = arr("inconsistent", (n_gen,)) != 0.0
-            mag_valid = arr("mag_valid", (m,)) != 0.0
-            types = np.asarray(state["types"], dtype=int).reshape(-1)
-            cols = np.asarray(state["model_cols"], dtype=int).reshape(-1)
-            theta = check_finite_array("state['theta']", state["theta"], shape=(cols.size,))
-            if types.shape != (m,):
-                raise ValueError(f"state['types'] must have {m} entries")
-            if np.any((cols < 0) | (cols >= nr)):
-                raise ValueError(f"state['model_cols'] must be in [0, {nr})")
-            status = int(state["status"])
-            if not 0 <= status < len(_STATUS):
-                raise ValueError(f"state['status'] must be in [0, {len(_STATUS)})")
-            iso_gen = int(state["iso_gen"])
-            if not -1 <= iso_gen < n_gen:
-                raise ValueError(f"state['iso_gen'] must be in [-1, {n_gen})")
-            presence_mode = int(state["presence_mode"])
-            if not 0 <= presence_mode <= _PRESENCE_CONSTANT:
-                raise ValueError("state['presence_mode'] out of range")
-            isolated = tuple(int(i) for i in state["isolated"])
-            previous = (tuple(int(i) for i in state["previous_isolated"]),
-                        np.asarray(state["previous_types"], dtype=int).reshape(m),
-                        arr("previous_mags", (m,)))
-            main_cusum = self._new_cusum(m)
-            main_cusum.set_state(state["main_cusum"])
-            bank_cusum = self._new_cusum(self.bank.n_out)
-            bank_cusum.set_state(state["bank_cusum"])
-            presence = None
-            if state["presence"] is not None:
-                presence = self._new_cusum(m)
-                presence.set_state(state["presence"])
-            ints = {key: int(state[key]) for key in
-                    ("count", "in_episode", "episodes", "bank_active", "last_end", "change",
-                     "record_episodes", "n_rec", "n_after", "wait_clear",
-                     "presence_zero", "presence_start")}
+            got = self._check_state(state)
+            typed = self.typer.check_state(state, self.main.n_state)
         except KeyError as exc:
             raise ValueError(f"state is missing key {exc}") from None
-        self.main.set_channel_scale(main_scale)
-        self.bank.set_channel_scale(bank_scale)
+        self.main.set_channel_scale(got["main_scale"])
+        self.bank.set_channel_scale(got["bank_scale"])
         self._install_signature_matrices()
         self.main.x, self.bank.x = got["main_x"], got["bank_x"]
-        self.main_cusum, self.bank_cusum, self._presence = main_cusum, bank_cusum, presence
+        self.main_cusum, self.bank_cusum = got["main_cusum"], got["bank_cusum"]
+        self._presence = got["presence"]
         self._hist_w, self._hist_x, self._hist_z = got["hist_w"], got["hist_x"], got["hist_z"]
-        self._hist_d = got["hist_d"]
-        self._sig, self._gram_c = got["sig"], got["gram_c"]
-        self._gz_c, self._zz_c = got["gz_c"], got["zz_c"]
-        self._g_last, self._z_last = got["g_last"], got["z_last"]
-        self._y_prev = got["y_prev"]
-        self._inconsistent = incons
-        self._types, self._mags, self._mag_valid = types, got["mags"], mag_valid
-        self._out_types, self._out_mags = types.copy(), got["mags"].copy()
-        self._out_valid = mag_valid.copy()
-        self._model_cols, self._theta = cols, theta
-        self._status, self._isolated, self._iso_gen = _STATUS[status], isolated, iso_gen
-        self._presence_mode = presence_mode
-        self._previous = previous
+        self._hist_d, self._hist_c = got["hist_d"], got["hist_c"]
+        self._inconsistent = got["inconsistent"]
+        self.typer.set_state(typed)
+        self._out_types, self._out_mags = typed["types"].copy(), typed["mags"].copy()
+        self._out_valid = typed["mag_valid"].copy()
+        self._status, self._isolated = _STATUS[got["status"]], got["isolated"]
+        self._iso_gen = got["iso_gen"]
+        ints = got["ints"]
         self._count = ints["count"]
         self._in_episode = bool(ints["in_episode"])
         self._wait_clear = bool(ints["wait_clear"])
@@ -988,8 +670,49 @@ class SequentialDiagnoser:
         self._record_episodes = ints["record_episodes"]
         self._presence_zero = ints["presence_zero"]
         self._presence_start = ints["presence_start"]
-        self._hist_c = got["hist_c"]
-        self._n_rec, self._n_after = ints["n_rec"], ints["n_after"]
+
+    def _check_state(self, state: dict[str, Any]) -> dict[str, Any]:
+        """The diagnoser's own part of a saved state, checked (ValueError, KeyError for
+        a missing key)."""
+        m, n_gen = self.m, len(self.bank_generators)
+
+        def arr(key: str, shape: tuple[int, ...]) -> _FloatArray:
+            return check_finite_array(f"state[{key!r}]", state[key], shape=shape)
+
+        got: dict[str, Any] = {
+            "main_scale": [check_finite_array("state['main_scale']", s, shape=(g.n_channels,))
+                           for s, g in zip(state["main_scale"], self.main.generators,
+                                           strict=True)],
+            "bank_scale": [check_finite_array("state['bank_scale']", s, shape=(g.n_channels,))
+                           for s, g in zip(state["bank_scale"], self.bank.generators,
+                                           strict=True)],
+            "main_x": arr("main_x", (self.main.n_state,)),
+            "bank_x": arr("bank_x", (self.bank.n_state,)),
+            "hist_w": arr("hist_w", self._hist_w.shape),
+            "hist_x": arr("hist_x", self._hist_x.shape),
+            "hist_z": arr("hist_z", self._hist_z.shape),
+            "hist_d": (arr("hist_d", self._hist_d.shape) if "hist_d" in state
+                       else np.zeros(self._hist_d.shape)),
+            "hist_c": arr("hist_c", self._hist_c.shape),
+            "inconsistent": arr("inconsistent", (n_gen,)) != 0.0,
+        }
+        got["status"] = int(state["status"])
+        if not 0 <= got["status"] < len(_STATUS):
+            raise ValueError(f"state['status'] must be in [0, {len(_STATUS)})")
+        got["iso_gen"] = int(state["iso_gen"])
+        if not -1 <= got["iso_gen"] < n_gen:
+            raise ValueError(f"state['iso_gen'] must be in [-1, {n_gen})")
+        got["isolated"] = tuple(int(i) for i in state["isolated"])
+        got["main_cusum"] = self._new_cusum(m)
+        got["main_cusum"].set_state(state["main_cusum"])
+        got["bank_cusum"] = self._new_cusum(self.bank.n_out)
+        got["bank_cusum"].set_state(state["bank_cusum"])
+        got["presence"] = None
+        if state["presence"] is not None:
+            got["presence"] = self._new_cusum(m)
+            got["presence"].set_state(state["presence"])
+        got["ints"] = {key: int(state[key]) for key in _INT_KEYS}
+        return got
 
 
 def _bartlett_long_run_variance(z: _FloatArray) -> _FloatArray:
