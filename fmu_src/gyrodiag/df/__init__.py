@@ -19,12 +19,19 @@ generators
     joint simulation.
 settings
     Settings, output record and codes of the sequential rule.
+hypotheses
+    Hypothesis bank and isolation decision of the sequential rule.
+onset
+    Change-time estimates of the sequential rule.
+signatures
+    Fault signatures on the main filter's whitened residual and their running sums.
 fault_typing
-    Fault signatures and the fit of the fault types of the sequential rule.
+    Fit of the fault types of the sequential rule.
+presence
+    Presence test of an isolated fault (sequential rule).
 sequential_diagnosis
-    The sequential decision rule: episodes, CUSUM (:mod:`gyrodiag.common.cusum`),
-    isolation and presence tests over the three modules above (whose public names it
-    re-exports).
+    The sequential decision rule: detection, episodes and the sample history over
+    the modules above (it re-exports the public names of generators and settings).
 gains
     Memo of observer designs, seeded by the table a build ships.
 channel
@@ -87,6 +94,16 @@ _EXPORTS = {
     "PRESENCE_MODEL": "fault_typing",
     "PRESENCE_NONE": "fault_typing",
     "PRESENCE_VARIANCE": "fault_typing",
+    "HypothesisBank": "hypotheses",
+    "hypotheses_of": "hypotheses",
+    "refine_onset": "onset",
+    "walk_back": "onset",
+    "FaultSignatures": "signatures",
+    "N_REG": "signatures",
+    "REG_BIAS": "signatures",
+    "REG_GAIN": "signatures",
+    "REG_RAMP": "signatures",
+    "PresenceTest": "presence",
     "DECISIONS": "channel",
     "DECISION_AUTO": "channel",
     "DFChannel": "channel",

@@ -11,8 +11,11 @@ Building blocks
   outputs.
 * :mod:`gyrodiag.df.settings`: :class:`SequentialSettings`, :class:`DiagnosisOutput`,
   :class:`FaultKind` and the ``isolated`` codes.
-* :mod:`gyrodiag.df.fault_typing`: the fault signatures and the fit of the fault types
-  (step 3 below), :class:`~gyrodiag.df.fault_typing.FaultTyper`.
+* :mod:`gyrodiag.df.hypotheses`: the hypothesis bank and the isolation decision (step
+  2 below); :mod:`gyrodiag.df.onset`: change-time estimates.
+* :mod:`gyrodiag.df.signatures` and :mod:`gyrodiag.df.fault_typing`: the fault
+  signatures on the main filter's whitened residual and the fit of the fault types
+  (step 3 below); :mod:`gyrodiag.df.presence`: the presence test (step 4).
 
 Every name above is importable from this module too, as before the split.
 
@@ -50,7 +53,6 @@ model; drifting for h, which integrates γ).
 
 from __future__ import annotations
 
-import itertools
 import math
 from typing import Any
 
@@ -75,7 +77,6 @@ from .fault_typing import (
     PRESENCE_CONSTANT,
     PRESENCE_MODEL,
     PRESENCE_NONE,
-    PRESENCE_VARIANCE,
     FaultTyper,
 )
 from .generators import (
@@ -85,6 +86,9 @@ from .generators import (
     design_residual_generator,
 )
 from .gust import GustModel
+from .hypotheses import HypothesisBank, hypotheses_of
+from .onset import refine_onset, walk_back
+from .presence import PresenceTest
 from .settings import (
     MULTIPLE,
     NOT_ISOLATED,
@@ -92,6 +96,7 @@ from .settings import (
     FaultKind,
     SequentialSettings,
 )
+from .signatures import FaultSignatures
 
 __all__ = [
     "MULTIPLE",
@@ -108,7 +113,6 @@ __all__ = [
 
 _FloatArray = NDArray[np.float64]
 
-
 #: Status codes kept in the saved state.
 _STATUS = ("none", "not isolated", "single", "pair", "multiple")
 #: With a gust model, no refit while the presence test's statistic is at this fraction
@@ -116,7 +120,7 @@ _STATUS = ("none", "not isolated", "single", "pair", "multiple")
 #: burst that ended) would explain away the misfit that ends the episode.
 PRESENCE_HOLD = 0.5
 #: Keys of the saved state, in the order :meth:`SequentialDiagnoser.get_state` has
-#: always given them (the fault typer owns some of them).
+#: always given them (its parts own some of them).
 _STATE_KEYS = (
     "main_x", "main_scale", "bank_x", "bank_scale", "main_cusum", "bank_cusum", "presence",
     "count", "hist_w", "hist_x", "hist_z", "hist_d", "in_episode", "episodes", "wait_clear",
@@ -128,7 +132,7 @@ _STATE_KEYS = (
 )
 #: Integer entries of the saved state the diagnoser itself owns.
 _INT_KEYS = ("count", "in_episode", "episodes", "bank_active", "last_end", "change",
-             "record_episodes", "wait_clear", "presence_zero", "presence_start")
+             "record_episodes", "wait_clear")
 
 
 class SequentialDiagnoser:
@@ -157,9 +161,12 @@ class SequentialDiagnoser:
     plant from the sample of y on) and does not validate them: the owning channel
     checks each sample once.
 
-    The episodes, the isolation and the presence tests are this class's; the typing
-    (a generalised likelihood ratio on the main filter's whitened residual) is its
-    :class:`~gyrodiag.df.fault_typing.FaultTyper`'s, ``typer``.
+    This class runs the detection and the episodes and keeps the sample history; its
+    parts are the hypothesis bank (``hypothesis_bank``,
+    :class:`~gyrodiag.df.hypotheses.HypothesisBank`), the fault signatures
+    (``signatures``, :class:`~gyrodiag.df.signatures.FaultSignatures`), the typing
+    (``typer``, :class:`~gyrodiag.df.fault_typing.FaultTyper`) and the presence test
+    (``presence``, :class:`~gyrodiag.df.presence.PresenceTest`).
     """
 
     def __init__(self, A: ArrayLike, B: ArrayLike, C: ArrayLike, K: ArrayLike,
@@ -187,26 +194,22 @@ class SequentialDiagnoser:
 
     def _design(self, a: _FloatArray, b: _FloatArray, c: _FloatArray,
                 gain: _FloatArray) -> None:
-        """Residual generators, CUSUM thresholds, window lengths and the fault typer."""
+        """Residual generators, CUSUM thresholds, window lengths and the parts."""
         st = self.settings
         var, gust = self.sensor_variances, self.gust
         lam = None if st.bank_eigenvalues is None else np.asarray(st.bank_eigenvalues, float)
         reg = st.regularisation
         self.main_generator = design_residual_generator(
             a, b, c, self.T, (), var, main_gain=gain, regularisation=reg, gust=gust)
-        hyps: list[tuple[int, ...]] = [(i,) for i in range(self.m)]
-        if st.max_faults >= 2:
-            hyps += list(itertools.combinations(range(self.m), 2))
-        self.hypotheses = hyps
+        self.hypotheses = hypotheses_of(self.m, st.max_faults)
         self.bank_generators = [
             design_residual_generator(a, b, c, self.T, h, var, eigenvalues=lam,
                                       regularisation=reg, gust=gust)
-            for h in hyps
+            for h in self.hypotheses
         ]
         self.main = ObserverStack([self.main_generator], self.p, self.m, residuals=True)
         #: size of the disturbance (gust) state at the end of every whitening state
         self._n_dist = 0 if gust is None else self.main.n_state - self.n
-        self.bank = ObserverStack(self.bank_generators, self.p, self.m)
         self.c_matrix = c
 
         # CUSUM thresholds for the design rate over the 3 m main charts (union bound);
@@ -216,9 +219,10 @@ class SequentialDiagnoser:
         self.h_variance = variance_cusum_threshold(arl, st.variance_ratio)
         self.chart_arl = arl
         self.main_cusum = self._new_cusum(self.m)
-        self.bank_cusum = self._new_cusum(self.bank.n_out)
-        self._bank_gen_of_channel = np.concatenate([
-            np.full(g.n_channels, k) for k, g in enumerate(self.bank_generators)])
+        self.hypothesis_bank = HypothesisBank(self.bank_generators, self.p, self.m,
+                                              self._new_cusum)
+        self.bank = self.hypothesis_bank.stack
+        self._bank_gen_of_channel = self.hypothesis_bank.gen_of_channel
         self._n_hist = max(2, round(st.history_s / self.T))
         self._margin = round(st.replay_margin_s / self.T)
         self._memory = round(st.memory_s / self.T)
@@ -226,8 +230,11 @@ class SequentialDiagnoser:
         self._onset_window = max(10, round(0.1 / self.T))
         self._isolation_window = max(self._onset_window, round(0.5 / self.T))
         self._type_every = max(1, round(st.type_period_s / self.T))
-        self.typer = FaultTyper(self.m, self.p, self.T, self.sensor_variances, st,
-                                self._n_hist)
+        # walking a CUSUM back, "zero" is below a tiny fraction of the threshold
+        self._zero_tol = 1e-9 * self.h_mean
+        self.signatures = FaultSignatures(self.m, self.p, self.T, var, self._n_hist)
+        self.typer = FaultTyper(self.signatures, var, st)
+        self.presence = PresenceTest(self.m, self._n_hist, self._new_cusum, self._zero_tol)
 
     def _new_cusum(self, n_channels: int) -> CusumBank:
         st = self.settings
@@ -235,8 +242,13 @@ class SequentialDiagnoser:
                          self.h_variance, st.release)
 
     def _install_signature_matrices(self) -> None:
-        """The typer's signature matrices for the current channel scales."""
-        self.typer.install(self.main.system())
+        """The signature matrices for the main filter's current channel scales."""
+        self.signatures.install(self.main.system())
+
+    @property
+    def bank_cusum(self) -> CusumBank:
+        """CUSUM charts of the hypothesis generators."""
+        return self.hypothesis_bank.cusum
 
     # ------------------------------------------------------------------- calibration
 
@@ -297,16 +309,14 @@ class SequentialDiagnoser:
         """Main filter to x0, no episode, no hypothesis running, history empty."""
         self.main.reset()
         self.main.set_observer_state(0, self.x0)
-        self.bank.reset()
         self.main_cusum.reset()
-        self.bank_cusum.reset()
+        self.hypothesis_bank.reset()
         m = self.m
         self._count = 0
         self._hist_w = np.zeros((self._n_hist, self.p + m))
         self._hist_x = np.zeros((self._n_hist, self.n))
         self._hist_d = np.zeros((self._n_hist, self._n_dist))
         self._hist_z = np.zeros((self._n_hist, m))
-        self._hist_c = np.zeros((self._n_hist, m))
         self._in_episode = False
         self._wait_clear = False
         self._episodes = 0
@@ -314,18 +324,15 @@ class SequentialDiagnoser:
         self._last_end = -1
         self._change = -1
         self._record_episodes = 0
-        self._inconsistent = np.zeros(len(self.bank_generators), dtype=bool)
         self._status = "none"
         self._isolated: tuple[int, ...] = ()
         self._iso_gen = -1
-        self._presence: CusumBank | None = None
-        self._presence_zero = 0
-        self._presence_start = 0
-        typer = self.typer
-        typer.reset(self.main.n_state)
-        self._out_types = typer.types.copy()
-        self._out_mags = typer.mags.copy()
-        self._out_valid = typer.mag_valid.copy()
+        self.signatures.reset(self.main.n_state)
+        self.typer.reset()
+        self.presence.reset()
+        self._out_types = self.typer.types.copy()
+        self._out_mags = self.typer.mags.copy()
+        self._out_valid = self.typer.mag_valid.copy()
         self._last = DiagnosisOutput(
             np.zeros(m), np.zeros(m, dtype=bool), np.zeros(m), False, 0, "none", (),
             self._out_types, self._out_mags, self._out_valid)
@@ -403,8 +410,9 @@ class SequentialDiagnoser:
         if self._status == "none":
             self._status = "not isolated"
         oldest = max(0, k - self._n_hist + 1)
-        change = self._cusum_change(k, oldest)
-        self._change = self._refine_onset(change, oldest, k)
+        change = walk_back(self.main_cusum, self._hist_z, k, oldest, self._zero_tol)
+        self._change = refine_onset(self._hist_z, self.signatures.step_response, change,
+                                    oldest, k, self._onset_window)
         # not before the previous episode's end: its samples carry that fault
         start = max(oldest, self._change - self._margin, self._last_end + 1)
         if self._bank_active:
@@ -415,94 +423,30 @@ class SequentialDiagnoser:
             return False
         self._record_episodes = 1
         self.typer.remember(None)
-        xhat = self._hist_x[start % self._n_hist]
-        gust = self._hist_d[start % self._n_hist]
-        self.bank.reset()
-        for g in range(len(self.bank_generators)):
-            self.bank.set_observer_state(g, xhat, gust)
-        self.bank_cusum.reset(start)
-        self._inconsistent[:] = False
+        self.hypothesis_bank.start(self._hist_x[start % self._n_hist],
+                                   self._hist_d[start % self._n_hist], start)
         self._bank_active = True
         self._status, self._isolated, self._iso_gen = "not isolated", (), -1
         for j in range(start, k + 1):
-            self._bank_step(self._hist_w[j % self._n_hist])
+            self.hypothesis_bank.step(self._hist_w[j % self._n_hist])
         self._start_signatures(start, k)
         return True
 
-    def _cusum_change(self, k: int, oldest: int) -> int:
-        """The CUSUM change-time estimate of the main alarm raised at sample k."""
-        return self._walk_back(self.main_cusum, self._hist_z, k, oldest)
-
-    def _walk_back(self, cusum: CusumBank, history: _FloatArray, k: int, oldest: int) -> int:
-        """The change time of the alarm ``cusum`` raised at sample k: the sample after
-        the newly alarming statistic was last zero (earliest over the charts), found by
-        running its recursion back from the statistics before sample k on the inputs
-        kept in ``history`` (a ring indexed by sample)."""
-        charts = np.flatnonzero(cusum.newly_raised)
-        if charts.size == 0:
-            return k
-        s = cusum.previous_statistics[charts].copy()
-        # walking back subtracts increments: a statistic that was exactly 0 comes back
-        # as a rounding residue, so "zero" is below a tiny fraction of the threshold
-        tol = 1e-9 * self.h_mean
-        j = k - 1
-        while j >= oldest and np.any(s > tol):
-            inc = cusum.increments(history[j % self._n_hist])[charts]
-            s = np.where(s > tol, s - inc, s)
-            j -= 1
-        return j + 1 if not np.any(s > tol) else oldest
-
-    def _refine_onset(self, change: int, oldest: int, k: int,
-                      sensors: tuple[int, ...] = (), window: int | None = None) -> int:
-        """The onset that best explains z as a step (maximum likelihood over onsets
-        within ``window`` samples of ``change``): on any one sensor when ``sensors`` is
-        empty (at detection), else jointly on the given ones (once isolated). The
-        CUSUM's change estimate moves with the noise, by a sample for a large step and
-        by many for a small one; a misplaced onset looks like a model misfit (a large
-        step) or like a ramp (a small one)."""
-        w = self._onset_window if window is None else window
-        lo = max(oldest, change - w)
-        hi = min(k, change + w)
-        if hi <= lo:
-            return change
-        z = self._hist_z[np.arange(lo, k + 1) % self._n_hist]  # (N, m)
-        best, best_j = -1.0, change
-        cols = list(sensors)
-        for j in range(lo, hi + 1):
-            h = self.typer.step_response[:k + 1 - j]  # (L, channels, sensors)
-            if not cols:
-                num = np.einsum("lcs,lc->s", h, z[j - lo:])
-                den = np.einsum("lcs,lcs->s", h, h)
-                score = float(np.max(num * num / np.maximum(den, 1e-300)))
-            else:
-                hs = h[:, :, cols]
-                xz = np.einsum("lcs,lc->s", hs, z[j - lo:])
-                gram = np.einsum("lcs,lct->st", hs, hs)
-                gram += 1e-12 * max(float(np.trace(gram)), 1e-300) * np.eye(len(cols))
-                score = float(xz @ np.linalg.solve(gram, xz))
-            if score > best:
-                best, best_j = score, j
-        return best_j
-
     def _start_signatures(self, start: int, k: int) -> None:
         """Fault signatures and their sums for this episode, from ``start`` (before the
-        change time) to sample k, replayed from the history."""
-        self.typer.start(self._hist_w[(start - 1) % self._n_hist, self.p:].copy())
-        self._presence = None
+        change time) to sample k, replayed from the history; no diagnosis yet."""
+        self.signatures.start(self._hist_w[(start - 1) % self._n_hist, self.p:].copy())
+        self.typer.clear()
+        self.presence.stop()
         for j in range(start, k + 1):
             h = j % self._n_hist
-            self.typer.step(self._hist_w[h], self._hist_z[h], j, self._change)
+            self.signatures.step(self._hist_w[h], self._hist_z[h], j, self._change)
 
     def _record_step(self, w: _FloatArray, z: _FloatArray, j: int) -> None:
         """Hypothesis generators and (in an episode) fault signatures for sample j."""
-        self._bank_step(w)
+        self.hypothesis_bank.step(w)
         if self._in_episode:
-            self.typer.step(w, z, j, self._change)
-
-    def _bank_step(self, w: _FloatArray) -> None:
-        zb, _ = self.bank.update(w)
-        if self.bank_cusum.update(zb):
-            self._inconsistent[self._bank_gen_of_channel[self.bank_cusum.alarms]] = True
+            self.signatures.step(w, z, j, self._change)
 
     def _end_episode(self, k: int, how: str) -> None:
         """Close the episode.
@@ -514,41 +458,31 @@ class SequentialDiagnoser:
         self._in_episode = False
         self._last_end = k
         if how == "model":
-            trace = self.typer.fault_trace(k + 1 - self._presence_zero)
+            trace = self.typer.fault_trace(k + 1 - self.presence.zero)
             if trace is not None:
                 self.main.x = self.main.x - trace
             self.main_cusum.reset(k + 1)
-            self.typer.clear_signatures()
+            self.signatures.clear_states()
         else:
             self._wait_clear = True
-        self._presence = None
+        self.presence.stop()
 
     # ------------------------------------------------------------------ isolation
 
     def _decide(self, k: int) -> None:
-        consistent = ~self._inconsistent
-        singles = np.flatnonzero(consistent[:self.m])
-        gen = -1
-        if singles.size == 1:
-            gen, status = int(singles[0]), "single"
-        elif singles.size == 0:
-            pairs = np.flatnonzero(consistent[self.m:]) + self.m
-            if pairs.size == 1:
-                gen, status = int(pairs[0]), "pair"
-            else:
-                status = "multiple"
-        else:
-            status = "not isolated"
-        self._status = status
+        """Isolation (the bank's verdict) at sample k; on a new verdict, the onset
+        refined for the sensors isolated; then the typing when due."""
+        gen, self._status = self.hypothesis_bank.verdict()
         changed = gen != self._iso_gen
         if changed:
             self._iso_gen = gen
             self._isolated = self.hypotheses[gen] if gen >= 0 else ()
-            self._presence = None
+            self.presence.stop()
             if gen >= 0:
                 oldest = max(0, k - self._n_hist + 1)
-                onset = self._refine_onset(self._change, oldest, k, self._isolated,
-                                           self._isolation_window)
+                onset = refine_onset(self._hist_z, self.signatures.step_response,
+                                     self._change, oldest, k, self._isolation_window,
+                                     self._isolated)
                 if onset != self._change:
                     self._change = onset
                     self._start_signatures(
@@ -557,17 +491,14 @@ class SequentialDiagnoser:
                 self.typer.types[list(self._isolated)] == FaultKind.UNKNOWN).any():
             self._type(k)
 
-    # ------------------------------------------------------------------ typing
-
     def _type(self, k: int) -> None:
         """Type the isolated faults (:meth:`FaultTyper.type`); with a gust model, no
         refit of a mean model while the presence test is judging its misfit."""
-        hold = (self.typer.presence_mode == PRESENCE_MODEL and self._presence is not None
-                and bool(self._n_dist)
-                and float(self._presence.statistic().max()) >= PRESENCE_HOLD)
+        hold = (self.typer.presence_mode == PRESENCE_MODEL and bool(self._n_dist)
+                and self.presence.at_least(PRESENCE_HOLD))
         if not self.typer.type(k, self._isolated, self._record_episodes,
                                self._constant_output, hold):
-            self._presence = None  # a new way of following the fault: a new test
+            self.presence.stop()  # a new way of following the fault: a new test
 
     def _constant_output(self, sensor: int, k: int) -> float | None:
         """Mean of the sensor's last samples if they are constant (std below a tenth
@@ -595,19 +526,11 @@ class SequentialDiagnoser:
             if all(self._constant_output(i, k) is None for i in self._isolated):
                 self._end_episode(k, "none")
             return
-        if self._presence is None:
-            self._presence = self._new_cusum(self.m)
-            self._presence_zero = self._presence_start = k
-            if mode == PRESENCE_VARIANCE:
-                self._presence.start_in_alarm()
         if mode == PRESENCE_MODEL:
-            c = self.typer.model_misfit()
-            self._hist_c[k % self._n_hist] = c
-            if self._presence.update(c):
-                oldest = max(self._presence_start, k - self._n_hist + 1)
-                self._presence_zero = self._walk_back(self._presence, self._hist_c, k, oldest)
-                self._end_episode(k, "model")
-        elif not self._presence.update(self.typer.z_last):
+            gone = self.presence.follow_model(k, self.typer.model_misfit())
+        else:  # a noise increase
+            gone = self.presence.follow_variance(k, self.signatures.z_last)
+        if gone:
             self._end_episode(k, "model")
 
     # ------------------------------------------------------------------------ state
@@ -617,11 +540,7 @@ class SequentialDiagnoser:
         own = {
             "main_x": self.main.x.copy(),
             "main_scale": [s.copy() for s in self.main.channel_scale],
-            "bank_x": self.bank.x.copy(),
-            "bank_scale": [s.copy() for s in self.bank.channel_scale],
             "main_cusum": self.main_cusum.get_state(),
-            "bank_cusum": self.bank_cusum.get_state(),
-            "presence": None if self._presence is None else self._presence.get_state(),
             "count": int(self._count),
             "hist_w": self._hist_w.copy(), "hist_x": self._hist_x.copy(),
             "hist_z": self._hist_z.copy(), "hist_d": self._hist_d.copy(),
@@ -629,12 +548,10 @@ class SequentialDiagnoser:
             "wait_clear": int(self._wait_clear),
             "bank_active": int(self._bank_active), "last_end": int(self._last_end),
             "change": int(self._change), "record_episodes": int(self._record_episodes),
-            "inconsistent": self._inconsistent.astype(float),
             "status": _STATUS.index(self._status), "isolated": list(self._isolated),
             "iso_gen": int(self._iso_gen),
-            "presence_zero": int(self._presence_zero),
-            "presence_start": int(self._presence_start), "hist_c": self._hist_c.copy(),
-            **self.typer.get_state(),
+            **self.hypothesis_bank.get_state(), **self.signatures.get_state(),
+            **self.typer.get_state(), **self.presence.get_state(),
         }
         return {key: own[key] for key in _STATE_KEYS}
 
@@ -643,21 +560,23 @@ class SequentialDiagnoser:
         first, so a bad state leaves this one untouched."""
         try:
             got = self._check_state(state)
-            typed = self.typer.check_state(state, self.main.n_state)
+            parts = [(part, part.check_state(state)) for part in (
+                self.hypothesis_bank, self.typer, self.presence)]
+            signatures = self.signatures.check_state(state, self.main.n_state)
         except KeyError as exc:
             raise ValueError(f"state is missing key {exc}") from None
         self.main.set_channel_scale(got["main_scale"])
-        self.bank.set_channel_scale(got["bank_scale"])
+        self.main.x = got["main_x"]
+        self.main_cusum = got["main_cusum"]
+        for part, checked in parts:
+            part.set_state(checked)
         self._install_signature_matrices()
-        self.main.x, self.bank.x = got["main_x"], got["bank_x"]
-        self.main_cusum, self.bank_cusum = got["main_cusum"], got["bank_cusum"]
-        self._presence = got["presence"]
+        self.signatures.set_state(signatures)
         self._hist_w, self._hist_x, self._hist_z = got["hist_w"], got["hist_x"], got["hist_z"]
-        self._hist_d, self._hist_c = got["hist_d"], got["hist_c"]
-        self._inconsistent = got["inconsistent"]
-        self.typer.set_state(typed)
-        self._out_types, self._out_mags = typed["types"].copy(), typed["mags"].copy()
-        self._out_valid = typed["mag_valid"].copy()
+        self._hist_d = got["hist_d"]
+        self._out_types = self.typer.types.copy()
+        self._out_mags = self.typer.mags.copy()
+        self._out_valid = self.typer.mag_valid.copy()
         self._status, self._isolated = _STATUS[got["status"]], got["isolated"]
         self._iso_gen = got["iso_gen"]
         ints = got["ints"]
@@ -668,13 +587,11 @@ class SequentialDiagnoser:
         self._bank_active = bool(ints["bank_active"])
         self._last_end, self._change = ints["last_end"], ints["change"]
         self._record_episodes = ints["record_episodes"]
-        self._presence_zero = ints["presence_zero"]
-        self._presence_start = ints["presence_start"]
 
     def _check_state(self, state: dict[str, Any]) -> dict[str, Any]:
-        """The diagnoser's own part of a saved state, checked (ValueError, KeyError for
+        """The diagnoser's own part of a saved state, checked (ValueError; KeyError for
         a missing key)."""
-        m, n_gen = self.m, len(self.bank_generators)
+        n_gen = len(self.bank_generators)
 
         def arr(key: str, shape: tuple[int, ...]) -> _FloatArray:
             return check_finite_array(f"state[{key!r}]", state[key], shape=shape)
@@ -683,18 +600,12 @@ class SequentialDiagnoser:
             "main_scale": [check_finite_array("state['main_scale']", s, shape=(g.n_channels,))
                            for s, g in zip(state["main_scale"], self.main.generators,
                                            strict=True)],
-            "bank_scale": [check_finite_array("state['bank_scale']", s, shape=(g.n_channels,))
-                           for s, g in zip(state["bank_scale"], self.bank.generators,
-                                           strict=True)],
             "main_x": arr("main_x", (self.main.n_state,)),
-            "bank_x": arr("bank_x", (self.bank.n_state,)),
             "hist_w": arr("hist_w", self._hist_w.shape),
             "hist_x": arr("hist_x", self._hist_x.shape),
             "hist_z": arr("hist_z", self._hist_z.shape),
             "hist_d": (arr("hist_d", self._hist_d.shape) if "hist_d" in state
                        else np.zeros(self._hist_d.shape)),
-            "hist_c": arr("hist_c", self._hist_c.shape),
-            "inconsistent": arr("inconsistent", (n_gen,)) != 0.0,
         }
         got["status"] = int(state["status"])
         if not 0 <= got["status"] < len(_STATUS):
@@ -703,14 +614,8 @@ class SequentialDiagnoser:
         if not -1 <= got["iso_gen"] < n_gen:
             raise ValueError(f"state['iso_gen'] must be in [-1, {n_gen})")
         got["isolated"] = tuple(int(i) for i in state["isolated"])
-        got["main_cusum"] = self._new_cusum(m)
+        got["main_cusum"] = self._new_cusum(self.m)
         got["main_cusum"].set_state(state["main_cusum"])
-        got["bank_cusum"] = self._new_cusum(self.bank.n_out)
-        got["bank_cusum"].set_state(state["bank_cusum"])
-        got["presence"] = None
-        if state["presence"] is not None:
-            got["presence"] = self._new_cusum(m)
-            got["presence"].set_state(state["presence"])
         got["ints"] = {key: int(state[key]) for key in _INT_KEYS}
         return got
 
