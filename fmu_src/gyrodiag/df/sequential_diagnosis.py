@@ -17,7 +17,8 @@ Building blocks
   signatures on the main filter's whitened residual and the fit of the fault types
   (step 3 below); :mod:`gyrodiag.df.presence`: the presence test (step 4).
 
-Every name above is importable from this module too, as before the split.
+The public names of ``generators`` and ``settings`` are importable from this module
+too, as before the split.
 
 Decision (:class:`SequentialDiagnoser`)
 ---------------------------------------
