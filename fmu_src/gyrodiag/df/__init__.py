@@ -14,9 +14,24 @@ gust
     Dryden turbulence as a disturbance model of the plant.
 sensor_dynamics
     Sensor read-out dynamics and their equaliser.
+generators
+    Residual generators of the sequential rule (observer plus whitening) and their
+    joint simulation.
+settings
+    Settings, output record and codes of the sequential rule.
+hypotheses
+    Hypothesis bank and isolation decision of the sequential rule.
+onset
+    Change-time estimates of the sequential rule.
+signatures
+    Fault signatures on the main filter's whitened residual and their running sums.
+fault_typing
+    Fit of the fault types of the sequential rule.
+presence
+    Presence test of an isolated fault (sequential rule).
 sequential_diagnosis
-    The sequential decision rule: whitened residual generator, CUSUM
-    (:mod:`gyrodiag.common.cusum`), isolation.
+    The sequential decision rule: detection, episodes and the sample history over
+    the modules above (it re-exports the public names of generators and settings).
 gains
     Memo of observer designs, seeded by the table a build ships.
 channel
@@ -74,6 +89,21 @@ _EXPORTS = {
     "SequentialSettings": "sequential_diagnosis",
     "design_residual_generator": "sequential_diagnosis",
     "simulate_fault_free": "sequential_diagnosis",
+    "FaultTyper": "fault_typing",
+    "PRESENCE_CONSTANT": "fault_typing",
+    "PRESENCE_MODEL": "fault_typing",
+    "PRESENCE_NONE": "fault_typing",
+    "PRESENCE_VARIANCE": "fault_typing",
+    "HypothesisBank": "hypotheses",
+    "hypotheses_of": "hypotheses",
+    "refine_onset": "onset",
+    "walk_back": "onset",
+    "FaultSignatures": "signatures",
+    "N_REG": "signatures",
+    "REG_BIAS": "signatures",
+    "REG_GAIN": "signatures",
+    "REG_RAMP": "signatures",
+    "PresenceTest": "presence",
     "DECISIONS": "channel",
     "DECISION_AUTO": "channel",
     "DFChannel": "channel",

@@ -59,17 +59,13 @@ from ..common._validation import (
 )
 from ..common.state import migrate, stamp
 from .filter import DetectionFilter, ResidualThresholds, design_detection_filter
+from .generators import _gust_disturbance
 from .gust import GustModel
 from .isolation import ENERGY_MIN_SAMPLES, FaultType, SensorFaultIsolator
 from .plant import seed_aircraft
 from .residual import ResidualModel, estimate_sensor_variances
 from .sensor_dynamics import SensorDynamics, SensorDynamicsEqualiser
-from .sequential_diagnosis import (
-    FaultKind,
-    SequentialDiagnoser,
-    SequentialSettings,
-    _gust_disturbance,
-)
+from .sequential_diagnosis import FaultKind, SequentialDiagnoser, SequentialSettings
 
 __all__ = ["DECISIONS", "DECISION_AUTO", "DFChannel", "DFChannelConfig", "DFChannelOutput",
            "decision_rule"]

@@ -3,15 +3,22 @@ faulty sensors, fault typing, episodes.
 
 Building blocks
 ---------------
-* A :class:`ResidualGenerator` is an observer of the plant driven by a subset of the
-  sensors, followed by the filter that whitens its residual
-  (:mod:`gyrodiag.df.residual`): its output is a vector of standardised innovations,
-  white N(0, 1) per channel when the sensors it uses are fault-free. The *main*
-  generator is the Beard–Jones detection filter on all sensors; generator ``¬S`` leaves
-  out the sensors of S (one or two) and so cannot see their faults.
-* :class:`ObserverStack` runs any set of generators as one linear system
-  (one matrix–vector product per sample), :class:`~gyrodiag.common.cusum.CusumBank`
-  tests their outputs.
+* :mod:`gyrodiag.df.generators`: the residual generators (an observer on a subset of
+  the sensors plus the whitening of its residual; the *main* generator is the
+  Beard–Jones detection filter on all sensors, generator ``¬S`` leaves out the sensors
+  of S and so cannot see their faults) and :class:`ObserverStack`, which runs any set
+  of them as one linear system; :class:`~gyrodiag.common.cusum.CusumBank` tests their
+  outputs.
+* :mod:`gyrodiag.df.settings`: :class:`SequentialSettings`, :class:`DiagnosisOutput`,
+  :class:`FaultKind` and the ``isolated`` codes.
+* :mod:`gyrodiag.df.hypotheses`: the hypothesis bank and the isolation decision (step
+  2 below); :mod:`gyrodiag.df.onset`: change-time estimates.
+* :mod:`gyrodiag.df.signatures` and :mod:`gyrodiag.df.fault_typing`: the fault
+  signatures on the main filter's whitened residual and the fit of the fault types
+  (step 3 below); :mod:`gyrodiag.df.presence`: the presence test (step 4).
+
+The public names of ``generators`` and ``settings`` are importable from this module
+too, as before the split.
 
 Decision (:class:`SequentialDiagnoser`)
 ---------------------------------------
@@ -47,23 +54,17 @@ model; drifting for h, which integrates γ).
 
 from __future__ import annotations
 
-import itertools
 import math
-from dataclasses import dataclass
-from enum import IntEnum
 from typing import Any
 
 import numpy as np
-import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
 from ..common._distributions import chi2_ppf
-from ..common._records import fast_init
 from ..common._validation import (
     check_finite_array,
     check_in_range,
     check_int,
-    check_nonnegative,
     check_positive,
 )
 from ..common.cusum import (
@@ -73,10 +74,30 @@ from ..common.cusum import (
     variance_cusum_increment,
     variance_cusum_threshold,
 )
-from .filter import DetectionFilter, observable_subspace, zoh_discretise
+from .fault_typing import (
+    PRESENCE_CONSTANT,
+    PRESENCE_MODEL,
+    PRESENCE_NONE,
+    FaultTyper,
+)
+from .generators import (
+    ObserverStack,
+    ResidualGenerator,
+    _gust_disturbance,  # noqa: F401  (re-exported: callers import it from here)
+    design_residual_generator,
+)
 from .gust import GustModel
-from .isolation import place_observer_gain
-from .residual import Disturbance, ResidualModel, Whitening
+from .hypotheses import HypothesisBank, hypotheses_of
+from .onset import refine_onset, walk_back
+from .presence import PresenceTest
+from .settings import (
+    MULTIPLE,
+    NOT_ISOLATED,
+    DiagnosisOutput,
+    FaultKind,
+    SequentialSettings,
+)
+from .signatures import FaultSignatures
 
 __all__ = [
     "MULTIPLE",
@@ -93,443 +114,26 @@ __all__ = [
 
 _FloatArray = NDArray[np.float64]
 
-#: ``isolated`` value: a fault is (or was) detected but no single hypothesis is left.
-NOT_ISOLATED = -1
-#: ``isolated`` value: more than one sensor is faulty (see ``isolated_set``).
-MULTIPLE = -2
-
-
-class FaultKind(IntEnum):
-    """Fault type codes of the sequential diagnosis (integer outputs)."""
-
-    UNKNOWN = -1
-    NONE = 0
-    BIAS = 1
-    GAIN = 2
-    STUCK = 3
-    FAILURE = 4
-    NOISE = 5
-    RAMP = 6
-    INTERMITTENT = 7
-
-
-# ------------------------------------------------------------------- residual generators
-
-
-@dataclass(frozen=True)
-class ResidualGenerator:
-    """An observer on a subset of the sensors plus the whitening of its residual.
-
-    In full state coordinates (n): ``x̂⁺ = Φ x̂ + Γ u + L (y_used − C_used x̂)``; the
-    residual's whitening filter runs on the observable coordinates (n_o) of
-    (A, C_used) with state ê: ``ε = r − C_o ê``, ``ê⁺ = F_o ê + K_w ε``. Standardised
-    output z = ε / scale.
-
-    Attributes
-    ----------
-    excluded : tuple of int
-        Sensors the observer does not use (empty for the main filter).
-    used : ndarray of int
-        Sensors it uses, in order; its output channels.
-    phi, gamma, gain, c_used : ndarray
-        Φ (n × n), Γ (n × p), L (n × m_used, zero on unobservable directions), C_used.
-    whitening : Whitening
-        Innovations filter of the residual (on n_o observable coordinates).
-    estimates : tuple of bool
-        Per excluded sensor: its value is observable from the used sensors, so
-        ``C_i x̂`` is a fault-free estimate of it.
-    estimate_std : tuple of float
-        Per excluded sensor: standard deviation of ``y_i − C_i x̂`` when fault-free
-        (sensor noise and estimation error), sensor units; for an unobservable sensor,
-        the sensor noise alone (its estimate's error grows with time).
-    c_excluded : ndarray, shape (len(excluded), n)
-        Output rows of the excluded sensors.
-    basis : ndarray, shape (n, n_o)
-        Orthonormal basis of the observable subspace of (A, C_used).
-    dc_noise_std : tuple of float
-        Per excluded sensor: square root of the long-run variance (spectral density at
-        frequency 0) of ``y_i − C_i x̂`` when fault-free: the noise a mean over many
-        samples of the fault estimate sees, sensor units.
-    """
-
-    excluded: tuple[int, ...]
-    used: NDArray[np.int_]
-    phi: _FloatArray
-    gamma: _FloatArray
-    gain: _FloatArray
-    c_used: _FloatArray
-    whitening: Whitening
-    estimates: tuple[bool, ...]
-    estimate_std: tuple[float, ...]
-    c_excluded: _FloatArray
-    dc_noise_std: tuple[float, ...]
-    basis: _FloatArray
-
-    @property
-    def n_states(self) -> int:
-        """Observer plus whitening states."""
-        return self.phi.shape[0] + self.whitening.F.shape[0]
-
-    @property
-    def n_channels(self) -> int:
-        """Output channels (sensors used)."""
-        return self.used.size
-
-    def matrices(self, n_sensors: int) -> tuple[_FloatArray, _FloatArray, _FloatArray,
-                                                  _FloatArray]:
-        """(A_g, B_g, Cz_g, Dz_g) of the composite ``X⁺ = A X + B w``, ``z = Cz X + Dz w``
-        with X = [x̂; ê], w = [u; y] (all sensors), z standardised."""
-        n, p = self.gamma.shape
-        wh = self.whitening
-        n_o = wh.F.shape[0]
-        sel = np.zeros((self.used.size, n_sensors))
-        sel[np.arange(self.used.size), self.used] = 1.0
-        a = np.zeros((n + n_o, n + n_o))
-        a[:n, :n] = self.phi - self.gain @ self.c_used
-        a[n:, :n] = -wh.K @ self.c_used
-        a[n:, n:] = wh.F - wh.K @ wh.C
-        b = np.zeros((n + n_o, p + n_sensors))
-        b[:n, :p] = self.gamma
-        b[:n, p:] = self.gain @ sel
-        b[n:, p:] = wh.K @ sel
-        inv = 1.0 / wh.scale
-        cz = np.zeros((self.used.size, n + n_o))
-        cz[:, :n] = -inv[:, None] * self.c_used
-        cz[:, n:] = -inv[:, None] * wh.C
-        dz = np.zeros((self.used.size, p + n_sensors))
-        dz[:, p:] = inv[:, None] * sel
-        return a, b, cz, dz
-
-
-def design_residual_generator(
-    A: _FloatArray, B: _FloatArray, C: _FloatArray, sample_period_s: float,
-    excluded: tuple[int, ...], sensor_variances: _FloatArray, *,
-    main_gain: _FloatArray | None = None, eigenvalues: _FloatArray | None = None,
-    regularisation: float = 0.01, gust: GustModel | None = None,
-) -> ResidualGenerator:
-    """Design one generator (inputs are assumed validated by the caller).
-
-    The main generator (``excluded = ()``) takes the Beard–Jones gain ``main_gain``
-    discretised as :class:`~gyrodiag.df.filter.DetectionFilter` does; the others
-    place the poles exp(λ T) of their observable subspace, λ = ``eigenvalues`` (default
-    −1, −2, …). With ``gust`` the whitening models the turbulence too (its residual is
-    the innovation of the Kalman filter of the plant augmented with the gust filter).
-    """
-    m = C.shape[0]
-    used = np.array([i for i in range(m) if i not in excluded], dtype=int)
-    c_used = C[used]
-    phi, gamma = zoh_discretise(A, B, sample_period_s)
-    if not excluded:
-        if main_gain is None:
-            raise ValueError("main_gain is required for the main generator")
-        df = DetectionFilter(A, B, C, main_gain, sample_period_s)
-        basis = np.eye(A.shape[0])
-        gain_o = df.discrete_gain
-        phi_o = phi
-        c_o = c_used
-    else:
-        basis = observable_subspace(A, c_used)
-        n_o = basis.shape[1]
-        phi_o, _ = zoh_discretise(basis.T @ A @ basis, basis.T @ B, sample_period_s)
-        c_o = c_used @ basis
-        lam = -np.arange(1.0, n_o + 1.0) if eigenvalues is None else eigenvalues[:n_o]
-        gain_o = place_observer_gain(phi_o, c_o, np.exp(lam * sample_period_s))
-    gain = basis @ gain_o
-    f_o = phi_o - gain_o @ c_o
-    model = ResidualModel(f_o, gain_o, c_o, _gust_disturbance(gust, A, sample_period_s, basis))
-    var_used = sensor_variances[used]
-    whitening = model.whitening(var_used, regularisation)
-    estimates, stds, dc_stds = [], [], []
-    p_o = model.state_covariance(var_used)
-    # fault-free y_i − C_i x̂ = v_i + C_i T e_o; at frequency 0, e_o = −(I − F_o)⁻¹ L_o v
-    dc_map = np.linalg.solve(np.eye(f_o.shape[0]) - f_o, gain_o)
-    for i in excluded:
-        row = C[i] @ basis
-        ok = bool(np.linalg.norm(row) >= (1.0 - 1e-9) * np.linalg.norm(C[i]) > 0.0)
-        estimates.append(ok)
-        est_var = float(row @ p_o @ row) if ok else 0.0
-        stds.append(math.sqrt(sensor_variances[i] + est_var))
-        g = row @ dc_map if ok else np.zeros(used.size)
-        dc_stds.append(math.sqrt(sensor_variances[i] + float(g**2 @ var_used)))
-    return ResidualGenerator(
-        excluded=tuple(excluded), used=used, phi=phi, gamma=gamma, gain=gain,
-        c_used=c_used, whitening=whitening, estimates=tuple(estimates),
-        estimate_std=tuple(stds), c_excluded=C[list(excluded)].reshape(len(excluded), C.shape[1]),
-        dc_noise_std=tuple(dc_stds), basis=basis,
-    )
-
-
-def _gust_disturbance(gust: GustModel | None, A: _FloatArray, sample_period_s: float,
-                      basis: _FloatArray) -> Disturbance | None:
-    """The gust as a disturbance of the observer error in the coordinates ``basis``."""
-    if gust is None:
-        return None
-    phi_xg, phi_g, q = gust.discrete(A, sample_period_s)
-    n, n_o, d = A.shape[0], basis.shape[1], phi_g.shape[0]
-    proj = np.zeros((n_o + d, n + d))
-    proj[:n_o, :n] = basis.T
-    proj[n_o:, n:] = np.eye(d)
-    return Disturbance(G=basis.T @ phi_xg, Fd=phi_g, Q=proj @ q @ proj.T)
-
-
-class ObserverStack:
-    """Several residual generators run as one linear system.
-
-    ``update(w)`` returns the standardised innovations of every generator (concatenated
-    in order) for the sample w = [u; y] and advances the state; the a-priori estimates
-    ``C_i x̂`` of every generator's excluded sensors are returned beside them.
-
-    Parameters
-    ----------
-    generators : list of ResidualGenerator
-    n_inputs, n_sensors : int
-        p and m of the plant.
-    channel_scale : list of array_like, optional
-        Per generator, per channel: extra division of z (>= 1), from an empirical check
-        of the whitened variance (see :meth:`SequentialDiagnoser.calibrate_scales`).
-    """
-
-    def __init__(self, generators: list[ResidualGenerator], n_inputs: int, n_sensors: int,
-                 channel_scale: list[_FloatArray] | None = None,
-                 residuals: bool = False) -> None:
-        self.generators = generators
-        self.p, self.m = n_inputs, n_sensors
-        self.n_state = sum(g.n_states for g in generators)
-        self.n_out = sum(g.n_channels for g in generators)
-        self.n_est = sum(len(g.excluded) for g in generators)
-        n_res = self.n_out if residuals else 0
-        n_all = self.n_state + self.p + self.m
-        ab = np.zeros((self.n_state, n_all))
-        cd = np.zeros((self.n_out + self.n_est + n_res, n_all))
-        self.state_slices: list[slice] = []
-        self.out_slices: list[slice] = []
-        self.est_slices: list[slice] = []
-        s0 = o0 = e0 = 0
-        n = generators[0].phi.shape[0] if generators else 0
-        self.n = n
-        for g in generators:
-            a, b, cz, dz = g.matrices(self.m)
-            ns, nc, ne = g.n_states, g.n_channels, len(g.excluded)
-            ab[s0:s0 + ns, s0:s0 + ns] = a
-            ab[s0:s0 + ns, self.n_state:] = b
-            cd[o0:o0 + nc, s0:s0 + ns] = cz
-            cd[o0:o0 + nc, self.n_state:] = dz
-            # a-priori estimates C_i x̂ of the excluded sensors (sensor units)
-            cd[self.n_out + e0:self.n_out + e0 + ne, s0:s0 + n] = g.c_excluded
-            if residuals:
-                # raw residual y_used − C_used x̂ (sensor units)
-                row = self.n_out + self.n_est + o0
-                cd[row:row + nc, s0:s0 + n] = -g.c_used
-                cd[row + np.arange(nc), self.n_state + self.p + g.used] = 1.0
-            self.state_slices.append(slice(s0, s0 + ns))
-            self.out_slices.append(slice(o0, o0 + nc))
-            self.est_slices.append(slice(e0, e0 + ne))
-            s0, o0, e0 = s0 + ns, o0 + nc, e0 + ne
-        self._ab0, self._cd0 = ab, cd
-        self.set_channel_scale(channel_scale)
-        self.reset()
-
-    def set_channel_scale(self, channel_scale: list[_FloatArray] | None) -> None:
-        """Divide each generator's z by these per-channel factors (None: by 1)."""
-        cd = self._cd0.copy()
-        scales = []
-        for k, g in enumerate(self.generators):
-            f = (np.ones(g.n_channels) if channel_scale is None
-                 else np.asarray(channel_scale[k], dtype=float))
-            cd[self.out_slices[k]] /= f[:, None]
-            scales.append(f.copy())
-        self.channel_scale = scales
-        self._ab = self._ab0
-        self._cd = cd
-        # [A B; Cz Dz] stacked: one matrix-vector product per sample instead of two
-        self._abcd = np.vstack([self._ab, cd])
-
-    def reset(self) -> None:
-        """All states zero."""
-        self.x = np.zeros(self.n_state)
-
-    def system(self) -> tuple[_FloatArray, _FloatArray, _FloatArray, _FloatArray]:
-        """(A, B, Cz, Dz) of ``X⁺ = A X + B w``, ``z = Cz X + Dz w`` (copies, with the
-        channel scales)."""
-        ns = self.n_state
-        return (self._ab[:, :ns].copy(), self._ab[:, ns:].copy(),
-                self._cd[:self.n_out, :ns].copy(), self._cd[:self.n_out, ns:].copy())
-
-    def set_observer_state(self, index: int, xhat: _FloatArray,
-                           disturbance: _FloatArray | None = None) -> None:
-        """Observer of generator ``index`` to the full-state estimate ``xhat``, its
-        whitening state to zero, or with ``disturbance`` (the main generator's whitening
-        state [ê; ĝ], with a gust model) to the same error and gust estimates."""
-        sl = self.state_slices[index]
-        self.x[sl] = 0.0
-        self.x[sl.start:sl.start + self.n] = xhat
-        if disturbance is not None and disturbance.size:
-            # the main filter's whitening state [ê (n); ĝ]: its error estimate in this
-            # generator's observable coordinates, and the disturbance estimate as is
-            gen = self.generators[index]
-            n_d = disturbance.size - self.n
-            start = sl.start + self.n
-            self.x[start:start + gen.basis.shape[1]] = gen.basis.T @ disturbance[:self.n]
-            self.x[sl.stop - n_d:sl.stop] = disturbance[self.n:]
-
-    def observer_state(self, index: int) -> _FloatArray:
-        """Full-state estimate x̂ of generator ``index`` (a-priori for the next sample)."""
-        sl = self.state_slices[index]
-        return self.x[sl.start:sl.start + self.n].copy()
-
-    def update(self, w: _FloatArray) -> tuple[_FloatArray, _FloatArray]:
-        """(z of all generators, a-priori estimates of all excluded sensors, and the raw
-        residuals when built with ``residuals``) for the sample ``w = [u; y]``; then
-        advance. ``w`` is not validated."""
-        full = self._abcd @ np.concatenate((self.x, w))
-        ns = self.n_state
-        self.x = full[:ns]
-        return full[ns:ns + self.n_out], full[ns + self.n_out:]
-
-
-
-# ---------------------------------------------------------------------------- settings
-
-
-@dataclass(frozen=True)
-class SequentialSettings:
-    """Settings of :class:`SequentialDiagnoser` (checked by :meth:`validate`).
-
-    Attributes
-    ----------
-    false_alarms_per_h : float
-        Design false-alarm rate of the detection (all main charts together), 1/h.
-    cusum_k : float
-        Mean-CUSUM reference, σ of the whitened residual (optimal for shifts of 2k).
-    variance_ratio : float
-        Variance increase the variance CUSUMs are designed for (> 1).
-    release : float
-        A channel's alarm clears below ``release`` × threshold (0 < release < 1).
-    max_faults : int
-        1: hypothesis generators for single faults; 2: also for every pair of sensors.
-    history_s : float
-        Samples kept to start the hypothesis generators before the change time, s.
-    replay_margin_s : float
-        The generators start this long before the estimated change time, s.
-    memory_s : float
-        The hypothesis generators stop this long after the last episode ended, s.
-    regularisation : float
-        Whitening regularisation (see :mod:`gyrodiag.df.residual`).
-    bank_eigenvalues : tuple of float or None
-        Continuous eigenvalues of the hypothesis observers, 1/s (default −1, −2, …).
-    type_min_s : float
-        Fault estimate needed before a type is given, s.
-    type_period_s : float
-        The type is refitted this often during an episode (and at every sample while
-        it is still unknown), s.
-    stuck_window_s : float
-        Window of the constant-output (stuck/failure) test, s.
-    type_significance : float
-        Chi-square (1 dof) level a richer fault model must beat the bias by, in units
-        of the long-run noise of the fault estimate.
-    """
-
-    false_alarms_per_h: float = 1e-3
-    cusum_k: float = 0.5
-    variance_ratio: float = 4.0
-    release: float = 0.5
-    max_faults: int = 2
-    history_s: float = 4.0
-    replay_margin_s: float = 0.5
-    memory_s: float = 10.0
-    regularisation: float = 0.01
-    bank_eigenvalues: tuple[float, ...] | None = None
-    type_min_s: float = 0.1
-    type_period_s: float = 0.05
-    stuck_window_s: float = 0.2
-    type_significance: float = 25.0
-
-    def validate(self) -> None:
-        """Raise ValueError/TypeError naming the first invalid setting."""
-        check_positive("false_alarms_per_h", self.false_alarms_per_h)
-        check_in_range("cusum_k", self.cusum_k, 0.05, 5.0)
-        check_in_range("variance_ratio", self.variance_ratio, 1.0, 1e6, low_open=True)
-        check_in_range("release", self.release, 0.0, 1.0, low_open=True, high_open=True)
-        if check_int("max_faults", self.max_faults, minimum=1) > 2:
-            raise ValueError(f"max_faults must be 1 or 2, got {self.max_faults!r}")
-        check_positive("history_s", self.history_s)
-        check_nonnegative("replay_margin_s", self.replay_margin_s)
-        check_nonnegative("memory_s", self.memory_s)
-        check_in_range("regularisation", self.regularisation, 0.0, 1.0, low_open=True)
-        if self.bank_eigenvalues is not None:
-            lam = check_finite_array("bank_eigenvalues", self.bank_eigenvalues, ndim=1)
-            if np.any(lam >= 0.0) or np.unique(lam).size != lam.size:
-                raise ValueError("bank_eigenvalues must be distinct and < 0")
-        check_positive("type_min_s", self.type_min_s)
-        check_positive("type_period_s", self.type_period_s)
-        check_positive("stuck_window_s", self.stuck_window_s)
-        check_positive("type_significance", self.type_significance)
-
-
-@fast_init
-@dataclass(frozen=True)
-class DiagnosisOutput:
-    """Result of one :meth:`SequentialDiagnoser.update`.
-
-    Attributes
-    ----------
-    residual : ndarray, shape (m,)
-        Main detection-filter residual y − C x̂ (sensor units).
-    alarms : ndarray of bool, shape (m,)
-        Main CUSUM alarm per sensor channel.
-    statistic : ndarray, shape (m,)
-        Largest main CUSUM statistic per channel in units of its threshold (0–1).
-    detected : bool
-        A fault episode is in progress.
-    episodes : int
-        Episodes since reset.
-    status : str
-        "none" (never detected), "not isolated", "single", "pair" or "multiple": the
-        current or, between episodes, the last diagnosis.
-    isolated : tuple of int
-        Sensors (0-based) of that diagnosis ("single": one, "pair": two, else none).
-    fault_type : ndarray of int, shape (m,)
-        :class:`FaultKind` per sensor (NONE for sensors not isolated).
-    magnitude : ndarray, shape (m,)
-        Per isolated sensor: bias or intermittent amplitude (sensor units), gain factor,
-        stuck value, 0 for a failure, ramp rate (sensor units per s), total noise std
-        as a multiple of the nominal; 0 where ``magnitude_valid`` is False.
-    magnitude_valid : ndarray of bool, shape (m,)
-    """
-
-    residual: _FloatArray
-    alarms: NDArray[np.bool_]
-    statistic: _FloatArray
-    detected: bool
-    episodes: int
-    status: str
-    isolated: tuple[int, ...]
-    fault_type: NDArray[np.int_]
-    magnitude: _FloatArray
-    magnitude_valid: NDArray[np.bool_]
-
-
 #: Status codes kept in the saved state.
 _STATUS = ("none", "not isolated", "single", "pair", "multiple")
-#: Fault-estimate sums per (generator, excluded sensor), see ``_accumulate``.
-_SUMS = ("n", "f", "ff", "h", "hh", "fh", "t", "tt", "ft", "e", "ef", "yhat0")
-
-
-# -------------------------------------------------------------------------- diagnoser
-
-#: Status codes kept in the saved state.
-_STATUS = ("none", "not isolated", "single", "pair", "multiple")
-#: Fault-signal regressors per sensor, from the episode's change time on: a step
-#: (bias), time since the change in s (ramp) and the sensor's own reading (gain: y = g x
-#: means the fault is (1 − 1/g)·y).
-_BIAS, _RAMP, _GAIN = range(3)
-_N_REG = 3
 #: With a gust model, no refit while the presence test's statistic is at this fraction
 #: of its threshold: a fault's whitened signature is short, and a refit (a ramp for a
 #: burst that ended) would explain away the misfit that ends the episode.
 PRESENCE_HOLD = 0.5
-#: How the presence of an isolated fault is followed.
-_PRESENCE_NONE, _PRESENCE_MODEL, _PRESENCE_VARIANCE, _PRESENCE_CONSTANT = range(4)
+#: Keys of the saved state, in the order :meth:`SequentialDiagnoser.get_state` has
+#: always given them (its parts own some of them).
+_STATE_KEYS = (
+    "main_x", "main_scale", "bank_x", "bank_scale", "main_cusum", "bank_cusum", "presence",
+    "count", "hist_w", "hist_x", "hist_z", "hist_d", "in_episode", "episodes", "wait_clear",
+    "bank_active", "last_end", "change", "record_episodes", "inconsistent", "sig", "gram_c",
+    "gz_c", "zz_c", "n_rec", "n_after", "g_last", "z_last", "y_prev", "status", "isolated",
+    "iso_gen", "model_cols", "theta", "previous_isolated", "previous_types",
+    "previous_mags", "presence_mode", "presence_zero", "presence_start", "hist_c", "types",
+    "mags", "mag_valid",
+)
+#: Integer entries of the saved state the diagnoser itself owns.
+_INT_KEYS = ("count", "in_episode", "episodes", "bank_active", "last_end", "change",
+             "record_episodes", "wait_clear")
 
 
 class SequentialDiagnoser:
@@ -558,15 +162,12 @@ class SequentialDiagnoser:
     plant from the sample of y on) and does not validate them: the owning channel
     checks each sample once.
 
-    Typing is a generalised likelihood ratio on the main filter's whitened residual z:
-    a fault signal φ on sensor i enters z linearly, z_k = z⁰_k + G_k θ, where the
-    signature G_k is the response of the (whitened) main filter to φ up to k, computed
-    by running a copy of its dynamics on φ. z⁰ is white N(0, I), so least squares on
-    the running sums of GᵀG, Gᵀz and zᵀz is the maximum-likelihood fit and differences
-    of residual sums of squares are χ² tests, whatever the colour of the detection
-    filter's own residual. This uses every sensor, not only a fault-free estimate of
-    the faulty one (the pitch rate's estimate from the other sensors has 42 times the
-    sensor noise at low frequency on the seed aircraft).
+    This class runs the detection and the episodes and keeps the sample history; its
+    parts are the hypothesis bank (``hypothesis_bank``,
+    :class:`~gyrodiag.df.hypotheses.HypothesisBank`), the fault signatures
+    (``signatures``, :class:`~gyrodiag.df.signatures.FaultSignatures`), the typing
+    (``typer``, :class:`~gyrodiag.df.fault_typing.FaultTyper`) and the presence test
+    (``presence``, :class:`~gyrodiag.df.presence.PresenceTest`).
     """
 
     def __init__(self, A: ArrayLike, B: ArrayLike, C: ArrayLike, K: ArrayLike,
@@ -588,24 +189,28 @@ class SequentialDiagnoser:
             raise ValueError("sensor_variances must be > 0 on every sensor")
         self.sensor_variances = var
         self.x0 = np.zeros(n) if x0 is None else check_finite_array("x0", x0, shape=(n,))
+        self._design(a, b, c, gain)
+        self._install_signature_matrices()
+        self.reset()
+
+    def _design(self, a: _FloatArray, b: _FloatArray, c: _FloatArray,
+                gain: _FloatArray) -> None:
+        """Residual generators, CUSUM thresholds, window lengths and the parts."""
         st = self.settings
+        var, gust = self.sensor_variances, self.gust
         lam = None if st.bank_eigenvalues is None else np.asarray(st.bank_eigenvalues, float)
         reg = st.regularisation
         self.main_generator = design_residual_generator(
             a, b, c, self.T, (), var, main_gain=gain, regularisation=reg, gust=gust)
-        hyps: list[tuple[int, ...]] = [(i,) for i in range(self.m)]
-        if st.max_faults >= 2:
-            hyps += list(itertools.combinations(range(self.m), 2))
-        self.hypotheses = hyps
+        self.hypotheses = hypotheses_of(self.m, st.max_faults)
         self.bank_generators = [
             design_residual_generator(a, b, c, self.T, h, var, eigenvalues=lam,
                                       regularisation=reg, gust=gust)
-            for h in hyps
+            for h in self.hypotheses
         ]
         self.main = ObserverStack([self.main_generator], self.p, self.m, residuals=True)
         #: size of the disturbance (gust) state at the end of every whitening state
         self._n_dist = 0 if gust is None else self.main.n_state - self.n
-        self.bank = ObserverStack(self.bank_generators, self.p, self.m)
         self.c_matrix = c
 
         # CUSUM thresholds for the design rate over the 3 m main charts (union bound);
@@ -615,20 +220,22 @@ class SequentialDiagnoser:
         self.h_variance = variance_cusum_threshold(arl, st.variance_ratio)
         self.chart_arl = arl
         self.main_cusum = self._new_cusum(self.m)
-        self.bank_cusum = self._new_cusum(self.bank.n_out)
-        self._bank_gen_of_channel = np.concatenate([
-            np.full(g.n_channels, k) for k, g in enumerate(self.bank_generators)])
+        self.hypothesis_bank = HypothesisBank(self.bank_generators, self.p, self.m,
+                                              self._new_cusum)
+        self.bank = self.hypothesis_bank.stack
+        self._bank_gen_of_channel = self.hypothesis_bank.gen_of_channel
         self._n_hist = max(2, round(st.history_s / self.T))
         self._margin = round(st.replay_margin_s / self.T)
         self._memory = round(st.memory_s / self.T)
-        self._type_min = max(2, round(st.type_min_s / self.T))
         self._stuck_n = max(2, round(st.stuck_window_s / self.T))
-        self._reg_sensor = np.repeat(np.arange(self.m), _N_REG)
         self._onset_window = max(10, round(0.1 / self.T))
         self._isolation_window = max(self._onset_window, round(0.5 / self.T))
         self._type_every = max(1, round(st.type_period_s / self.T))
-        self._install_signature_matrices()
-        self.reset()
+        # walking a CUSUM back, "zero" is below a tiny fraction of the threshold
+        self._zero_tol = 1e-9 * self.h_mean
+        self.signatures = FaultSignatures(self.m, self.p, self.T, var, self._n_hist)
+        self.typer = FaultTyper(self.signatures, var, st)
+        self.presence = PresenceTest(self.m, self._n_hist, self._new_cusum, self._zero_tol)
 
     def _new_cusum(self, n_channels: int) -> CusumBank:
         st = self.settings
@@ -636,43 +243,13 @@ class SequentialDiagnoser:
                          self.h_variance, st.release)
 
     def _install_signature_matrices(self) -> None:
-        """Main filter dynamics seen from a fault signal on each sensor (with the
-        current channel scales) and, per sensor, the summed variance of z per unit
-        variance of extra white noise on it, per channel (for the size of a noise
-        increase)."""
-        a_c, b_all, c_z, d_all = self.main.system()
-        b_s, d_s = b_all[:, self.p:], d_all[:, self.p:]
-        self._sig_a = a_c
-        self._sig_b = b_s[:, self._reg_sensor]
-        self._sig_c = c_z
-        self._sig_d = d_s[:, self._reg_sensor]
-        power = np.zeros((self.m, self.m))
-        for i in range(self.m):
-            pi = scipy.linalg.solve_discrete_lyapunov(a_c, np.outer(b_s[:, i], b_s[:, i]))
-            power[:, i] = np.diag(c_z @ pi @ c_z.T) + d_s[:, i] ** 2
-        self._noise_power_c = power
-        # z response to a unit step on each sensor, for the onset refinement, and the
-        # expected noise energy a reading used as a regressor brings into the sums
-        steps = np.zeros((self._n_hist, self.m, self.m))
-        impulse = np.zeros((self._n_hist, self.m, self.m))
-        x = np.zeros((a_c.shape[0], self.m))
-        xi = b_s.copy()
-        impulse[0] = d_s
-        for j in range(self._n_hist):
-            steps[j] = c_z @ x + d_s
-            x = a_c @ x + b_s
-            if j > 0:
-                impulse[j] = c_z @ xi
-                xi = a_c @ xi
-        self._step_response = steps
-        # filter state after j samples of a unit step on each sensor (j = 0 … history)
-        state = np.zeros((self._n_hist, a_c.shape[0], self.m))
-        for j in range(1, self._n_hist):
-            state[j] = a_c @ state[j - 1] + b_s
-        self._step_state = state
-        energy = np.cumsum(impulse**2, axis=0)  # (l, channel, sensor): Σ_{j≤l} h(j)²
-        self._noise_sums = np.concatenate([np.zeros((1, self.m, self.m)),
-                                           np.cumsum(energy, axis=0)])
+        """The signature matrices for the main filter's current channel scales."""
+        self.signatures.install(self.main.system())
+
+    @property
+    def bank_cusum(self) -> CusumBank:
+        """CUSUM charts of the hypothesis generators."""
+        return self.hypothesis_bank.cusum
 
     # ------------------------------------------------------------------- calibration
 
@@ -733,10 +310,9 @@ class SequentialDiagnoser:
         """Main filter to x0, no episode, no hypothesis running, history empty."""
         self.main.reset()
         self.main.set_observer_state(0, self.x0)
-        self.bank.reset()
         self.main_cusum.reset()
-        self.bank_cusum.reset()
-        m, nr = self.m, _N_REG * self.m
+        self.hypothesis_bank.reset()
+        m = self.m
         self._count = 0
         self._hist_w = np.zeros((self._n_hist, self.p + m))
         self._hist_x = np.zeros((self._n_hist, self.n))
@@ -749,34 +325,15 @@ class SequentialDiagnoser:
         self._last_end = -1
         self._change = -1
         self._record_episodes = 0
-        self._previous: tuple[tuple[int, ...], NDArray[np.int_], _FloatArray] = (
-            (), np.zeros(m, dtype=int), np.zeros(m))
-        self._inconsistent = np.zeros(len(self.bank_generators), dtype=bool)
-        self._sig = np.zeros((self.main.n_state, nr))
-        self._gram_c = np.zeros((m, nr, nr))
-        self._gz_c = np.zeros((m, nr))
-        self._zz_c = np.zeros(m)
-        self._n_rec = 0
-        self._n_after = 0
-        self._g_last = np.zeros((m, nr))
-        self._z_last = np.zeros(m)
-        self._y_prev = np.zeros(m)
         self._status = "none"
         self._isolated: tuple[int, ...] = ()
         self._iso_gen = -1
-        self._model_cols = np.zeros(0, dtype=int)
-        self._theta = np.zeros(0)
-        self._presence_mode = _PRESENCE_NONE
-        self._presence: CusumBank | None = None
-        self._presence_zero = 0
-        self._presence_start = 0
-        self._hist_c = np.zeros((self._n_hist, m))
-        self._types = np.zeros(m, dtype=int)
-        self._mags = np.zeros(m)
-        self._mag_valid = np.zeros(m, dtype=bool)
-        self._out_types = self._types.copy()
-        self._out_mags = self._mags.copy()
-        self._out_valid = self._mag_valid.copy()
+        self.signatures.reset(self.main.n_state)
+        self.typer.reset()
+        self.presence.reset()
+        self._out_types = self.typer.types.copy()
+        self._out_mags = self.typer.mags.copy()
+        self._out_valid = self.typer.mag_valid.copy()
         self._last = DiagnosisOutput(
             np.zeros(m), np.zeros(m, dtype=bool), np.zeros(m), False, 0, "none", (),
             self._out_types, self._out_mags, self._out_valid)
@@ -836,12 +393,13 @@ class SequentialDiagnoser:
 
     def _publish(self) -> None:
         """Snapshot the diagnosis for the outputs when it changed."""
-        if not (np.array_equal(self._types, self._out_types)
-                and np.array_equal(self._mags, self._out_mags)
-                and np.array_equal(self._mag_valid, self._out_valid)):
-            self._out_types = self._types.copy()
-            self._out_mags = self._mags.copy()
-            self._out_valid = self._mag_valid.copy()
+        typer = self.typer
+        if not (np.array_equal(typer.types, self._out_types)
+                and np.array_equal(typer.mags, self._out_mags)
+                and np.array_equal(typer.mag_valid, self._out_valid)):
+            self._out_types = typer.types.copy()
+            self._out_mags = typer.mags.copy()
+            self._out_valid = typer.mag_valid.copy()
 
     # ------------------------------------------------------------------ episodes
 
@@ -853,381 +411,95 @@ class SequentialDiagnoser:
         if self._status == "none":
             self._status = "not isolated"
         oldest = max(0, k - self._n_hist + 1)
-        change = self._cusum_change(k, oldest)
-        self._change = self._refine_onset(change, oldest, k)
+        change = walk_back(self.main_cusum, self._hist_z, k, oldest, self._zero_tol)
+        self._change = refine_onset(self._hist_z, self.signatures.step_response, change,
+                                    oldest, k, self._onset_window)
         # not before the previous episode's end: its samples carry that fault
         start = max(oldest, self._change - self._margin, self._last_end + 1)
         if self._bank_active:
             self._record_episodes += 1
             if self._iso_gen >= 0:
-                self._previous = (self._isolated, self._types.copy(), self._mags.copy())
+                self.typer.remember(self._isolated)
             self._start_signatures(start, k)
             return False
         self._record_episodes = 1
-        self._previous = ((), np.zeros(self.m, dtype=int), np.zeros(self.m))
-        xhat = self._hist_x[start % self._n_hist]
-        gust = self._hist_d[start % self._n_hist]
-        self.bank.reset()
-        for g in range(len(self.bank_generators)):
-            self.bank.set_observer_state(g, xhat, gust)
-        self.bank_cusum.reset(start)
-        self._inconsistent[:] = False
+        self.typer.remember(None)
+        self.hypothesis_bank.start(self._hist_x[start % self._n_hist],
+                                   self._hist_d[start % self._n_hist], start)
         self._bank_active = True
         self._status, self._isolated, self._iso_gen = "not isolated", (), -1
         for j in range(start, k + 1):
-            self._bank_step(self._hist_w[j % self._n_hist])
+            self.hypothesis_bank.step(self._hist_w[j % self._n_hist])
         self._start_signatures(start, k)
         return True
 
-    def _cusum_change(self, k: int, oldest: int) -> int:
-        """The CUSUM change-time estimate of the main alarm raised at sample k."""
-        return self._walk_back(self.main_cusum, self._hist_z, k, oldest)
-
-    def _walk_back(self, cusum: CusumBank, history: _FloatArray, k: int, oldest: int) -> int:
-        """The change time of the alarm ``cusum`` raised at sample k: the sample after
-        the newly alarming statistic was last zero (earliest over the charts), found by
-        running its recursion back from the statistics before sample k on the inputs
-        kept in ``history`` (a ring indexed by sample)."""
-        charts = np.flatnonzero(cusum.newly_raised)
-        if charts.size == 0:
-            return k
-        s = cusum.previous_statistics[charts].copy()
-        # walking back subtracts increments: a statistic that was exactly 0 comes back
-        # as a rounding residue, so "zero" is below a tiny fraction of the threshold
-        tol = 1e-9 * self.h_mean
-        j = k - 1
-        while j >= oldest and np.any(s > tol):
-            inc = cusum.increments(history[j % self._n_hist])[charts]
-            s = np.where(s > tol, s - inc, s)
-            j -= 1
-        return j + 1 if not np.any(s > tol) else oldest
-
-    def _refine_onset(self, change: int, oldest: int, k: int,
-                      sensors: tuple[int, ...] = (), window: int | None = None) -> int:
-        """The onset that best explains z as a step (maximum likelihood over onsets
-        within ``window`` samples of ``change``): on any one sensor when ``sensors`` is
-        empty (at detection), else jointly on the given ones (once isolated). The
-        CUSUM's change estimate moves with the noise, by a sample for a large step and
-        by many for a small one; a misplaced onset looks like a model misfit (a large
-        step) or like a ramp (a small one)."""
-        w = self._onset_window if window is None else window
-        lo = max(oldest, change - w)
-        hi = min(k, change + w)
-        if hi <= lo:
-            return change
-        z = self._hist_z[np.arange(lo, k + 1) % self._n_hist]  # (N, m)
-        best, best_j = -1.0, change
-        cols = list(sensors)
-        for j in range(lo, hi + 1):
-            h = self._step_response[:k + 1 - j]  # (L, channels, sensors)
-            if not cols:
-                num = np.einsum("lcs,lc->s", h, z[j - lo:])
-                den = np.einsum("lcs,lcs->s", h, h)
-                score = float(np.max(num * num / np.maximum(den, 1e-300)))
-            else:
-                hs = h[:, :, cols]
-                xz = np.einsum("lcs,lc->s", hs, z[j - lo:])
-                gram = np.einsum("lcs,lct->st", hs, hs)
-                gram += 1e-12 * max(float(np.trace(gram)), 1e-300) * np.eye(len(cols))
-                score = float(xz @ np.linalg.solve(gram, xz))
-            if score > best:
-                best, best_j = score, j
-        return best_j
-
     def _start_signatures(self, start: int, k: int) -> None:
         """Fault signatures and their sums for this episode, from ``start`` (before the
-        change time) to sample k, replayed from the history."""
-        self._y_prev = self._hist_w[(start - 1) % self._n_hist, self.p:].copy()
-        self._sig[:] = 0.0
-        self._gram_c[:] = 0.0
-        self._gz_c[:] = 0.0
-        self._zz_c[:] = 0.0
-        self._n_rec, self._n_after = 0, 0
-        self._clear_diagnosis()
+        change time) to sample k, replayed from the history; no diagnosis yet."""
+        self.signatures.start(self._hist_w[(start - 1) % self._n_hist, self.p:].copy())
+        self.typer.clear()
+        self.presence.stop()
         for j in range(start, k + 1):
             h = j % self._n_hist
-            self._signature_step(self._hist_w[h], self._hist_z[h], j)
+            self.signatures.step(self._hist_w[h], self._hist_z[h], j, self._change)
 
     def _record_step(self, w: _FloatArray, z: _FloatArray, j: int) -> None:
         """Hypothesis generators and (in an episode) fault signatures for sample j."""
-        self._bank_step(w)
+        self.hypothesis_bank.step(w)
         if self._in_episode:
-            self._signature_step(w, z, j)
-
-    def _bank_step(self, w: _FloatArray) -> None:
-        zb, _ = self.bank.update(w)
-        if self.bank_cusum.update(zb):
-            self._inconsistent[self._bank_gen_of_channel[self.bank_cusum.alarms]] = True
-
-    def _signature_step(self, w: _FloatArray, z: _FloatArray, j: int) -> None:
-        if j >= self._change:
-            phi = np.empty((self.m, _N_REG))
-            phi[:, _BIAS] = 1.0
-            phi[:, _RAMP] = (j - self._change) * self.T
-            phi[:, _GAIN] = w[self.p:]
-            phi = phi.reshape(-1)
-            self._n_after += 1
-        else:
-            phi = np.zeros(_N_REG * self.m)
-        g = self._sig_c @ self._sig + self._sig_d * phi
-        self._sig = self._sig_a @ self._sig + self._sig_b * phi
-        self._gram_c += g[:, :, None] * g[:, None, :]
-        self._gz_c += g * z[:, None]
-        self._zz_c += z * z
-        self._n_rec += 1
-        self._g_last, self._z_last = g, z
-        self._y_prev = w[self.p:].copy()
+            self.signatures.step(w, z, j, self._change)
 
     def _end_episode(self, k: int, how: str) -> None:
         """Close the episode.
 
-        ``how``: "model" removes the fitted fault's trace from the main filter (its
-        state is linear in the fault: the signature states times θ), so that it
-        monitors on at once; "none" leaves the main filter to forget the fault by
+        ``how``: "model" removes the fitted fault's trace from the main filter, so that
+        it monitors on at once; "none" leaves the main filter to forget the fault by
         itself, and no new episode starts before its alarm has cleared.
         """
         self._in_episode = False
         self._last_end = k
         if how == "model":
-            cols = self._model_cols
-            if cols.size:
-                trace = self._sig[:, cols] @ self._theta
-                # The test saw the end a few samples late: a bias was already gone from
-                # the sample after its statistic was last zero; its response to those
-                # samples is not in the filter (a 20 σ burst left 1–2 σ otherwise,
-                # enough to spoil the next episode's fit)
-                gone = k + 1 - self._presence_zero
-                if 0 < gone < self._step_state.shape[0]:
-                    for pos, col in enumerate(cols):
-                        if col % _N_REG == _BIAS:
-                            trace = trace - self._theta[pos] * self._step_state[
-                                gone, :, col // _N_REG]
+            trace = self.typer.fault_trace(k + 1 - self.presence.zero)
+            if trace is not None:
                 self.main.x = self.main.x - trace
             self.main_cusum.reset(k + 1)
-            self._sig[:] = 0.0
+            self.signatures.clear_states()
         else:
             self._wait_clear = True
-        self._presence = None
+        self.presence.stop()
 
     # ------------------------------------------------------------------ isolation
 
     def _decide(self, k: int) -> None:
-        consistent = ~self._inconsistent
-        singles = np.flatnonzero(consistent[:self.m])
-        gen = -1
-        if singles.size == 1:
-            gen, status = int(singles[0]), "single"
-        elif singles.size == 0:
-            pairs = np.flatnonzero(consistent[self.m:]) + self.m
-            if pairs.size == 1:
-                gen, status = int(pairs[0]), "pair"
-            else:
-                status = "multiple"
-        else:
-            status = "not isolated"
-        self._status = status
+        """Isolation (the bank's verdict) at sample k; on a new verdict, the onset
+        refined for the sensors isolated; then the typing when due."""
+        gen, self._status = self.hypothesis_bank.verdict()
         changed = gen != self._iso_gen
         if changed:
             self._iso_gen = gen
             self._isolated = self.hypotheses[gen] if gen >= 0 else ()
-            self._presence = None
+            self.presence.stop()
             if gen >= 0:
                 oldest = max(0, k - self._n_hist + 1)
-                onset = self._refine_onset(self._change, oldest, k, self._isolated,
-                                           self._isolation_window)
+                onset = refine_onset(self._hist_z, self.signatures.step_response,
+                                     self._change, oldest, k, self._isolation_window,
+                                     self._isolated)
                 if onset != self._change:
                     self._change = onset
                     self._start_signatures(
                         max(oldest, onset - self._margin, self._last_end + 1), k)
         if changed or (k - self._change) % self._type_every == 0 or (
-                self._types[list(self._isolated)] == FaultKind.UNKNOWN).any():
+                self.typer.types[list(self._isolated)] == FaultKind.UNKNOWN).any():
             self._type(k)
 
-    def _clear_diagnosis(self) -> None:
-        self._types[:] = int(FaultKind.NONE)
-        self._mags[:] = 0.0
-        self._mag_valid[:] = False
-        self._model_cols = np.zeros(0, dtype=int)
-        self._theta = np.zeros(0)
-        self._presence_mode = _PRESENCE_NONE
-        self._presence = None
-
-    # ------------------------------------------------------------------ typing
-
-    def _reading_noise(self) -> _FloatArray:
-        """Expected Σ‖G(v_i)‖² per channel and sensor over the samples since the change,
-        G(v_i) the response to sensor i's own noise (per unit noise variance)."""
-        n = self._n_after
-        sums = self._noise_sums
-        if n < sums.shape[0]:
-            return sums[n]
-        steady = sums[-1] - sums[-2]  # the full impulse-response energy per sample
-        return sums[-1] + (n - sums.shape[0] + 1) * steady
-
-    def _fit(self, cols: list[int]) -> tuple[float, _FloatArray, _FloatArray]:
-        """(residual sum of squares, θ, per-channel residual sums of squares) of z on
-        the signatures ``cols``.
-
-        A gain regressor is the faulty reading itself, noise included: its noise's
-        response is part of z⁰ as well, so both its sum of squares and its cross sum
-        with z carry the expected noise energy, which is taken out (corrected least
-        squares; θ then estimates (g − 1)/g without the pull of the noise)."""
-        if not cols:
-            return float(self._zz_c.sum()), np.zeros(0), self._zz_c.copy()
-        gram_c = self._gram_c[:, cols][:, :, cols].copy()
-        gz_c = self._gz_c[:, cols].copy()
-        gains = [(pos, col // _N_REG) for pos, col in enumerate(cols)
-                 if col % _N_REG == _GAIN]
-        if gains:
-            noise = self._reading_noise()
-            for pos, sensor in gains:
-                e = noise[:, sensor] * self.sensor_variances[sensor]
-                gram_c[:, pos, pos] -= e
-                gz_c[:, pos] -= e
-        gram, xz = gram_c.sum(axis=0), gz_c.sum(axis=0)
-        ridge = 1e-12 * max(float(np.trace(gram)), 1e-300)
-        theta = np.linalg.solve(gram + ridge * np.eye(len(cols)), xz)
-        rss_c = self._zz_c - 2.0 * gz_c @ theta + np.einsum("cij,i,j->c", gram_c, theta, theta)
-        return float(self._zz_c.sum() - theta @ xz), theta, rss_c
-
     def _type(self, k: int) -> None:
-        """Fault type and size of every isolated sensor (class notes).
-
-        A fitted mean model is kept while a new fit is worse than "typed": the misfit
-        that follows the end of the fault is the presence test's to judge.
-        """
-        if self._presence_mode == _PRESENCE_MODEL:
-            if (self._presence is not None and self._n_dist
-                    and float(self._presence.statistic().max()) >= PRESENCE_HOLD):
-                return  # the presence test is judging a misfit: no refit under it
-            saved = (self._types.copy(), self._mags.copy(), self._mag_valid.copy(),
-                     self._model_cols.copy(), self._theta.copy())
-            self._type_now(k)
-            if self._presence_mode == _PRESENCE_NONE:
-                (self._types, self._mags, self._mag_valid, self._model_cols,
-                 self._theta) = saved
-                self._presence_mode = _PRESENCE_MODEL
-            return
-        self._type_now(k)
-
-    def _type_now(self, k: int) -> None:
-        mode, presence = self._presence_mode, self._presence
-        self._clear_diagnosis()
-        self._fit_types(k)
-        if self._presence_mode == mode:
-            self._presence = presence  # the same test goes on
-
-    def _fit_types(self, k: int) -> None:
-        sensors = self._isolated
-        if not sensors:
-            return
-        constant = {i: self._constant_output(i, k) for i in sensors}
-        if self._n_after < self._type_min:
-            for i in sensors:
-                self._types[i] = int(FaultKind.UNKNOWN)
-            return
-        # Greedy model building: a bias on every isolated sensor, then each sensor's
-        # richer model where the likelihood ratio says so. z is white N(0, 1) per
-        # channel when the model fits, but a noise increase raises the variance of the
-        # channels the faulty sensor feeds: an improvement counts only against the
-        # largest per-channel residual variance of the model it improves on (else a
-        # larger noise would make chance improvements look significant).
-        n_rec = self._n_rec
-        tau0 = self.settings.type_significance
-        choice = {i: [_BIAS] for i in sensors}
-
-        def cols_of(ch: dict[int, list[int]]) -> list[int]:
-            return [_N_REG * i + r for i in sensors for r in ch[i]]
-
-        rss_base, _, rss_c = self._fit(cols_of(choice))
-        explained_bias = float(self._zz_c.sum()) - rss_base
-        for i in sensors:
-            alternatives = [[_BIAS, _RAMP]]
-            if self._gain_identifiable(i):
-                alternatives.append([_BIAS, _GAIN])
-            tau = tau0 * max(1.0, float(rss_c.max()) / n_rec)
-            best = (rss_base, choice[i], rss_c)
-            for alt in alternatives:
-                rss, _, rss_alt = self._fit(cols_of({**choice, i: alt}))
-                if rss_base - rss > tau and rss < best[0]:
-                    best = (rss, alt, rss_alt)
-            rss_base, choice[i], rss_c = best
-        cols = cols_of(choice)
-        rss, theta, rss_c = self._fit(cols)
-        level_c = rss_c / n_rec
-        worst = float(level_c.max())
-        noisy = worst > 1.0 + max(0.2, 6.0 * math.sqrt(2.0 / n_rec))
-        pos = 0
-        for i in sensors:
-            kinds = choice[i]
-            values = theta[pos:pos + len(kinds)]
-            pos += len(kinds)
-            if constant[i] is not None:
-                value = constant[i]
-                kind = FaultKind.FAILURE if abs(value) <= 3.0 * math.sqrt(
-                    self.sensor_variances[i]) else FaultKind.STUCK
-                self._set_type(i, kind, 0.0 if kind is FaultKind.FAILURE else value)
-                continue
-            if noisy:
-                if explained_bias < tau0 * worst and kinds == [_BIAS]:
-                    self._set_type(i, FaultKind.NOISE, self._noise_ratio(i, level_c))
-                else:
-                    self._types[i] = int(FaultKind.UNKNOWN)
-                continue
-            if kinds == [_BIAS, _RAMP]:
-                self._set_type(i, FaultKind.RAMP, float(values[1]))
-            elif kinds == [_BIAS, _GAIN]:
-                c = float(values[1])
-                self._set_type(i, FaultKind.GAIN, 1.0 / (1.0 - c) if c < 1.0 else math.inf)
-            elif self._repeats_bias(i, float(values[0])):
-                self._set_type(i, FaultKind.INTERMITTENT, float(values[0]))
-            else:
-                self._set_type(i, FaultKind.BIAS, float(values[0]))
-        self._model_cols, self._theta = np.array(cols, dtype=int), theta
-        types = [FaultKind(int(self._types[i])) for i in sensors]
-        if all(t in (FaultKind.STUCK, FaultKind.FAILURE) for t in types):
-            self._presence_mode = _PRESENCE_CONSTANT
-        elif all(t is FaultKind.NOISE for t in types):
-            self._presence_mode = _PRESENCE_VARIANCE
-        elif all(t in (FaultKind.BIAS, FaultKind.RAMP, FaultKind.GAIN,
-                       FaultKind.INTERMITTENT) for t in types):
-            self._presence_mode = _PRESENCE_MODEL
-        # else (a type unknown, or kinds mixed): the main alarm decides
-
-    def _gain_identifiable(self, sensor: int) -> bool:
-        """The reading's signature varies beyond a constant (the bias signature) by
-        more than its own noise: else a gain cannot be told from a bias (a flat
-        signal, such as the seed aircraft's speed)."""
-        b, g = _N_REG * sensor + _BIAS, _N_REG * sensor + _GAIN
-        gram = self._gram_c[:, [b, g]][:, :, [b, g]].sum(axis=0)
-        noise = float(self._reading_noise()[:, sensor].sum()) * self.sensor_variances[sensor]
-        if gram[0, 0] <= 0.0:
-            return False
-        partial = gram[1, 1] - noise - gram[0, 1] ** 2 / gram[0, 0]
-        return partial > 4.0 * noise
-
-    def _repeats_bias(self, sensor: int, value: float) -> bool:
-        """The previous episode of this record isolated the same sensors and found a
-        bias (or intermittent bias) of about the same size on this sensor."""
-        sensors, types, mags = self._previous
-        return (self._record_episodes >= 2 and tuple(sensors) == self._isolated
-                and int(types[sensor]) in (FaultKind.BIAS, FaultKind.INTERMITTENT)
-                and abs(mags[sensor] - value) <= 0.5 * abs(value))
-
-    def _noise_ratio(self, sensor: int, level_c: _FloatArray) -> float:
-        """Total noise std of ``sensor`` as a multiple of the nominal, from the excess
-        residual variance per channel after the change (least squares over channels
-        of excess_c = (r² − 1)·σ²·power_c, power_c the channel's variance per unit
-        extra noise variance on the sensor)."""
-        excess = np.maximum(level_c - 1.0, 0.0) * self._n_rec / max(self._n_after, 1)
-        power = self._noise_power_c[:, sensor]
-        extra = float(excess @ power / max(float(power @ power), 1e-300))
-        return math.sqrt(1.0 + max(extra, 0.0) / self.sensor_variances[sensor])
-
-    def _set_type(self, sensor: int, kind: FaultKind, value: float) -> None:
-        self._types[sensor] = int(kind)
-        if math.isfinite(value):
-            self._mags[sensor], self._mag_valid[sensor] = value, True
+        """Type the isolated faults (:meth:`FaultTyper.type`); with a gust model, no
+        refit of a mean model while the presence test is judging its misfit."""
+        hold = (self.typer.presence_mode == PRESENCE_MODEL and bool(self._n_dist)
+                and self.presence.at_least(PRESENCE_HOLD))
+        if not self.typer.type(k, self._isolated, self._record_episodes,
+                               self._constant_output, hold):
+            self.presence.stop()  # a new way of following the fault: a new test
 
     def _constant_output(self, sensor: int, k: int) -> float | None:
         """Mean of the sensor's last samples if they are constant (std below a tenth
@@ -1244,44 +516,32 @@ class SequentialDiagnoser:
     # ------------------------------------------------------------------ presence
 
     def _follow_presence(self, k: int) -> None:
-        """End the episode when the isolated fault is gone (class notes), judged with
+        """End the episode when the isolated fault is gone (module notes), judged with
         the fault model of the previous sample."""
-        mode = self._presence_mode
-        if self._iso_gen < 0 or mode == _PRESENCE_NONE:
+        mode = self.typer.presence_mode
+        if self._iso_gen < 0 or mode == PRESENCE_NONE:
             if not self.main_cusum.any_alarm:
                 self._end_episode(k, "none")
             return
-        if mode == _PRESENCE_CONSTANT:
+        if mode == PRESENCE_CONSTANT:
             if all(self._constant_output(i, k) is None for i in self._isolated):
                 self._end_episode(k, "none")
             return
-        if self._presence is None:
-            self._presence = self._new_cusum(self.m)
-            self._presence_zero = self._presence_start = k
-            if mode == _PRESENCE_VARIANCE:
-                self._presence.start_in_alarm()
-        if mode == _PRESENCE_MODEL:
-            c = self._z_last - self._g_last[:, self._model_cols] @ self._theta
-            self._hist_c[k % self._n_hist] = c
-            if self._presence.update(c):
-                oldest = max(self._presence_start, k - self._n_hist + 1)
-                self._presence_zero = self._walk_back(self._presence, self._hist_c, k, oldest)
-                self._end_episode(k, "model")
-        elif not self._presence.update(self._z_last):
+        if mode == PRESENCE_MODEL:
+            gone = self.presence.follow_model(k, self.typer.model_misfit())
+        else:  # a noise increase
+            gone = self.presence.follow_variance(k, self.signatures.z_last)
+        if gone:
             self._end_episode(k, "model")
 
     # ------------------------------------------------------------------------ state
 
     def get_state(self) -> dict[str, Any]:
         """Every piece of dynamic state (deep copies)."""
-        return {
+        own = {
             "main_x": self.main.x.copy(),
             "main_scale": [s.copy() for s in self.main.channel_scale],
-            "bank_x": self.bank.x.copy(),
-            "bank_scale": [s.copy() for s in self.bank.channel_scale],
             "main_cusum": self.main_cusum.get_state(),
-            "bank_cusum": self.bank_cusum.get_state(),
-            "presence": None if self._presence is None else self._presence.get_state(),
             "count": int(self._count),
             "hist_w": self._hist_w.copy(), "hist_x": self._hist_x.copy(),
             "hist_z": self._hist_z.copy(), "hist_d": self._hist_d.copy(),
@@ -1289,110 +549,38 @@ class SequentialDiagnoser:
             "wait_clear": int(self._wait_clear),
             "bank_active": int(self._bank_active), "last_end": int(self._last_end),
             "change": int(self._change), "record_episodes": int(self._record_episodes),
-            "inconsistent": self._inconsistent.astype(float),
-            "sig": self._sig.copy(), "gram_c": self._gram_c.copy(),
-            "gz_c": self._gz_c.copy(), "zz_c": self._zz_c.copy(),
-            "n_rec": int(self._n_rec), "n_after": int(self._n_after),
-            "g_last": self._g_last.copy(), "z_last": self._z_last.copy(),
-            "y_prev": self._y_prev.copy(),
             "status": _STATUS.index(self._status), "isolated": list(self._isolated),
             "iso_gen": int(self._iso_gen),
-            "model_cols": self._model_cols.copy(), "theta": self._theta.copy(),
-            "previous_isolated": list(self._previous[0]),
-            "previous_types": self._previous[1].copy(), "previous_mags": self._previous[2].copy(),
-            "presence_mode": int(self._presence_mode),
-            "presence_zero": int(self._presence_zero),
-            "presence_start": int(self._presence_start), "hist_c": self._hist_c.copy(),
-            "types": self._types.copy(), "mags": self._mags.copy(),
-            "mag_valid": self._mag_valid.astype(float),
+            **self.hypothesis_bank.get_state(), **self.signatures.get_state(),
+            **self.typer.get_state(), **self.presence.get_state(),
         }
+        return {key: own[key] for key in _STATE_KEYS}
 
     def set_state(self, state: dict[str, Any]) -> None:
         """Restore :meth:`get_state` output of an identically built diagnoser; checked
         first, so a bad state leaves this one untouched."""
-        m, n_gen, nr = self.m, len(self.bank_generators), _N_REG * self.m
-
-        def arr(key: str, shape: tuple[int, ...]) -> _FloatArray:
-            return check_finite_array(f"state[{key!r}]", state[key], shape=shape)
-
         try:
-            main_scale = [check_finite_array("state['main_scale']", s, shape=(g.n_channels,))
-                          for s, g in zip(state["main_scale"], self.main.generators,
-                                          strict=True)]
-            bank_scale = [check_finite_array("state['bank_scale']", s, shape=(g.n_channels,))
-                          for s, g in zip(state["bank_scale"], self.bank.generators,
-                                          strict=True)]
-            got = {
-                "main_x": arr("main_x", (self.main.n_state,)),
-                "bank_x": arr("bank_x", (self.bank.n_state,)),
-                "hist_w": arr("hist_w", self._hist_w.shape),
-                "hist_x": arr("hist_x", self._hist_x.shape),
-                "hist_z": arr("hist_z", self._hist_z.shape),
-                "hist_d": (arr("hist_d", self._hist_d.shape) if "hist_d" in state
-                           else np.zeros(self._hist_d.shape)),
-                "sig": arr("sig", (self.main.n_state, nr)),
-                "gram_c": arr("gram_c", (m, nr, nr)), "gz_c": arr("gz_c", (m, nr)),
-                "zz_c": arr("zz_c", (m,)),
-                "g_last": arr("g_last", (m, nr)), "z_last": arr("z_last", (m,)),
-                "y_prev": arr("y_prev", (m,)),
-                "hist_c": arr("hist_c", self._hist_c.shape),
-                "mags": arr("mags", (m,)),
-            }
-            incons = arr("inconsistent", (n_gen,)) != 0.0
-            mag_valid = arr("mag_valid", (m,)) != 0.0
-            types = np.asarray(state["types"], dtype=int).reshape(-1)
-            cols = np.asarray(state["model_cols"], dtype=int).reshape(-1)
-            theta = check_finite_array("state['theta']", state["theta"], shape=(cols.size,))
-            if types.shape != (m,):
-                raise ValueError(f"state['types'] must have {m} entries")
-            if np.any((cols < 0) | (cols >= nr)):
-                raise ValueError(f"state['model_cols'] must be in [0, {nr})")
-            status = int(state["status"])
-            if not 0 <= status < len(_STATUS):
-                raise ValueError(f"state['status'] must be in [0, {len(_STATUS)})")
-            iso_gen = int(state["iso_gen"])
-            if not -1 <= iso_gen < n_gen:
-                raise ValueError(f"state['iso_gen'] must be in [-1, {n_gen})")
-            presence_mode = int(state["presence_mode"])
-            if not 0 <= presence_mode <= _PRESENCE_CONSTANT:
-                raise ValueError("state['presence_mode'] out of range")
-            isolated = tuple(int(i) for i in state["isolated"])
-            previous = (tuple(int(i) for i in state["previous_isolated"]),
-                        np.asarray(state["previous_types"], dtype=int).reshape(m),
-                        arr("previous_mags", (m,)))
-            main_cusum = self._new_cusum(m)
-            main_cusum.set_state(state["main_cusum"])
-            bank_cusum = self._new_cusum(self.bank.n_out)
-            bank_cusum.set_state(state["bank_cusum"])
-            presence = None
-            if state["presence"] is not None:
-                presence = self._new_cusum(m)
-                presence.set_state(state["presence"])
-            ints = {key: int(state[key]) for key in
-                    ("count", "in_episode", "episodes", "bank_active", "last_end", "change",
-                     "record_episodes", "n_rec", "n_after", "wait_clear",
-                     "presence_zero", "presence_start")}
+            got = self._check_state(state)
+            parts = [(part, part.check_state(state)) for part in (
+                self.hypothesis_bank, self.typer, self.presence)]
+            signatures = self.signatures.check_state(state, self.main.n_state)
         except KeyError as exc:
             raise ValueError(f"state is missing key {exc}") from None
-        self.main.set_channel_scale(main_scale)
-        self.bank.set_channel_scale(bank_scale)
+        self.main.set_channel_scale(got["main_scale"])
+        self.main.x = got["main_x"]
+        self.main_cusum = got["main_cusum"]
+        for part, checked in parts:
+            part.set_state(checked)
         self._install_signature_matrices()
-        self.main.x, self.bank.x = got["main_x"], got["bank_x"]
-        self.main_cusum, self.bank_cusum, self._presence = main_cusum, bank_cusum, presence
+        self.signatures.set_state(signatures)
         self._hist_w, self._hist_x, self._hist_z = got["hist_w"], got["hist_x"], got["hist_z"]
         self._hist_d = got["hist_d"]
-        self._sig, self._gram_c = got["sig"], got["gram_c"]
-        self._gz_c, self._zz_c = got["gz_c"], got["zz_c"]
-        self._g_last, self._z_last = got["g_last"], got["z_last"]
-        self._y_prev = got["y_prev"]
-        self._inconsistent = incons
-        self._types, self._mags, self._mag_valid = types, got["mags"], mag_valid
-        self._out_types, self._out_mags = types.copy(), got["mags"].copy()
-        self._out_valid = mag_valid.copy()
-        self._model_cols, self._theta = cols, theta
-        self._status, self._isolated, self._iso_gen = _STATUS[status], isolated, iso_gen
-        self._presence_mode = presence_mode
-        self._previous = previous
+        self._out_types = self.typer.types.copy()
+        self._out_mags = self.typer.mags.copy()
+        self._out_valid = self.typer.mag_valid.copy()
+        self._status, self._isolated = _STATUS[got["status"]], got["isolated"]
+        self._iso_gen = got["iso_gen"]
+        ints = got["ints"]
         self._count = ints["count"]
         self._in_episode = bool(ints["in_episode"])
         self._wait_clear = bool(ints["wait_clear"])
@@ -1400,10 +588,37 @@ class SequentialDiagnoser:
         self._bank_active = bool(ints["bank_active"])
         self._last_end, self._change = ints["last_end"], ints["change"]
         self._record_episodes = ints["record_episodes"]
-        self._presence_zero = ints["presence_zero"]
-        self._presence_start = ints["presence_start"]
-        self._hist_c = got["hist_c"]
-        self._n_rec, self._n_after = ints["n_rec"], ints["n_after"]
+
+    def _check_state(self, state: dict[str, Any]) -> dict[str, Any]:
+        """The diagnoser's own part of a saved state, checked (ValueError; KeyError for
+        a missing key)."""
+        n_gen = len(self.bank_generators)
+
+        def arr(key: str, shape: tuple[int, ...]) -> _FloatArray:
+            return check_finite_array(f"state[{key!r}]", state[key], shape=shape)
+
+        got: dict[str, Any] = {
+            "main_scale": [check_finite_array("state['main_scale']", s, shape=(g.n_channels,))
+                           for s, g in zip(state["main_scale"], self.main.generators,
+                                           strict=True)],
+            "main_x": arr("main_x", (self.main.n_state,)),
+            "hist_w": arr("hist_w", self._hist_w.shape),
+            "hist_x": arr("hist_x", self._hist_x.shape),
+            "hist_z": arr("hist_z", self._hist_z.shape),
+            "hist_d": (arr("hist_d", self._hist_d.shape) if "hist_d" in state
+                       else np.zeros(self._hist_d.shape)),
+        }
+        got["status"] = int(state["status"])
+        if not 0 <= got["status"] < len(_STATUS):
+            raise ValueError(f"state['status'] must be in [0, {len(_STATUS)})")
+        got["iso_gen"] = int(state["iso_gen"])
+        if not -1 <= got["iso_gen"] < n_gen:
+            raise ValueError(f"state['iso_gen'] must be in [-1, {n_gen})")
+        got["isolated"] = tuple(int(i) for i in state["isolated"])
+        got["main_cusum"] = self._new_cusum(self.m)
+        got["main_cusum"].set_state(state["main_cusum"])
+        got["ints"] = {key: int(state[key]) for key in _INT_KEYS}
+        return got
 
 
 def _bartlett_long_run_variance(z: _FloatArray) -> _FloatArray:
