@@ -56,6 +56,7 @@ from gyrodiag.dtg.channel import (
     DTGChannelOutput,
 )
 from gyrodiag.dtg.model import N_THETA
+from gyrodiag.dtg.patterns import SEVERAL_CODE
 from gyrodiag.dtg.reference import N_CHANNELS
 from gyrodiag.grey import GreyFaultDetector
 
@@ -150,7 +151,7 @@ class Diagnoser(FacadeBase):
         # only, so after a skipped NaN sample it would lag the simulation time.
         self._dtg_first_alarm_time = math.nan
         self._dtg_block_copied = -1
-        self._dtg_named_code: int | None = None
+        self._dtg_named_code: int | str | None = None
         self._unclassified_note = ""  # why DTG alarms go unclassified (set at build)
         self._theta0_copied: Any = False  # never a channel's theta0: copy at first
         self._dtg_reference_warned = False
@@ -518,8 +519,9 @@ class Diagnoser(FacadeBase):
         v["dtg.alarm"] = bool(out.alarm)
         code = int(out.fault_code) if out.alarm else 0
         v["dtg.fault_code"] = code
-        if code != self._dtg_named_code:  # the name follows the code
-            self._dtg_named_code = code
+        named = code if code != SEVERAL_CODE else out.diagnosis.class_name
+        if named != self._dtg_named_code:  # the name follows the code (a pair: names)
+            self._dtg_named_code = named
             v["dtg.fault_name"] = self._dtg.class_name(code)
             if code != 0 and self._unclassified_note:
                 self.report_warning(self._unclassified_note)
@@ -551,6 +553,7 @@ class Diagnoser(FacadeBase):
         v["dtg.fault_type"] = int(d.fault_type) if alarm else 0
         v["dtg.fault_signal"] = int(d.fault_signal) if alarm else 0
         v["dtg.fault_axis"] = int(d.fault_axis) if alarm else 0
+        v["dtg.fault_signals"] = int(d.signal_mask) if alarm else 0
         v["dtg.class_distance"] = _finite_or(d.distance, -1.0) if alarm else -1.0
         size_ok = alarm and math.isfinite(d.size)
         v["dtg.fault_size"] = float(d.size) if size_ok else 0.0

@@ -349,3 +349,27 @@ def test_band_reference_refines_from_theta0_eta_only_with_quiet_blocks(record) -
     other.set_state(mon.get_state())
     for x, y in zip(other.band_reference, mon.band_reference, strict=True):
         np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.parametrize("kind", ["drift", "step"])
+def test_growth_t_holds_a_drift_that_the_relative_growth_loses(kind):
+    """A pick-off drift 10 s old: the long window (2 s) no longer starts at its onset, its
+    relative growth has fallen under the library's learned 0.15 (a drift then read as a
+    step), while its slope stays many standard errors from zero (DRIFT_HOLD_T = 4). A
+    step of the same final size: slope within noise. Measured: drift growth 0.095,
+    growth_t 35; step growth_t -0.11."""
+    n = LEARN + 10_000
+    rec = _record(n, seed=3, amplitude=0.0)
+    k = np.arange(n)
+    on = LEARN + 200
+    ramp = np.where(k >= on, 0.1 * T * (k - on), 0.0)  # 0.1 per s: 1000 noise std per s
+    rec[:, 0] += ramp if kind == "drift" else np.where(k >= on, ramp[-1], 0.0)
+    learner, ref = _learn(rec)
+    mon = _monitor(learner, ref)
+    _feed(mon, rec, LEARN, n)
+    stats = mon.window_statistics(LONG)
+    if kind == "drift":
+        assert stats.growth < 0.15, stats.growth
+        assert stats.growth_t > 20.0, stats.growth_t
+    else:
+        assert abs(stats.growth_t) < 4.0, stats.growth_t

@@ -94,6 +94,58 @@ def test_drift_and_step_differ_by_the_growth_of_the_level():
     assert res.name == "uty_drift" and res.rate == pytest.approx(0.2, rel=0.05)
 
 
+def test_a_growing_step_is_read_as_its_signals_drift_with_the_slopes_rate():
+    """as_drift (the pattern rule's hold of a drift that still grows): the same signal's
+    drift class, the rate fitted to the slopes, the size kept; no drift for a noise."""
+    rng = np.random.default_rng(6)
+    c = LIB.classes[LIB.names.index("uy_step")]
+    s = _stats("uy_step", -0.7, rng)
+    s = ClassificationStatistics(s.level, s.log_variance, -0.08 * c.response, 0.0,
+                                 s.log_eta, s.window_blocks, s.window_s)
+    step = CLF.classify_signal_fault(s)
+    assert step.name == "uy_step"
+    drift = CLF.as_drift(step, s)
+    assert drift is not None and drift.name == "uy_drift" and drift.fault_type == 4
+    assert drift.code == LIB.names.index("uy_drift") + 1
+    assert drift.rate == pytest.approx(-0.08, rel=0.05)
+    assert drift.size == step.size and drift.signal == step.signal
+    assert CLF.as_drift(CLF.classify_signal_fault(_stats("ux_noise", 2.0, rng)), s) is None
+
+
+@pytest.mark.parametrize(("first", "second"), [("utx", "uy"), ("utx", "uty"), ("ux", "uy"),
+                                               ("uty", "ux")])
+def test_two_level_faults_are_both_named(first, second):
+    """Two steps on different signals (0.3 and -0.5 V): the single-class fit names one;
+    the pair fit names both (code -2, both bits, the larger first)."""
+    rng = np.random.default_rng(sum(map(ord, first + second)))
+    a = _stats(f"{first}_step", 0.3, rng)
+    p_b = LIB.classes[LIB.names.index(f"{second}_step")].response
+    both = ClassificationStatistics(a.level - 0.5 * p_b, a.log_variance, a.slope, 0.0,
+                                    a.log_eta, a.window_blocks, a.window_s)
+    single = CLF.classify_signal_fault(both)
+    pair = CLF.classify_pair(both, single)
+    assert pair is not None, single
+    assert pair.code == -2 and pair.signal == -1 and pair.fault_type == 1
+    assert pair.name == f"{second}_step+{first}_step"
+    bits = {"utx": 1, "uty": 2, "ux": 4, "uy": 8}
+    assert pair.signal_mask == bits[first] | bits[second]
+    assert pair.axis == (3 if (first in ("utx", "ux")) != (second in ("utx", "ux")) else
+                         1 if first in ("utx", "ux") else 2)
+
+
+@pytest.mark.parametrize("signal", SIGNALS)
+def test_one_level_fault_is_never_read_as_two(signal):
+    """Single steps and drifts of 0.03-3 V on every signal, 5 noise draws each: no pair."""
+    rng = np.random.default_rng(10 + SIGNALS.index(signal))
+    for typ in ("step", "drift"):
+        for size in np.geomspace(0.03, 3.0, 7):
+            for _ in range(5):
+                s = _stats(f"{signal.lower()}_{typ}", size, rng,
+                           growth=0.4 if typ == "drift" else 0.0)
+                single = CLF.classify_signal_fault(s)
+                assert CLF.classify_pair(s, single) is None, (typ, size, single)
+
+
 @pytest.mark.parametrize(("name", "ratio"), [("spin", 0.9), ("spin", 0.6), ("torquer", 0.8),
                                               ("torquer", 1.2)])
 def test_physical_classes_from_log_eta(name, ratio):

@@ -49,6 +49,8 @@ def _dtg_as_version_1(saved: dict, cfg: DTGChannelConfig) -> dict:
     fresh = DTGChannel(replace(cfg, classifier=other, signatures={},
                                patterns=None)).get_state()["classifier"]
     old = {k: v for k, v in saved.items() if k != "classifier"}
+    # nor had its diagnosis a signal mask (version 3)
+    old["diagnosis"] = {k: v for k, v in saved["diagnosis"].items() if k != "signal_mask"}
     return {**old, **fresh, **saved["classifier"], STATE_VERSION_KEY: 1}
 
 
@@ -71,15 +73,15 @@ def test_dtg_channel_state_is_versioned_and_an_unversioned_one_still_restores() 
     for row in rec[:800]:
         ch.update(*row)
     saved = ch.get_state()
-    assert saved[STATE_VERSION_KEY] == dtg_channel.STATE_VERSION == 2
+    assert saved[STATE_VERSION_KEY] == dtg_channel.STATE_VERSION == 3
     # what a state saved before versioning looked like: no tag, no case-rate part, no
     # alignment queue (this channel has neither in use)
     old = {k: v for k, v in _dtg_as_version_1(saved, cfg).items()
            if k not in (STATE_VERSION_KEY, "omega", "alignment")}
     ref = [ch.update(*row) for row in rec[800:]]
     _dtg_continue_equally(cfg, old, rec[800:], ref)
-    with pytest.raises(ValueError, match="DTG channel state version 3"):
-        DTGChannel(cfg).set_state({**saved, STATE_VERSION_KEY: 3})
+    with pytest.raises(ValueError, match="DTG channel state version 4"):
+        DTGChannel(cfg).set_state({**saved, STATE_VERSION_KEY: 4})
 
 
 @pytest.mark.parametrize("classifier", ["pattern", "paper"])
@@ -93,7 +95,7 @@ def test_dtg_channel_version_1_state_restores_and_migrates_to_the_saved_one(
         ch.update(*row)
     saved = ch.get_state()
     v1 = _dtg_as_version_1(saved, cfg)
-    migrated = migrate(v1, 2, dtg_channel._MIGRATIONS, "DTG channel")
+    migrated = migrate(v1, dtg_channel.STATE_VERSION, dtg_channel._MIGRATIONS, "DTG channel")
     assert set(migrated["classifier"]) >= set(saved["classifier"])
     ref = [ch.update(*row) for row in rec[900:]]
     _dtg_continue_equally(cfg, v1, rec[900:], ref)

@@ -197,9 +197,11 @@ def _signals() -> list[Var]:
             out("dtg.learning", "Boolean", False, "Nominal theta0 still being learned"),
             out("dtg.alarm", "Boolean", False, "DTG parameter-ratio alarm"),
             out("dtg.fault_code", "Integer", 0,
-                "0 none, j = nearest signature j, -1 unknown/unclassified"),
+                "0 none, j = nearest signature j, -1 unknown/unclassified, -2 two signal "
+                "faults at once (pattern classifier; dtg.fault_name names both)"),
             out("dtg.fault_name", "String", "",
-                "Name of dtg.fault_code's class (e.g. uty_step, spin): empty none, unknown"),
+                "Name of dtg.fault_code's class (e.g. uty_step, spin): empty none, unknown; "
+                "two faults: both names, larger first (e.g. utx_step+uy_step)"),
             out("dtg.first_alarm_time", "Real", -1.0,
                 "Simulation time of the first DTG alarm (its sample's time), -1 if none", "s"),
             out("dtg.case_rate_delay_in_use", "Integer", 0,
@@ -224,8 +226,12 @@ def _diagnosis() -> list[Var]:
             "0 none, 1 step, 2 noise, 3 loss, 4 drift, 5 spin slow-down, 6 torquer scale, "
             "-1 unknown"),
         out("dtg.fault_signal", "Integer", 0,
-            "0 none or physical, 1 Utx, 2 Uty, 3 Ux, 4 Uy, -1 unknown"),
+            "0 none or physical, 1 Utx, 2 Uty, 3 Ux, 4 Uy, -1 unknown or several "
+            "(dtg.fault_signals)"),
         out("dtg.fault_axis", "Integer", 0, "0 none, 1 x, 2 y, 3 both, -1 unknown"),
+        out("dtg.fault_signals", "Integer", 0,
+            "Signals the class names, one bit each: 1 Utx, 2 Uty, 4 Ux, 8 Uy (two bits: "
+            "two faults at once); 0 none, physical or unknown"),
         out("dtg.class_distance", "Real", -1.0,
             "Chi-square per channel of the class fitted to the statistics; -1 if none", "1"),
         out("dtg.fault_size", "Real", 0.0,

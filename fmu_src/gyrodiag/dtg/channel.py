@@ -498,8 +498,9 @@ def _physical(th_x: tuple[float, ...], th_y: tuple[float, ...],
 
 
 #: Version of :meth:`DTGChannel.get_state`'s format (1: tagged; case rate and alignment
-#: always present; 2: the classifier's part under "classifier").
-STATE_VERSION = 2
+#: always present; 2: the classifier's part under "classifier"; 3: the diagnosis's
+#: signal mask and the pattern classifier's pair count).
+STATE_VERSION = 3
 #: Keys of a version-1 state that belong to a classifier (paper: the first three;
 #: pattern: the last three; a version-1 state holds all six).
 _CLASSIFIER_KEYS = ("features", "learn_sum", "learn_count", "monitor", "rollback",
@@ -522,4 +523,16 @@ def _from_version_1(state: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-_MIGRATIONS = {0: _from_version_0, 1: _from_version_1}
+def _from_version_2(state: dict[str, Any]) -> dict[str, Any]:
+    """The diagnosis gains its signal mask (the one signal it names, if any), the
+    pattern classifier its count of pair wins."""
+    diagnosis = dict(state["diagnosis"])
+    signal = int(diagnosis["fault_signal"])
+    diagnosis["signal_mask"] = 1 << (signal - 1) if signal > 0 else 0
+    classifier = dict(state["classifier"])
+    if "monitor" in classifier:
+        classifier["pair_streak"] = 0
+    return {**state, "diagnosis": diagnosis, "classifier": classifier}
+
+
+_MIGRATIONS = {0: _from_version_0, 1: _from_version_1, 2: _from_version_2}

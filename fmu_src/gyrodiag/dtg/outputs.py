@@ -48,7 +48,7 @@ class DTGDiagnosis:
         Codes of :data:`~gyrodiag.dtg.patterns.FAULT_TYPES` (1 step, 2 noise, 3 loss,
         4 drift, 5 spin, 6 torquer), :data:`~gyrodiag.dtg.patterns.SIGNALS` (1 Utx,
         2 Uty, 3 Ux, 4 Uy; 0 physical) and axes (1 x, 2 y, 3 both); 0 no alarm, −1
-        unknown.
+        unknown (``fault_signal`` −1 with two bits in ``signal_mask``: two signals).
     distance : float
         χ² per channel of the class (NaN if none).
     size, rate, ratio : float
@@ -67,6 +67,8 @@ class DTGDiagnosis:
         threshold.
     block : int
         Update counter.
+    signal_mask : int
+        Signals named by the class, one bit each (1 Utx, 2 Uty, 4 Ux, 8 Uy).
     """
 
     reference_status: int = REFERENCE_STATUS["learning"]
@@ -85,6 +87,7 @@ class DTGDiagnosis:
     window_s: float = 0.0
     tests: NDArray[np.float64] = field(default_factory=lambda: np.zeros(N_TESTS))
     block: int = 0
+    signal_mask: int = 0
 
 
 @fast_init
@@ -169,7 +172,7 @@ def diagnosis_to_dict(d: DTGDiagnosis) -> dict[str, Any]:
         "fault_signal": d.fault_signal, "fault_axis": d.fault_axis, "distance": d.distance,
         "size": d.size, "rate": d.rate, "ratio": d.ratio, "level": d.level.copy(),
         "log_variance": d.log_variance.copy(), "growth": d.growth, "window_s": d.window_s,
-        "tests": d.tests.copy(), "block": d.block,
+        "tests": d.tests.copy(), "block": d.block, "signal_mask": d.signal_mask,
     }
 
 
@@ -185,4 +188,5 @@ def diagnosis_from_dict(d: dict[str, Any]) -> DTGDiagnosis:
         log_variance=np.asarray(d["log_variance"], dtype=float).reshape(N_CHANNELS),
         growth=float(d["growth"]), window_s=float(d["window_s"]),
         tests=np.asarray(d["tests"], dtype=float).reshape(N_TESTS), block=int(d["block"]),
+        signal_mask=int(d["signal_mask"]),
     )

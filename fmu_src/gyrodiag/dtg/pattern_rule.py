@@ -25,7 +25,7 @@ from .classifier import ChannelClassifier, Confirm, names_class
 from .decision import UNKNOWN_CODE
 from .model import N_THETA
 from .outputs import NO_FEATURE, STATUS_FAILED, DTGDiagnosis
-from .patterns import PatternClassifier, PatternResult
+from .patterns import FAULT_TYPES, SEVERAL_CODE, PatternClassifier, PatternResult
 from .reference import (
     REFERENCE_STATUS,
     ClassificationStatistics,
@@ -37,6 +37,9 @@ from .reference import (
 if TYPE_CHECKING:
     from .channel import DTGChannel
 
+STEP_TYPE = FAULT_TYPES.index("step") + 1
+DRIFT_TYPE = FAULT_TYPES.index("drift") + 1
+
 __all__ = ["MASKED_SIGNAL_FIT", "OMEGA_EXCITATION_Z", "PatternRule"]
 
 #: Case rate: a block whose filtered ω lies more than this many learning-window spreads
@@ -47,6 +50,13 @@ OMEGA_EXCITATION_Z = 6.0
 #: (distance per library component) leaves a band alarm to the physical classes
 #: (measured fits in docs/dtg_case_rate.md and docs/notes.md).
 MASKED_SIGNAL_FIT = 1.0
+#: A drift stays a drift while its residual level keeps growing this many standard
+#: errors of the window's slope: the learned growth threshold reads the window's
+#: relative growth, which falls once the window no longer starts at the onset.
+DRIFT_HOLD_T = 4.0
+#: Two faults are named once the pair fit has won this many classifications in a row
+#: (0.5 s of 25 ms blocks): in manoeuvres it wins alone for up to 0.3 s.
+PAIR_CONFIRM = 20
 
 
 class PatternRule(ChannelClassifier):
@@ -93,6 +103,7 @@ class PatternRule(ChannelClassifier):
         self._rollback: tuple[Any, ...] | None = None
         self._snapshots: deque[tuple[Any, ...]] = deque(
             maxlen=self.host._short_blocks + 1)
+        self._pair_streak = 0  # classifications in a row won by a pair of faults
 
     def reference_failed(self) -> bool:
         """True once learning has ended without any usable reference."""
@@ -211,11 +222,15 @@ class PatternRule(ChannelClassifier):
             d = self._diagnose(band_alarm)
         code = 0
         if alarm:
-            code = UNKNOWN_CODE if d.fault_type <= 0 else self._class_code(d.class_name)
+            code = (UNKNOWN_CODE if d.fault_type <= 0 else SEVERAL_CODE
+                    if d.signal_mask and d.fault_signal == -1
+                    else self._class_code(d.class_name))
         return alarm, code, NO_FEATURE, d
 
     def class_name(self, code: int) -> str:
-        """Name of a ``fault_code`` in the pattern library."""
+        """Name of a ``fault_code`` in the pattern library (both names for a pair)."""
+        if code == SEVERAL_CODE:
+            return self.host.diagnosis.class_name
         patterns = self.host.config.patterns
         return names_class(patterns.names if patterns is not None else [], code)
 
@@ -229,6 +244,7 @@ class PatternRule(ChannelClassifier):
         mon = self.monitor
         assert mon is not None
         result: PatternResult | None = None
+        streak, self._pair_streak = self._pair_streak, 0
         if mon.alarm:
             if stats is not None and self._pattern is not None:
                 result = self._pattern.classify_signal_fault(stats)
@@ -247,6 +263,11 @@ class PatternRule(ChannelClassifier):
                             or (band_alarm and not stats.raw_signals
                                 and result.distance > MASKED_SIGNAL_FIT)):
                         result = physical
+                pair = (self._pattern.classify_pair(stats, result)
+                        if result.signal != 0 else None)  # a level class or unknown
+                self._pair_streak = streak + 1 if pair is not None else 0
+                if pair is not None and self._pair_streak >= PAIR_CONFIRM:
+                    result = pair
         elif band_alarm:
             stats = self._raw_signals_checked(
                 mon.window_statistics(self.host._long_blocks))
@@ -266,6 +287,7 @@ class PatternRule(ChannelClassifier):
         if stats is not None:
             stats = self._raw_signals_checked(stats)
         result, stats = self._classify(band_alarm, stats)
+        result = self._held_drift(result, stats)
         if stats is None:
             # pending classification: the blocks of the alarm so far (the test window
             # without alarm), so that the outputs never mix in data from before the alarm
@@ -286,8 +308,19 @@ class PatternRule(ChannelClassifier):
             size=math.nan if result is None or not alarm else result.size,
             rate=math.nan if result is None or not alarm else result.rate,
             ratio=math.nan if result is None or not alarm else result.ratio,
+            signal_mask=0 if result is None or not alarm else result.signal_mask,
             level=stats.level, log_variance=stats.log_variance, growth=stats.growth,
             window_s=stats.window_s, tests=mon.statistics.copy(), block=block)
+
+    def _held_drift(self, result: PatternResult | None,
+                    stats: ClassificationStatistics | None) -> PatternResult | None:
+        """A drift whose level still grows is not renamed a step."""
+        prev = self.host.diagnosis
+        if (result is None or stats is None or self._pattern is None
+                or prev.fault_type != DRIFT_TYPE or result.fault_type != STEP_TYPE
+                or result.signal != prev.fault_signal or stats.growth_t < DRIFT_HOLD_T):
+            return result
+        return self._pattern.as_drift(result, stats) or result
 
     def _raw_signals_checked(self, stats: ClassificationStatistics
                              ) -> ClassificationStatistics:
@@ -310,6 +343,7 @@ class PatternRule(ChannelClassifier):
             "monitor": None if self.monitor is None else self.monitor.get_state(),
             "rollback": None if self._rollback is None else list(self._rollback),
             "snapshots": [list(snap) for snap in self._snapshots],
+            "pair_streak": self._pair_streak,
         }
 
     def set_state(self, state: dict[str, Any],
@@ -322,6 +356,7 @@ class PatternRule(ChannelClassifier):
         host = self.host
         self._rollback = None if state["rollback"] is None else snapshot(state["rollback"])
         self._snapshots.clear()
+        self._pair_streak = int(state["pair_streak"])
         for raw_snap in state["snapshots"]:
             self._snapshots.append(snapshot(raw_snap))
         if state["monitor"] is None:

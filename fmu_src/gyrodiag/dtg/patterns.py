@@ -39,7 +39,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -81,6 +81,11 @@ SIGNALS = ("Utx", "Uty", "Ux", "Uy")
 #: Axis codes (``dtg.fault_axis``): 1 x, 2 y, 3 both.
 AXIS_CODES = {"Utx": 1, "Ux": 1, "Uty": 2, "Uy": 2, None: 3}
 N_ETA = 2 * N_THETA
+#: ``fault_code`` of two faults at once (``fault_name`` names both).
+SEVERAL_CODE = -2
+#: Level χ² by which two faults must beat one (and each the other alone) to be named
+#: (a correctly fitted single fault leaves 1-10: docs/notes.md).
+PAIR_MARGIN = 16.0
 #: log10 variance ratios are compared within these bounds (a silent channel is −∞).
 LOG_VAR_MIN, LOG_VAR_MAX = -4.0, 8.0
 #: Grid of the variance-response amplitude, V² (noise std 1e−6 … 1e4 V).
@@ -352,6 +357,9 @@ class PatternResult:
         Second-best class.
     margin : float
         χ² per channel of the runner-up minus that of the best class.
+    signal_mask : int
+        The signals named, one bit each (1 Utx, 2 Uty, 4 Ux, 8 Uy; 0 physical, unknown):
+        two bits for a pair (``code`` :data:`SEVERAL_CODE`).
     """
 
     code: int
@@ -365,6 +373,12 @@ class PatternResult:
     ratio: float = math.nan
     runner_up: str = ""
     margin: float = math.nan
+    signal_mask: int = 0
+
+
+def signal_bit(signal: str) -> int:
+    """Bit of a signal in :attr:`PatternResult.signal_mask`."""
+    return 1 << SIGNALS.index(signal)
 
 
 def scored_response(lib: PatternLibrary, i: int) -> NDArray[np.float64]:
@@ -467,7 +481,81 @@ class PatternClassifier:
             code=i + 1, name=best.name, fault_type=FAULT_TYPES.index(best.type) + 1,
             signal=SIGNALS.index(best.signal) + 1, axis=best.axis, distance=distance,
             size=size, rate=rate, runner_up=runner_name,
+            signal_mask=signal_bit(best.signal),
             margin=(runner[0] - chi2) / n if runner[1] >= 0 else math.nan)
+
+    def classify_pair(self, stats: ClassificationStatistics, single: PatternResult
+                      ) -> PatternResult | None:
+        """Two level faults on different signals, where they explain the window's
+        levels better than any one level class by :data:`PAIR_MARGIN`; else None.
+
+        ``single`` is the one-class result (a level class, or unknown); none while the
+        voltages carry a manoeuvre (``stats.raw_signals`` False). The result has
+        ``code`` :data:`SEVERAL_CODE`, ``signal`` −1, both signals in ``signal_mask``,
+        and the name ``"<larger>+<smaller>"``."""
+        # in a manoeuvre only the two residual levels are compared: two sizes fit any
+        if (single.fault_type not in (-1, 1, 4) or len(self._step) < 2
+                or not stats.raw_signals):
+            return None
+        lib = self.library
+        s_level = lib.noise.level_std * lib.noise.scale(stats.window_blocks)
+        lv = np.clip(stats.log_variance, LOG_VAR_MIN, LOG_VAR_MAX)
+        s2 = (s_level * np.sqrt(np.maximum(10.0 ** lv, 1.0))) ** 2
+        responses = {sig: scored_response(lib, i) for sig, i in self._step.items()}
+        alone = min(self._fit_levels([p], stats.level, s2)[0] for p in responses.values())
+        best: tuple[float, str, str, NDArray[np.float64]] | None = None
+        signals = sorted(responses, key=SIGNALS.index)
+        for u, first in enumerate(signals):
+            for second in signals[u + 1:]:
+                chi2, a = self._fit_levels([responses[first], responses[second]],
+                                           stats.level, s2)
+                if best is None or chi2 < best[0]:
+                    best = (chi2, first, second, a)
+        if best is None or best[0] + PAIR_MARGIN > alone:
+            return None
+        chi2, first, second, a = best
+        names = [lib.classes[self._step[first]].name, lib.classes[self._step[second]].name]
+        if abs(a[1]) > abs(a[0]):
+            names.reverse()
+        axes = {AXIS_CODES[first], AXIS_CODES[second]}
+        return PatternResult(
+            code=SEVERAL_CODE, name="+".join(names),
+            fault_type=single.fault_type if single.fault_type > 0 else 1, signal=-1,
+            axis=axes.pop() if len(axes) == 1 else 3, distance=chi2 / (2 * N_CHANNELS),
+            runner_up=single.name, signal_mask=signal_bit(first) | signal_bit(second))
+
+    def _fit_levels(self, responses: list[NDArray[np.float64]], level: NDArray[np.float64],
+                    s2: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
+        """Level χ² and sizes of a sum of level responses (weighted LS with the
+        library's relative model error, as :meth:`_fit_level`)."""
+        lib = self.library
+        rho2 = lib.level_model_error ** 2
+        p = np.array(responses)
+        a = np.zeros(p.shape[0])
+        pred = np.zeros_like(level)
+        for _ in range(4):
+            w = 1.0 / (s2 + rho2 * pred * pred)
+            normal = (p * w) @ p.T
+            a = np.linalg.lstsq(normal, (p * w) @ level, rcond=None)[0]
+            pred = a @ p
+        w = 1.0 / (s2 + rho2 * pred * pred)
+        return float(np.sum(np.minimum(w * (level - pred) ** 2, lib.component_cap))), a
+
+    def as_drift(self, result: PatternResult, stats: ClassificationStatistics
+                 ) -> PatternResult | None:
+        """``result`` (a level class) read as its signal's drift class, with the rate
+        from the window's slopes; None where the library has no drift for it."""
+        if result.fault_type not in (1, 4) or not 1 <= result.signal <= len(SIGNALS):
+            return None
+        i = self._drift.get(SIGNALS[result.signal - 1])
+        if i is None:
+            return None
+        lib = self.library
+        s_level = lib.noise.level_std * lib.noise.scale(stats.window_blocks)
+        ratio_obs = 10.0 ** np.clip(stats.log_variance, LOG_VAR_MIN, LOG_VAR_MAX)
+        rate = self._rate(scored_response(lib, i), stats, ratio_obs, s_level)
+        return replace(result, code=i + 1, name=lib.classes[i].name,
+                       fault_type=FAULT_TYPES.index("drift") + 1, rate=rate)
 
     def _fit_level(self, p: NDArray[np.float64], level: NDArray[np.float64],
                    lv: NDArray[np.float64], ratio_obs: NDArray[np.float64],

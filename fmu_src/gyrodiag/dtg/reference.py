@@ -935,6 +935,10 @@ class ClassificationStatistics:
         log10((|L_end| + 1)/(|L_start| + 1)) of the residual level along its mean
         direction, from the straight-line fit over the window: ≈ 0 for a step, > 0 for
         a level that grows (drift).
+    growth_t : float
+        The same fit's slope over its standard error (scatter about the line), signed so
+        that > 0 is a growing |level|: a drift keeps it large for as long as it grows,
+        where ``growth`` falls once the window no longer starts at the onset.
     log_eta : ndarray, shape (10,)
         log10(|mean θ|/|θ0_eta|) over the window, x then y axis.
     window_blocks : int
@@ -955,6 +959,7 @@ class ClassificationStatistics:
     window_blocks: int
     window_s: float
     raw_signals: bool = True
+    growth_t: float = 0.0
 
 
 def _accumulate(info: NDArray[np.float64], rhs: NDArray[np.float64],
@@ -1303,7 +1308,7 @@ class ResidualMonitor:
         blk = (means[:, res] - ref.mean[res]) / ref.block_std[res]
         mean_dir = blk.mean(axis=0)
         norm = float(np.hypot(*mean_dir))
-        growth = 0.0
+        growth = growth_t = 0.0
         if norm > 0.0 and k >= 3:
             proj = blk @ (mean_dir / norm)
             x = np.arange(k) - 0.5 * (k - 1)
@@ -1311,11 +1316,15 @@ class ResidualMonitor:
             half = b * 0.5 * (k - 1)
             growth = math.log10((abs(proj.mean() + half) + 1.0)
                                 / (abs(proj.mean() - half) + 1.0))
+            scatter = proj - proj.mean() - b * x
+            se = math.sqrt(float(scatter @ scatter) / max(k - 2, 1) / float(x @ x))
+            growth_t = b / max(se, 1e-300)  # proj's mean is > 0: b > 0 grows
         th = np.abs(theta.mean(axis=0))
         log_eta = np.log10(np.maximum(th, 1e-300)) - self._log_theta0_eta
         return ClassificationStatistics(
             level=level, log_variance=log_var, slope=slope / ref.block_std / self.block_s,
-            growth=growth, log_eta=log_eta, window_blocks=k, window_s=k * self.block_s)
+            growth=growth, log_eta=log_eta, window_blocks=k, window_s=k * self.block_s,
+            growth_t=growth_t)
 
     # -- state -----------------------------------------------------------------------
     def get_state(self) -> dict[str, Any]:
