@@ -317,6 +317,7 @@ class PatternRule(ChannelClassifier):
         """A drift whose level still grows is not renamed a step."""
         prev = self.host.diagnosis
         if (result is None or stats is None or self._pattern is None
+                or not stats.raw_signals  # in a manoeuvre the level's slope is not a drift's
                 or prev.fault_type != DRIFT_TYPE or result.fault_type != STEP_TYPE
                 or result.signal != prev.fault_signal or stats.growth_t < DRIFT_HOLD_T):
             return result
