@@ -7,7 +7,9 @@ plant
 filter
     Beard–Jones detection filter design, residual evaluation and thresholds.
 isolation
-    Observer banks, isolability analysis and sensor fault isolation.
+    Observer banks and sensor fault isolation.
+isolability
+    Isolability analysis: which sensor faults a model can detect and isolate.
 residual
     Residual covariance model and whitening; sensor noise variances.
 gust
@@ -77,12 +79,12 @@ _EXPORTS = {
     "zoh_discretise": "filter",
     "BankObserver": "isolation",
     "FaultType": "isolation",
-    "IsolabilityReport": "isolation",
+    "IsolabilityReport": "isolability",
     "IsolationResult": "isolation",
     "SensorFaultIsolator": "isolation",
-    "SensorIsolability": "isolation",
+    "SensorIsolability": "isolability",
     "design_observer_bank": "isolation",
-    "isolability_analysis": "isolation",
+    "isolability_analysis": "isolability",
     "place_observer_gain": "isolation",
     "Disturbance": "residual",
     "GustModel": "gust",
