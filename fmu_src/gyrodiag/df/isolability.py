@@ -213,61 +213,22 @@ def isolability_analysis(
     if not 0.0 < collinear_cos <= 1.0:
         raise ValueError(f"collinear_cos must be in (0, 1], got {collinear_cos}")
     zero_tol = check_positive("zero_tol", zero_tol)
-    if K is None:
-        lam = -np.arange(1.0, n + 1.0) if eigenvalues is None else eigenvalues
-        gain = design_detection_filter(a, c, np.eye(n), lam)
-    else:
-        gain = check_finite_array("K", K, shape=(n, m))
+    gain = _main_gain(a, c, K, eigenvalues)
     a_cl = a - gain @ c
     closed_eig = np.linalg.eigvals(a_cl)
     if np.any(closed_eig.real >= 0.0):
         raise ValueError(f"K must make A - K C stable, eig = {closed_eig}")
 
     sig = _steady_signature(a_cl, c, gain)
-    norms = np.linalg.norm(sig, axis=0)
-    nonzero = norms > zero_tol * max(1.0, float(norms.max()))
-    cos = np.full((m, m), np.nan)
-    for i in range(m):
-        for j in range(m):
-            if nonzero[i] and nonzero[j]:
-                cos[i, j] = sig[:, i] @ sig[:, j] / (norms[i] * norms[j])
-
-    # Equilibria of the free dynamics: a bias equal to C x̄ (A x̄ = 0) is a state.
-    _, s_a, vt_a = np.linalg.svd(a)
-    ker_a = vt_a[np.sum(s_a > s_a.max(initial=0.0) * n * np.finfo(float).eps):].T
-    c_ker = c @ ker_a
-
-    # Bank analysis in continuous time on each observable subspace.
-    bank_sig = np.zeros((m, m))
-    for j in range(m):
-        used = [i for i in range(m) if i != j]
-        basis = observable_subspace(a, c[used])
-        n_o = basis.shape[1]
-        a_o, c_o = basis.T @ a @ basis, c[used] @ basis
-        l_o = place_observer_gain(a_o, c_o, _bank_eigenvalues(bank_eigenvalues, n_o))
-        s_j = _steady_signature(a_o - l_o @ c_o, c_o, l_o)
-        for col, i in enumerate(used):
-            bank_sig[j, i] = np.linalg.norm(s_j[:, col])
+    nonzero, cos = _cosines(sig, zero_tol)
+    as_states = _bias_as_state(a, c)
+    bank_sig = _bank_signatures(a, c, bank_eigenvalues)
     bank_resp = bank_sig > zero_tol * max(1.0, float(bank_sig.max()))
-
-    # Modal form of the main filter, for the transient after a fault step.
-    lam_cl, vec_cl = np.linalg.eig(a_cl)
-    modal_in = np.linalg.solve(vec_cl, gain.astype(complex))
-    modal_out_norm = np.linalg.norm(c @ vec_cl, axis=0)
+    taus = _transient_time_constants(a_cl, c, gain, zero_tol)
 
     sensors = []
     for i in range(m):
-        weight = np.abs(modal_in[:, i]) * modal_out_norm
-        excited = weight > zero_tol * max(1.0, float(weight.max(initial=0.0)))
-        tau = float(np.max(1.0 / np.abs(lam_cl[excited].real), initial=0.0))
-        q_i = np.eye(m)[i]
-        if c_ker.shape[1]:
-            coef = np.linalg.lstsq(c_ker, q_i, rcond=None)[0]
-            as_state = bool(np.linalg.norm(c_ker @ coef - q_i) < 1e-9)
-        else:
-            as_state = False
-        c_wo = np.delete(c, i, axis=0)
-        redundant = int(np.linalg.matrix_rank(observability_matrix(a, c_wo))) == n
+        redundant = _redundant(a, c, i)
         direction = tuple(
             names[j] for j in range(m)
             if j != i and nonzero[i] and nonzero[j] and abs(cos[i, j]) < collinear_cos
@@ -277,19 +238,14 @@ def isolability_analysis(
             names[j] for j in range(m)
             if j != i and any(pattern) and pattern != tuple(bool(v) for v in bank_resp[:, j])
         )
-        sensors.append(
-            SensorIsolability(
-                name=names[i],
-                bias_signature=sig[:, i].copy(),
-                bias_steady_state_detectable=bool(nonzero[i]),
-                bias_indistinguishable_from_state=as_state,
-                transient_time_constant_s=tau,
-                redundant=redundant,
-                direction_isolable_from=direction,
-                bank_pattern=pattern,
-                bank_isolable_from=bank_iso,
-            )
-        )
+        sensors.append(SensorIsolability(
+            name=names[i], bias_signature=sig[:, i].copy(),
+            bias_steady_state_detectable=bool(nonzero[i]),
+            bias_indistinguishable_from_state=as_states[i],
+            transient_time_constant_s=taus[i], redundant=redundant,
+            direction_isolable_from=direction, bank_pattern=pattern,
+            bank_isolable_from=bank_iso,
+        ))
     return IsolabilityReport(
         sensor_names=names,
         K=gain,
@@ -301,3 +257,82 @@ def isolability_analysis(
         sensors=tuple(sensors),
         collinear_cos=collinear_cos,
     )
+
+
+def _main_gain(a: _FloatArray, c: _FloatArray, K: ArrayLike | None,
+               eigenvalues: ArrayLike | None) -> _FloatArray:
+    """The given main-filter gain, or the detection filter's with ``eigenvalues``."""
+    n, m = a.shape[0], c.shape[0]
+    if K is None:
+        lam = -np.arange(1.0, n + 1.0) if eigenvalues is None else eigenvalues
+        return design_detection_filter(a, c, np.eye(n), lam)
+    return check_finite_array("K", K, shape=(n, m))
+
+
+def _cosines(sig: _FloatArray, zero_tol: float) -> tuple[NDArray[np.bool_], _FloatArray]:
+    """Which bias signatures are nonzero, and the cosines between those that are."""
+    m = sig.shape[1]
+    norms = np.linalg.norm(sig, axis=0)
+    nonzero = norms > zero_tol * max(1.0, float(norms.max()))
+    cos = np.full((m, m), np.nan)
+    for i in range(m):
+        for j in range(m):
+            if nonzero[i] and nonzero[j]:
+                cos[i, j] = sig[:, i] @ sig[:, j] / (norms[i] * norms[j])
+    return nonzero, cos
+
+
+def _bias_as_state(a: _FloatArray, c: _FloatArray) -> list[bool]:
+    """Per sensor: a bias on it equals C x̄ of an equilibrium (A x̄ = 0), i.e. a state."""
+    n, m = a.shape[0], c.shape[0]
+    _, s_a, vt_a = np.linalg.svd(a)
+    ker_a = vt_a[np.sum(s_a > s_a.max(initial=0.0) * n * np.finfo(float).eps):].T
+    c_ker = c @ ker_a
+    out = []
+    for i in range(m):
+        q_i = np.eye(m)[i]
+        if c_ker.shape[1]:
+            coef = np.linalg.lstsq(c_ker, q_i, rcond=None)[0]
+            out.append(bool(np.linalg.norm(c_ker @ coef - q_i) < 1e-9))
+        else:
+            out.append(False)
+    return out
+
+
+def _bank_signatures(a: _FloatArray, c: _FloatArray, bank_eigenvalues: ArrayLike | None
+                     ) -> _FloatArray:
+    """Row j: size of observer j's steady bias signature per sensor (continuous time,
+    on the observable subspace of the sensors it uses)."""
+    m = c.shape[0]
+    bank_sig = np.zeros((m, m))
+    for j in range(m):
+        used = [i for i in range(m) if i != j]
+        basis = observable_subspace(a, c[used])
+        n_o = basis.shape[1]
+        a_o, c_o = basis.T @ a @ basis, c[used] @ basis
+        l_o = place_observer_gain(a_o, c_o, _bank_eigenvalues(bank_eigenvalues, n_o))
+        s_j = _steady_signature(a_o - l_o @ c_o, c_o, l_o)
+        for col, i in enumerate(used):
+            bank_sig[j, i] = np.linalg.norm(s_j[:, col])
+    return bank_sig
+
+
+def _transient_time_constants(a_cl: _FloatArray, c: _FloatArray, gain: _FloatArray,
+                              zero_tol: float) -> list[float]:
+    """Per sensor: slowest time constant of the main filter's modes a fault step on it
+    excites and the residual sees, s (modal form of the main filter)."""
+    lam_cl, vec_cl = np.linalg.eig(a_cl)
+    modal_in = np.linalg.solve(vec_cl, gain.astype(complex))
+    modal_out_norm = np.linalg.norm(c @ vec_cl, axis=0)
+    out = []
+    for i in range(c.shape[0]):
+        weight = np.abs(modal_in[:, i]) * modal_out_norm
+        excited = weight > zero_tol * max(1.0, float(weight.max(initial=0.0)))
+        out.append(float(np.max(1.0 / np.abs(lam_cl[excited].real), initial=0.0)))
+    return out
+
+
+def _redundant(a: _FloatArray, c: _FloatArray, i: int) -> bool:
+    """The other sensors observe the whole state (sensor i has analytical redundancy)."""
+    c_wo = np.delete(c, i, axis=0)
+    return int(np.linalg.matrix_rank(observability_matrix(a, c_wo))) == a.shape[0]
