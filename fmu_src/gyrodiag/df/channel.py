@@ -43,6 +43,7 @@ not move in the window, every d scores the same; the configured d is kept then.
 Noise: ``noise_std`` if given, else the sensor variances that explain the residual
 variances of the window (:func:`~gyrodiag.df.residual.estimate_sensor_variances`).
 """
+
 from __future__ import annotations
 
 import math
@@ -54,12 +55,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..common.state import migrate, stamp
-from .calibration import (
-    CalibrationWindow,
-    DFDesign,
-    alignment_score,
-    window_pairs,
-)
+from .calibration import CalibrationWindow, DFDesign, alignment_score, window_pairs
 from .channel_config import CAL_MIN_SAMPLES
 from .channel_config import DECISION_AUTO as DECISION_AUTO
 from .channel_config import DECISIONS as DECISIONS
@@ -302,6 +298,7 @@ class DFChannel:
         return CalibrationWindow(u, y, burn, self._n_burn)
 
     def _choose_alignment(self) -> int:
+        """The alignment d whose window residuals are the whitest (module notes)."""
         c = self.config
         if not c.aligns:
             return int(c.input_delay_samples)
