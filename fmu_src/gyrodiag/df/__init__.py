@@ -7,7 +7,9 @@ plant
 filter
     Beard–Jones detection filter design, residual evaluation and thresholds.
 isolation
-    Observer banks, isolability analysis and sensor fault isolation.
+    Observer banks and sensor fault isolation.
+isolability
+    Isolability analysis: which sensor faults a model can detect and isolate.
 residual
     Residual covariance model and whitening; sensor noise variances.
 gust
@@ -34,6 +36,19 @@ sequential_diagnosis
     the modules above (it re-exports the public names of generators and settings).
 gains
     Memo of observer designs, seeded by the table a build ships.
+channel_config
+    Settings of the DF channel and the choice of its decision rule.
+channel_output
+    Output record of the DF channel.
+calibration
+    The channel's design and its calibration window: residuals, initial state,
+    alignment scores.
+decision
+    Interface of the channel's decision rules (strategies).
+paper_rule
+    The paper's decision rule (k·σ thresholds, observer-bank isolation).
+sequential_rule
+    The sequential decision rule (noise fit, CUSUMs, hypothesis isolation).
 channel
     The DF channel of the Diagnoser: all of the above on streamed samples.
 
@@ -64,12 +79,12 @@ _EXPORTS = {
     "zoh_discretise": "filter",
     "BankObserver": "isolation",
     "FaultType": "isolation",
-    "IsolabilityReport": "isolation",
+    "IsolabilityReport": "isolability",
     "IsolationResult": "isolation",
     "SensorFaultIsolator": "isolation",
-    "SensorIsolability": "isolation",
+    "SensorIsolability": "isolability",
     "design_observer_bank": "isolation",
-    "isolability_analysis": "isolation",
+    "isolability_analysis": "isolability",
     "place_observer_gain": "isolation",
     "Disturbance": "residual",
     "GustModel": "gust",
@@ -104,12 +119,21 @@ _EXPORTS = {
     "REG_GAIN": "signatures",
     "REG_RAMP": "signatures",
     "PresenceTest": "presence",
-    "DECISIONS": "channel",
-    "DECISION_AUTO": "channel",
+    "CAL_MIN_SAMPLES": "channel_config",
+    "DECISIONS": "channel_config",
+    "DECISION_AUTO": "channel_config",
+    "DFChannelConfig": "channel_config",
+    "decision_rule": "channel_config",
+    "DFChannelOutput": "channel_output",
+    "CalibrationWindow": "calibration",
+    "DFDesign": "calibration",
+    "alignment_score": "calibration",
+    "initial_state": "calibration",
+    "window_pairs": "calibration",
+    "DFDecision": "decision",
+    "PaperRule": "paper_rule",
+    "SequentialRule": "sequential_rule",
     "DFChannel": "channel",
-    "DFChannelConfig": "channel",
-    "DFChannelOutput": "channel",
-    "decision_rule": "channel",
 }
 
 __all__ = sorted(_EXPORTS)

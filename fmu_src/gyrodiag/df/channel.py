@@ -14,6 +14,12 @@ decides in one of two ways:
     detection filter's residual, isolation by the generalised observer scheme,
     detection latched (:class:`~gyrodiag.df.isolation.SensorFaultIsolator`).
 
+Each rule is a strategy behind :class:`~gyrodiag.df.decision.DFDecision`
+(:mod:`gyrodiag.df.paper_rule`, :mod:`gyrodiag.df.sequential_rule`); the channel streams,
+aligns, equalises and keeps the calibration window, the rule decides. The settings are
+in :mod:`gyrodiag.df.channel_config`, the output record in :mod:`gyrodiag.df.channel_output`,
+the window's fits in :mod:`gyrodiag.df.calibration`.
+
 Calibration and alignment
 -------------------------
 The first ``calibrate_s`` seconds are assumed fault-free and only stored. When they end,
@@ -43,374 +49,34 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..common._records import fast_init
-from ..common._validation import (
-    check_finite_array,
-    check_in_range,
-    check_int,
-    check_nonnegative,
-    check_positive,
-)
 from ..common.state import migrate, stamp
-from .filter import DetectionFilter, ResidualThresholds, design_detection_filter
-from .generators import _gust_disturbance
-from .gust import GustModel
-from .isolation import ENERGY_MIN_SAMPLES, FaultType, SensorFaultIsolator
-from .plant import seed_aircraft
-from .residual import ResidualModel, estimate_sensor_variances
-from .sensor_dynamics import SensorDynamics, SensorDynamicsEqualiser
-from .sequential_diagnosis import FaultKind, SequentialDiagnoser, SequentialSettings
+from .calibration import CalibrationWindow, DFDesign, alignment_score, window_pairs
+from .channel_config import CAL_MIN_SAMPLES
+from .channel_config import DECISION_AUTO as DECISION_AUTO
+from .channel_config import DECISIONS as DECISIONS
+from .channel_config import DFChannelConfig as DFChannelConfig
+from .channel_config import decision_rule as decision_rule
+from .channel_output import NONE_DETECTED, invalid_output, output_from_state, output_state
+from .channel_output import DFChannelOutput as DFChannelOutput
+from .decision import RULE_STATE_KEYS, DFDecision
+from .filter import DetectionFilter, design_detection_filter
+from .isolation import FaultType, SensorFaultIsolator
+from .paper_rule import PaperRule
+from .sensor_dynamics import SensorDynamicsEqualiser
+from .sequential_diagnosis import SequentialDiagnoser
+from .sequential_rule import SequentialRule
 
-__all__ = ["DECISIONS", "DECISION_AUTO", "DFChannel", "DFChannelConfig", "DFChannelOutput",
-           "decision_rule"]
+# DECISIONS, DECISION_AUTO, DFChannelConfig, DFChannelOutput and decision_rule are
+# re-exported from their modules (imported from here before the split)
+__all__ = ["DFChannel"]
 
-#: Decision rules, by FMU code (``df.decision``).
-DECISIONS = ("paper", "sequential")
-#: FMU code of the automatic choice (the Diagnoser's default ``df.decision``).
-DECISION_AUTO = 2
-#: Fewest calibration samples after the burn-in (the window is lengthened to leave them).
-CAL_MIN_SAMPLES = 10
-
-
-def decision_rule(code: int, has_sensor_dynamics: bool) -> str:
-    """The rule that FMU code ``code`` selects: 0 paper, 1 sequential, 2 (auto) the
-    sequential rule unless a read-out model is given: with one the sequential rule's
-    whitening sees coloured noise and does not isolate (measured, docs/notes.md
-    System), the paper's does."""
-    if code == DECISION_AUTO:
-        return "paper" if has_sensor_dynamics else "sequential"
-    if code not in (0, 1):
-        raise ValueError(f"decision code must be 0 (paper), 1 (sequential) or "
-                         f"{DECISION_AUTO} (auto), got {code}")
-    return DECISIONS[code]
-#: ``isolated_sensor`` values besides a sensor number (1-based).
-NONE_DETECTED, NOT_ISOLATED, MULTIPLE = 0, -1, -2
-
-
-def _seed_a() -> NDArray[np.float64]:
-    return np.array(seed_aircraft().A)
-
-
-def _seed_b() -> NDArray[np.float64]:
-    return np.array(seed_aircraft().B)
-
-
-def _seed_c() -> NDArray[np.float64]:
-    return np.array(seed_aircraft().C)
-
-
-@dataclass
-class DFChannelConfig:
-    """Settings of a :class:`DFChannel` (validated by :meth:`validate`).
-
-    Attributes
-    ----------
-    A, B, C : array_like
-        Continuous plant model (n × n, n × p, m × n); default the seed aircraft.
-    eigenvalues : array_like, shape (n,)
-        Eigenvalues of A − KC, 1/s (real, distinct, negative); default −1 … −n.
-    sample_period_s : float
-        Sample period, s.
-    decision : {"sequential", "paper"}
-        Decision rule (module notes).
-    calibrate_s : float
-        Length of the initial fault-free window, s. 0: no window; then the paper rule
-        needs ``main_thresholds``/``bank_thresholds`` and the sequential rule
-        ``noise_std``, and the alignment is ``input_delay_samples``.
-        A window that leaves fewer than ``CAL_MIN_SAMPLES`` samples after the burn-in
-        is lengthened to leave that many (slow sample rates).
-    burn_in_s : float
-        Start of the window ignored while the observers converge, s.
-    k_sigma : float
-        Paper rule: thresholds at k standard deviations of the window's residuals.
-    main_thresholds, bank_thresholds : array_like, optional
-        Paper rule with ``calibrate_s`` = 0: main-filter thresholds (m,) and row j the
-        thresholds of observer j (m × (m − 1)), sensor units.
-    noise_std : array_like, shape (m,), optional
-        Sensor noise standard deviations, sensor units. Paper rule: for the
-        stuck/failure tests (default thresholds / k_sigma). Sequential rule: the noise
-        model (default estimated from the window).
-    persistence_k, persistence_n : int
-        Paper rule: k-of-n persistence of every residual alarm.
-    confirm_samples : int
-        Paper rule: consecutive samples of one isolation pattern before it is latched.
-    isolation_window_s : float
-        Paper rule: when the alarm pattern does not isolate, isolate by the bank's
-        residual energy within this time after detection, s (0: off, the pattern
-        alone as the paper's filter; :class:`~gyrodiag.df.isolation.SensorFaultIsolator`
-        ``energy_window_s``). A window shorter than ``ENERGY_MIN_SAMPLES`` samples, which
-        never isolates, is lengthened to that (:attr:`isolation_window_in_use`).
-    isolation_baseline_s : float
-        Paper rule: time constant of the bank's fault-free energy baseline, s; the
-        energy test measures against the larger of the calibration and the last
-        ~``isolation_baseline_s`` before detection, so turbulence stronger than in the
-        calibration window does not make it isolate the least gust-sensitive observer's
-        sensor (0: off, against the calibration alone; ``energy_baseline_s`` of
-        :class:`~gyrodiag.df.isolation.SensorFaultIsolator`).
-    false_alarms_per_h : float
-        Sequential rule: design false-alarm rate of the detection, 1/h.
-    cusum_k : float
-        Sequential rule: CUSUM reference, σ of the whitened residual.
-    variance_ratio : float
-        Sequential rule: variance increase the variance CUSUMs are designed for.
-    max_faults : int
-        Sequential rule: 1 or 2 simultaneously faulty sensors to isolate.
-    history_s, memory_s : float
-        Sequential rule: samples kept to start isolation before the change, s; how long
-        after the last episode the isolation keeps running, s.
-    input_delay_samples : int
-        Alignment d (module notes), used as is unless ``align_auto``.
-    align_auto : bool
-        Choose the alignment on the calibration window; not with ``sensor_dynamics``,
-        whose read-out model sets the timing (a search there picks a pairing that fits
-        the calibration manoeuvre and false-alarms in the next; :attr:`aligns`).
-    align_max : int
-        Largest |d| tried.
-    x0 : array_like, shape (n,), optional
-        Initial state estimate of every observer (default zeros).
-    sensor_dynamics : SensorDynamics, optional
-        Read-out dynamics G(z) of one sensor (e.g. the DTG's rebalance loop on q), at
-        ``sample_period_s``: every input and every other sensor are passed through the
-        same G before the filter (matched filtering, :mod:`gyrodiag.df.sensor_dynamics`,
-        docs/readout_dynamics.md), so that a manoeuvre seen through the sensor's lag is
-        not a fault of it. None (default): every sensor is y = Cx.
-    sensor_delay_samples : sequence of m ints ≥ 0, optional
-        Sensor j's sample arrives this many samples after the others' of the same
-        instant (a master that routes it through one FMU more, e.g. the DTG read-out
-        under Jacobi coupling: 1). Every other channel, inputs included, is held back to
-        match, before anything else (so the outputs describe the sample max(e) earlier).
-        None (default): all zeros. The harness sets it from its coupling plan
-        (:mod:`harness.cosim.timing`).
-    gust : GustModel or None
-        Sequential rule: turbulence its residual model includes (the whitened residual
-        is then the innovation of the plant augmented with the Dryden filter, white in
-        turbulence of the design intensity, and smaller in calmer air). Default: severe
-        turbulence (σ_w 2.3 m/s) through the seed aircraft's gust input, as the FMU;
-        a plant of another state layout gives ``input_matrix`` or None (sensor noise
-        only).
-    """
-
-    A: ArrayLike = field(default_factory=_seed_a)
-    B: ArrayLike = field(default_factory=_seed_b)
-    C: ArrayLike = field(default_factory=_seed_c)
-    eigenvalues: ArrayLike | None = None
-    sample_period_s: float = 0.01
-    decision: str = "sequential"
-    calibrate_s: float = 10.0
-    burn_in_s: float = 2.0
-    k_sigma: float = 6.0
-    main_thresholds: ArrayLike | None = None
-    bank_thresholds: ArrayLike | None = None
-    noise_std: ArrayLike | None = None
-    persistence_k: int = 3
-    persistence_n: int = 5
-    confirm_samples: int = 5
-    isolation_window_s: float = 4.0
-    isolation_baseline_s: float = 10.0
-    false_alarms_per_h: float = 1e-3
-    cusum_k: float = 0.5
-    variance_ratio: float = 4.0
-    max_faults: int = 2
-    history_s: float = 4.0
-    memory_s: float = 10.0
-    input_delay_samples: int = 0
-    align_auto: bool = True
-    align_max: int = 2
-    x0: ArrayLike | None = None
-    sensor_dynamics: SensorDynamics | None = None
-    sensor_delay_samples: Sequence[int] | None = None
-    gust: GustModel | None = field(default_factory=GustModel)
-
-    def matrices(self) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
-        """Validated (A, B, C, eigenvalues, x0) as float arrays."""
-        A = check_finite_array("A", self.A, ndim=2)
-        n = A.shape[0]
-        if A.shape != (n, n):
-            raise ValueError(f"A must be square, got shape {A.shape}")
-        B = check_finite_array("B", self.B, shape=(n, None))
-        C = check_finite_array("C", self.C, shape=(None, n))
-        eig = (
-            -np.arange(1.0, n + 1.0)
-            if self.eigenvalues is None
-            else check_finite_array("eigenvalues", self.eigenvalues, shape=(n,))
-        )
-        x0 = np.zeros(n) if self.x0 is None else check_finite_array("x0", self.x0, shape=(n,))
-        return A, B, C, eig, x0
-
-    @property
-    def aligns(self) -> bool:
-        """The alignment is searched on the calibration window (``align_auto`` without
-        a read-out model)."""
-        return self.align_auto and self.sensor_dynamics is None
-
-    @property
-    def isolation_window_in_use(self) -> float:
-        """``isolation_window_s``, lengthened to ``ENERGY_MIN_SAMPLES`` samples if
-        shorter (0 stays off), s."""
-        window = self.isolation_window_s
-        if window <= 0.0:
-            return 0.0
-        return max(window, ENERGY_MIN_SAMPLES * self.sample_period_s)
-
-    def settings(self) -> SequentialSettings:
-        """The sequential rule's settings."""
-        return SequentialSettings(
-            false_alarms_per_h=self.false_alarms_per_h, cusum_k=self.cusum_k,
-            variance_ratio=self.variance_ratio, max_faults=self.max_faults,
-            history_s=self.history_s, memory_s=self.memory_s,
-        )
-
-    def _check_given_noise(self, m: int) -> None:
-        """Without a calibration window: the paper rule's thresholds, or the noise."""
-        if self.decision == "paper":
-            if self.main_thresholds is None or self.bank_thresholds is None:
-                raise ValueError(
-                    "main_thresholds and bank_thresholds are required when calibrate_s = 0"
-                )
-            main = check_finite_array("main_thresholds", self.main_thresholds, shape=(m,))
-            bank = check_finite_array(
-                "bank_thresholds", self.bank_thresholds, shape=(m, m - 1)
-            )
-            if np.any(main <= 0) or np.any(bank <= 0):
-                raise ValueError("main_thresholds and bank_thresholds must be > 0")
-        elif self.noise_std is None:
-            raise ValueError("noise_std is required by the sequential decision when "
-                             "calibrate_s = 0 (no window to estimate the noise from)")
-
-    def validate(self) -> None:
-        """Raise ValueError/TypeError naming the first invalid setting."""
-        _, _, C, _, _ = self.matrices()
-        m = C.shape[0]
-        period = check_positive("sample_period_s", self.sample_period_s)
-        if self.decision not in DECISIONS:
-            raise ValueError(f"decision must be one of {DECISIONS}, got {self.decision!r}")
-        calibrate = check_nonnegative("calibrate_s", self.calibrate_s)
-        check_nonnegative("burn_in_s", self.burn_in_s)
-        check_positive("k_sigma", self.k_sigma)
-        if self.noise_std is not None:
-            std = check_finite_array("noise_std", self.noise_std, shape=(m,))
-            if np.any(std <= 0):
-                raise ValueError("noise_std must be > 0 on every sensor")
-        if calibrate == 0.0:  # no window: thresholds or noise must be given
-            self._check_given_noise(m)
-        pk = check_int("persistence_k", self.persistence_k, minimum=1)
-        pn = check_int("persistence_n", self.persistence_n, minimum=1)
-        if pk > pn:
-            raise ValueError(f"persistence_k must be <= persistence_n ({pn}), got {pk}")
-        check_int("confirm_samples", self.confirm_samples, minimum=1)
-        check_in_range("isolation_window_s", self.isolation_window_s, 0.0, 3600.0)
-        check_in_range("isolation_baseline_s", self.isolation_baseline_s, 0.0, 3600.0)
-        self.settings().validate()
-        limit = check_int("align_max", self.align_max, minimum=0)
-        if limit > 50:
-            raise ValueError(f"align_max must be <= 50, got {limit}")
-        d = self.input_delay_samples
-        if isinstance(d, bool) or not isinstance(d, (int, np.integer)):
-            raise TypeError(f"input_delay_samples must be an integer, got {d!r}")
-        check_in_range("input_delay_samples", float(d), -50.0, 50.0)
-        if self.sensor_delay_samples is not None:
-            skew = self.sensor_delay_samples
-            if len(skew) != m:
-                raise ValueError(f"sensor_delay_samples must have {m} entries (one per "
-                                 f"sensor), got {len(skew)}")
-            for i, e in enumerate(skew):
-                if check_int(f"sensor_delay_samples[{i}]", e) > 50:
-                    raise ValueError(f"sensor_delay_samples[{i}] must be <= 50, got {e!r}")
-        if self.sensor_dynamics is not None:
-            g = self.sensor_dynamics
-            if not isinstance(g, SensorDynamics):
-                raise TypeError("sensor_dynamics must be a SensorDynamics, got "
-                                f"{type(g).__name__}")
-            if abs(g.sample_period_s - period) > 1e-9 * period:
-                raise ValueError(f"sensor_dynamics is given at {g.sample_period_s!r} s, the "
-                                 f"filter samples at sample_period_s = {period!r} s")
-            if g.sensor >= m:
-                raise ValueError(f"sensor_dynamics: sensor {g.sensor + 1} (1-based) exceeds "
-                                 f"the {m} sensors of C")
-        if self.gust is not None:
-            if not isinstance(self.gust, GustModel):
-                raise TypeError(f"gust must be a GustModel or None, got "
-                                f"{type(self.gust).__name__}")
-            A, _, _, _, _ = self.matrices()
-            if self.gust.input_matrix is None and A.shape != (5, 5):
-                raise ValueError("gust: the seed gust input needs the seed aircraft's "
-                                 "5 states [v, alpha, q, theta, h]; give "
-                                 "GustModel(input_matrix=...) or gust=None")
-            self.gust.input_for(A)
-        if self.aligns and calibrate == 0.0:
-            raise ValueError("align_auto needs a calibration window (calibrate_s > 0); "
-                             "set input_delay_samples and align_auto = False")
-
-
-@fast_init
-@dataclass(frozen=True)
-class DFChannelOutput:
-    """Outputs of one :meth:`DFChannel.update`.
-
-    Attributes
-    ----------
-    valid : bool
-        False when u or y had NaN/Inf; the sample was skipped, state untouched.
-    calibrating : bool
-        The calibration window is still being recorded; no decision yet.
-    residual : ndarray, shape (m,)
-        Main detection-filter residual γ = y − C x̂ (sensor units).
-    alarms : ndarray of bool, shape (m,)
-        Per-sensor alarm of the main residual (paper: k-of-n threshold test;
-        sequential: CUSUM).
-    statistic : ndarray, shape (m,)
-        Per sensor, the alarm statistic in units of its threshold (alarm at 1).
-    detected : bool
-        Paper: a fault was detected (latched). Sequential: a fault episode is on.
-    episodes : int
-        Fault episodes since reset.
-    isolated_sensor : int
-        1-based sensor of the diagnosis; 0 nothing detected; −1 detected, not
-        isolated; −2 several sensors (see ``isolated_mask``; 0 there when they could
-        not be told apart).
-    isolated_mask : int
-        Bit i−1 set for every isolated sensor i.
-    fault_type : int
-        Type of the isolated sensor's fault (:class:`FaultKind` code; for two sensors
-        their common type, else −1).
-    magnitude : float
-        Its size (bias, gain factor, stuck value, 0 for failure, ramp rate per s, noise
-        std ratio); 0 when ``magnitude_valid`` is False.
-    magnitude_valid : bool
-    sensor_fault_type : ndarray of int, shape (m,)
-        Type per sensor (0 where none).
-    sensor_magnitude : ndarray, shape (m,)
-        Size per sensor (0 where none or unknown).
-    input_delay : int
-        Alignment in use (module notes).
-    """
-
-    valid: bool
-    calibrating: bool
-    residual: NDArray[np.float64]
-    alarms: NDArray[np.bool_]
-    statistic: NDArray[np.float64]
-    detected: bool
-    episodes: int
-    isolated_sensor: int
-    isolated_mask: int
-    fault_type: int
-    magnitude: float
-    magnitude_valid: bool
-    sensor_fault_type: NDArray[np.int_]
-    sensor_magnitude: NDArray[np.float64]
-    input_delay: int
-
-    @property
-    def alarm(self) -> bool:
-        """Detected fault (the channel's alarm)."""
-        return self.detected
+#: The decision rules by name (:data:`DECISIONS`).
+_RULES: dict[str, type[DFDecision]] = {"paper": PaperRule, "sequential": SequentialRule}
 
 
 class DFChannel:
@@ -436,6 +102,8 @@ class DFChannel:
         self._n_cal = (0 if config.calibrate_s == 0.0 else
                        max(round(config.calibrate_s / self.T), self._n_burn + CAL_MIN_SAMPLES))
         self._monitor = DetectionFilter(A, B, C, self.K, self.T)
+        self._design = DFDesign(A, B, C, self.K, self.T, x0, self._monitor)
+        self._rule: DFDecision = _RULES[config.decision](self._design, config)
         self._equaliser = (None if config.sensor_dynamics is None else
                            SensorDynamicsEqualiser(config.sensor_dynamics, self.p, self.m))
         # sensor skew: where each channel is read in the line, u first (module notes)
@@ -459,17 +127,14 @@ class DFChannel:
         self._cal_y = np.zeros((self._n_cal, m))
         self._skew_line: deque[tuple[NDArray[np.float64], NDArray[np.float64]]] = deque(
             maxlen=self._skew_max + 1)
-        self._engine: SensorFaultIsolator | SequentialDiagnoser | None = None
-        self._thresholds: list[NDArray[np.float64]] | None = None
-        self._noise_std: NDArray[np.float64] | None = None
-        self._gust_note = ""
+        self._rule.reset()
         self._monitor.reset(self._x0)
         if self._equaliser is not None:
             self._equaliser.reset()
         self._calibrated = False
         self._last = self._initial_output()
         if self._n_cal == 0:
-            self._install(None, None)
+            self._install(None)
 
     def _initial_output(self) -> DFChannelOutput:
         m = self.m
@@ -493,37 +158,47 @@ class DFChannel:
     def thresholds(self) -> list[NDArray[np.float64]] | None:
         """Paper rule: residual thresholds, main filter first, then observer j. None
         while calibrating and with the sequential rule (see :attr:`cusum_thresholds`)."""
-        if self._thresholds is None:
+        thresholds = self._rule.thresholds
+        if thresholds is None:
             return None
-        return [t.copy() for t in self._thresholds]
+        return [t.copy() for t in thresholds]
 
     @property
     def cusum_thresholds(self) -> tuple[float, float] | None:
         """Sequential rule: (mean-CUSUM threshold σ, variance-CUSUM threshold)."""
-        if isinstance(self._engine, SequentialDiagnoser):
-            return self._engine.thresholds
-        return None
+        return self._rule.cusum_thresholds
 
     @property
     def noise_std(self) -> NDArray[np.float64] | None:
         """Sensor noise standard deviations in use (sensor units), once calibrated."""
-        return None if self._noise_std is None else self._noise_std.copy()
+        noise = self._rule.noise_std
+        return None if noise is None else noise.copy()
 
     @property
     def gust_note(self) -> str:
         """Why the gust model is not in use after calibration ("" when it is, or when
         none is configured)."""
-        return self._gust_note
+        return self._rule.gust_note
 
     @property
     def gust_in_use(self) -> bool:
         """The sequential engine models the turbulence."""
-        return isinstance(self._engine, SequentialDiagnoser) and self._engine.gust is not None
+        return self._rule.gust_in_use
 
     @property
     def engine(self) -> SensorFaultIsolator | SequentialDiagnoser | None:
         """The decision object (None while calibrating)."""
-        return self._engine
+        return self._rule.engine
+
+    @property
+    def _engine(self) -> SensorFaultIsolator | SequentialDiagnoser | None:
+        """:attr:`engine` (the name tests and benchmarks read)."""
+        return self._rule.engine
+
+    @property
+    def rule(self) -> DFDecision:
+        """The decision rule (strategy) the channel composes."""
+        return self._rule
 
     # ------------------------------------------------------------------ streaming
 
@@ -541,7 +216,7 @@ class DFChannel:
             raise ValueError(f"y must have shape ({self.m},), got {yy.shape}")
         if not (math.isfinite(float(uu.sum())) and math.isfinite(float(yy.sum()))):
             if not (np.all(np.isfinite(uu)) and np.all(np.isfinite(yy))):
-                self._last = _invalid(self._last)
+                self._last = invalid_output(self._last)
                 return self._last
         if self._skew_max:
             line = self._skew_line
@@ -569,7 +244,7 @@ class DFChannel:
         pair = self._aligned(uu, yy)
         if pair is None:
             return self._last
-        self._last = self._decide(*pair)
+        self._last = self._rule.decide(*pair, self._delay)
         return self._last
 
     def update_floats(self, u: Sequence[float], y: Sequence[float]) -> DFChannelOutput:
@@ -578,12 +253,12 @@ class DFChannel:
         state change, without the array conversions on the per-sample path of the
         calibrated sequential decision."""
         total = sum(u) + sum(y)
+        rule = self._rule
         if not (total - total == 0.0 and self._calibrated and self._delay == 0
-                and self._equaliser is None and not self._skew_max
-                and isinstance(self._engine, SequentialDiagnoser)):
+                and self._equaliser is None and not self._skew_max and rule.stacked):
             return self.update(u, y)  # NaN/inf, calibration, a delay line, the paper rule
         self._n_samples += 1
-        self._last = self._decide_sequential(self._engine, np.array((*u, *y)))
+        self._last = rule.decide_stacked(np.array((*u, *y)), 0)
         return self._last
 
     def _monitor_step(self, u: NDArray[np.float64], y: NDArray[np.float64]
@@ -610,122 +285,32 @@ class DFChannel:
             return None
         return u, self._y_line.pop(0)
 
-    def _decide_sequential(self, engine: SequentialDiagnoser,
-                           w: NDArray[np.float64]) -> DFChannelOutput:
-        out = engine.update(w)
-        if out.status == "none":  # the per-sample case, without the lookups below
-            return DFChannelOutput(
-                True, False, out.residual, out.alarms, out.statistic, out.detected,
-                out.episodes, NONE_DETECTED, 0, 0, 0.0, False, out.fault_type,
-                out.magnitude, self._delay,
-            )
-        if out.status == "single":
-            iso = out.isolated[0] + 1
-        else:
-            iso = {"none": NONE_DETECTED, "not isolated": NOT_ISOLATED,
-                   "pair": MULTIPLE, "multiple": MULTIPLE}[out.status]
-        mask = sum(1 << i for i in out.isolated)
-        types = out.fault_type
-        if out.isolated:
-            kinds = {int(types[i]) for i in out.isolated}
-            ftype = kinds.pop() if len(kinds) == 1 else int(FaultKind.UNKNOWN)
-        else:
-            ftype = int(FaultKind.UNKNOWN) if out.status != "none" else 0
-        valid = len(out.isolated) == 1 and bool(out.magnitude_valid[out.isolated[0]])
-        mag = float(out.magnitude[out.isolated[0]]) if valid else 0.0
-        return DFChannelOutput(
-            True, False, out.residual, out.alarms, out.statistic, out.detected,
-            out.episodes, iso, mask, ftype, mag, valid, types, out.magnitude,
-            self._delay,
-        )
-
-    def _decide(self, u: NDArray[np.float64], y: NDArray[np.float64]) -> DFChannelOutput:
-        engine = self._engine
-        m = self.m
-        if isinstance(engine, SequentialDiagnoser):
-            return self._decide_sequential(engine, np.concatenate((u, y)))
-        assert isinstance(engine, SensorFaultIsolator)
-        res = engine.advance(u, y)  # the channel checked the sample
-        residual = engine.main_filter.residual
-        if res.isolated >= 0:
-            iso = res.isolated + 1
-        else:
-            iso = NOT_ISOLATED if res.detected else NONE_DETECTED
-        mask = (1 << res.isolated) if res.isolated >= 0 else 0
-        sensor_types = np.zeros(m, dtype=int)
-        sensor_mags = np.zeros(m)
-        valid = bool(math.isfinite(res.magnitude)) and res.isolated >= 0
-        if res.isolated >= 0:
-            sensor_types[res.isolated] = int(res.fault_type)
-            sensor_mags[res.isolated] = res.magnitude if valid else 0.0
-        return DFChannelOutput(
-            True, False, residual, res.main_alarms, np.abs(res.main_normalised),
-            res.detected, int(res.detected), iso, mask, int(res.fault_type),
-            float(res.magnitude) if valid else 0.0, valid, sensor_types, sensor_mags,
-            self._delay,
-        )
-
     # ------------------------------------------------------------------ calibration
 
     def _pairs(self, d: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Aligned (u, y) rows of the stored window for alignment d."""
-        u, y = self._cal_u, self._cal_y
-        if d > 0:
-            return u[:-d], y[d:]
-        if d < 0:
-            return u[-d:], y[:d]
-        return u, y
+        return window_pairs(self._cal_u, self._cal_y, d)
 
-    def _residuals(self, u: NDArray[np.float64], y: NDArray[np.float64],
-                   x_start: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
-        f = DetectionFilter(self.A, self.B, self.C, self.K, self.T)
-        f.reset(self._x0 if x_start is None else x_start)
-        return np.array([f.advance(u[j], y[j]) for j in range(u.shape[0])])
-
-    def _initial_state(self, u: NDArray[np.float64], y: NDArray[np.float64]
-                       ) -> NDArray[np.float64]:
-        """The state at the window's first sample that best explains it.
-
-        A host seldom starts the plant and the Diagnoser on the same sample from the
-        same state (with Gauss-Seidel the plant has already moved one step, at the
-        elevator's first value, when the Diagnoser sees its first sample: 0.26 rad/s of
-        q error on the seed loop); the observers' transient (slowest pole 1/s, and the
-        whitening filters' 10 s) would count as noise. The residual is linear in the
-        initial error: γ_k = γ_k(x0) − C Fᵏ Δx0; Δx0 by weighted least squares over the
-        window (weights: each channel's residual spread after the burn-in)."""
-        res = self._residuals(u, y)
-        f = self._monitor
-        closed = f.closed_loop_matrix
-        n_rows = res.shape[0]
-        weight = 1.0 / np.maximum(res[self._n_burn:].std(axis=0), 1e-300)
-        blocks = np.empty((n_rows, self.m, self.n))
-        power = np.eye(self.n)
-        for k in range(n_rows):
-            blocks[k] = self.C @ power
-            power = closed @ power
-        lhs = (blocks * weight[None, :, None]).reshape(-1, self.n)
-        rhs = (res * weight[None, :]).reshape(-1)
-        delta = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
-        return self._x0 + delta
+    def _window(self, d: int) -> CalibrationWindow:
+        """The stored window at alignment d, its burn-in shortened for a short one."""
+        u, y = self._pairs(d)
+        burn = min(self._n_burn, max(u.shape[0] - 10, 0))
+        return CalibrationWindow(u, y, burn, self._n_burn)
 
     def _choose_alignment(self) -> int:
+        """The alignment d whose window residuals are the whitest (module notes)."""
         c = self.config
         if not c.aligns:
             return int(c.input_delay_samples)
-        scores = {}
         # every pairing scored alike: by the gust model's innovations when each window
         # is long enough to fit a noise model to, else by the residual variance
         by_model = (c.gust is not None and
                     self._n_cal - self._n_burn - int(c.align_max) >= 4 * CAL_MIN_SAMPLES)
+        scores = {}
         for d in range(-int(c.align_max), int(c.align_max) + 1):
-            u, y = self._pairs(d)
-            burn = min(self._n_burn, max(u.shape[0] - 10, 0))
-            res = self._residuals(u, y)[burn:]
-            if by_model:
-                scores[d] = self._innovation_score(res)
-                continue
-            var = res.var(axis=0, ddof=1)
-            scores[d] = float(np.sum(np.log(np.maximum(var, 1e-300))))
+            w = self._window(d)
+            res = self._design.residuals(w.u, w.y)[w.burn:]
+            scores[d] = alignment_score(self._design, res, c.gust if by_model else None)
         best = min(scores.values())
         configured = int(c.input_delay_samples)
         # equal within rounding: the inputs did not move; keep the configured pairing
@@ -733,57 +318,9 @@ class DFChannel:
             return configured
         return min(scores, key=scores.__getitem__)
 
-    def _variances(self, u: NDArray[np.float64] | None, y: NDArray[np.float64] | None,
-                   x_start: NDArray[np.float64], burn: int, gust: GustModel | None
-                   ) -> NDArray[np.float64]:
-        """Sensor noise variances: given, or those that explain the window's residuals
-        (with the gust model ``gust`` if any)."""
-        c = self.config
-        if c.noise_std is not None:
-            return np.asarray(c.noise_std, dtype=float) ** 2
-        assert u is not None and y is not None
-        f = DetectionFilter(self.A, self.B, self.C, self.K, self.T)
-        model = ResidualModel(f.closed_loop_matrix, f.discrete_gain, self.C,
-                              _gust_disturbance(gust, self.A, self.T, np.eye(self.n)))
-        variances = estimate_sensor_variances(self._residuals(u, y, x_start)[burn:], model)
-        # A noise-free sensor would make rounding look like faults: floor at 1e−7 of the
-        # signal's RMS (plus 1e−12 absolute).
-        rms = np.sqrt(np.mean(y**2, axis=0))
-        return np.maximum(variances, (1e-7 * rms + 1e-12) ** 2)
-
-    def _innovation_score(self, res: NDArray[np.float64]) -> float:
-        """−2 log-likelihood per sample of residuals ``res`` under the gust model.
-
-        In turbulence the raw residual's variance is mostly the gust's, and the pitch
-        controller answers the gust, so a wrong pairing can look smaller there; the
-        innovations of the model with the gust leave only what it cannot explain."""
-        c = self.config
-        var = res.var(axis=0, ddof=1)
-        plain = float(np.sum(np.log(np.maximum(var, 1e-300))))
-        model = ResidualModel(self._monitor.closed_loop_matrix, self._monitor.discrete_gain,
-                              self.C, _gust_disturbance(c.gust, self.A, self.T, np.eye(self.n)))
-        variances = estimate_sensor_variances(res, model)
-        rms = np.sqrt(np.mean(res**2, axis=0))
-        variances = np.maximum(variances, (1e-3 * rms + 1e-12) ** 2)
-        try:
-            w = model.whitening(variances)
-        except (ValueError, np.linalg.LinAlgError):
-            return plain
-        s_inv = np.linalg.inv(w.S)
-        closed, gain = w.F - w.K @ w.C, w.K
-        e = np.zeros(w.F.shape[0])
-        total = 0.0
-        for r in res:
-            eps = r - w.C @ e
-            total += float(eps @ s_inv @ eps)
-            e = closed @ e + gain @ r
-        return total / res.shape[0] + float(np.linalg.slogdet(w.S)[1])
-
     def _finish_calibration(self) -> None:
         self._delay = self._choose_alignment()
-        u, y = self._pairs(self._delay)
-        burn = min(self._n_burn, max(u.shape[0] - 10, 0))
-        self._install(u, y, burn)
+        self._install(self._window(self._delay))
         # the delay line continues from the end of the window
         d = self._delay
         self._u_line = [row for row in self._cal_u[self._n_cal - d:]] if d > 0 else []
@@ -792,63 +329,22 @@ class DFChannel:
         self._cal_y = np.zeros((0, self.m))
         self._calibrated = True
 
-    def _install(self, u: NDArray[np.float64] | None, y: NDArray[np.float64] | None,
-                 burn: int = 0) -> None:
-        """Build the decision engine from the aligned window (or from the given
+    def _install(self, window: CalibrationWindow | None) -> None:
+        """Install the decision rule from the aligned window (or from the given
         thresholds / noise when there is no window)."""
-        c = self.config
-        if c.decision == "paper":
-            iso = self._paper_isolator()
-            if u is None or y is None:
-                k = float(c.k_sigma)
-                main = np.asarray(c.main_thresholds, dtype=float)
-                bank = np.asarray(c.bank_thresholds, dtype=float)
-                std = main / k if c.noise_std is None else np.asarray(c.noise_std, float)
-                thresholds = [_thresholds(main, k)] + [_thresholds(row, k) for row in bank]
-                iso.set_thresholds(thresholds[0], thresholds[1:], std)
-                iso.reset(self._x0)
-                self._noise_std = std
-            else:
-                # The same computation the streaming filters would do: run them over the
-                # window, thresholds from the residuals after the burn-in, then go on.
-                iso.calibrate(u, y, k_sigma=c.k_sigma, burn_in=burn, x0=self._x0,
-                              continue_after=True)
-                self._noise_std = iso.noise_std
-            self._thresholds = [iso.main_thresholds.threshold] + [
-                t.threshold for t in iso.bank_thresholds]
-            self._engine = iso
-            self._calibrated = True
-            return
-        x_start = self._x0 if u is None or y is None else self._initial_state(u, y)
-        variances = self._variances(u, y, x_start, burn, c.gust)
-        self._noise_std = np.sqrt(variances)
-        try:
-            engine = SequentialDiagnoser(self.A, self.B, self.C, self.K, self.T,
-                                         variances, c.settings(), x0=self._x0, gust=c.gust)
-            self._gust_note = ""
-        except (ValueError, np.linalg.LinAlgError) as exc:
-            if c.gust is None:
-                raise
-            # a gust far above the noise (a noise-free window, very slow sampling)
-            # leaves no stable whitening: monitor without the turbulence model, with the
-            # noise as that model explains the window
-            variances = self._variances(u, y, x_start, burn, None)
-            self._noise_std = np.sqrt(variances)
-            engine = SequentialDiagnoser(self.A, self.B, self.C, self.K, self.T,
-                                         variances, c.settings(), x0=self._x0)
-            self._gust_note = (f"gust model not used (its whitening filter failed: {exc}); "
-                               "turbulence may raise alarms")
-        if u is not None and y is not None:
-            engine.calibrate_scales(np.hstack([u, y]), burn, x_start=x_start)
-        self._engine = engine
-        self._thresholds = None
+        self._rule.install(window)
         self._calibrated = True
 
     # ------------------------------------------------------------------ state
 
     def get_state(self) -> dict[str, Any]:
         """Full internal state (engine, alignment, window, outputs)."""
-        engine = self._engine
+        rule = self._rule
+        if rule.engine is None:  # calibrating: nothing installed
+            parts = dict.fromkeys(RULE_STATE_KEYS)
+            parts["gust_note"] = rule.gust_note
+        else:
+            parts = rule.get_state()
         return stamp({
             "n_samples": self._n_samples,
             "calibrated": self._calibrated,
@@ -857,23 +353,9 @@ class DFChannel:
             "y_line": np.array(self._y_line).reshape(-1, self.m),
             "cal_u": self._cal_u.copy(), "cal_y": self._cal_y.copy(),
             "monitor": self._monitor.get_state(),
-            "noise_std": None if self._noise_std is None else self._noise_std.copy(),
-            # the variances the engine was built from, exactly (σ² of a saved σ may
-            # differ in the last bit, and so would every matrix designed from it)
-            "gust_note": self._gust_note,
-            "noise_var": (engine.sensor_variances.copy()
-                          if isinstance(engine, SequentialDiagnoser) else None),
-            "engine": None if engine is None else engine.get_state(),
-            "thresholds": None if self._thresholds is None else [
-                t.copy() for t in self._thresholds],
-            # the paper rule's residual statistics (mean, std) beside the thresholds: the
-            # evaluators normalise by the mean, the energy isolation by the std as well
-            "threshold_stats": (
-                [[t.mean.copy(), t.std.copy()] for t in
-                 [engine.main_thresholds, *engine.bank_thresholds]]
-                if isinstance(engine, SensorFaultIsolator) and self._thresholds is not None
-                else None),
-            "last": _output_state(self._last),
+            # the rule's part: noise, gust note, noise variances, engine, thresholds
+            **{key: parts[key] for key in RULE_STATE_KEYS},
+            "last": output_state(self._last),
             "equaliser": None if self._equaliser is None else self._equaliser.get_state(),
             "skew_u": np.array([e[0] for e in self._skew_line]).reshape(-1, self.p),
             "skew_y": np.array([e[1] for e in self._skew_line]).reshape(-1, self.m),
@@ -896,7 +378,6 @@ class DFChannel:
             raise
 
     def _apply_state(self, state: dict[str, Any]) -> None:
-        c = self.config
         eq = state["equaliser"]
         if (eq is None) != (self._equaliser is None):
             raise ValueError("state['equaliser'] does not match sensor_dynamics (a state of "
@@ -905,23 +386,13 @@ class DFChannel:
             self._equaliser.set_state(eq)
         calibrated = bool(state["calibrated"])
         delay = int(state["delay"])
-        noise = state["noise_std"]
+        if "noise_std" not in state:  # refused, calibrated or not
+            raise KeyError("noise_std")
         if calibrated:
             self._delay = delay
-            if c.decision == "paper":
-                self._install(None, None) if self._n_cal == 0 else self._rebuild_paper(state)
-            else:
-                variances = np.asarray(state["noise_var"], dtype=float)
-                self._gust_note = str(state.get("gust_note", ""))
-                self._engine = SequentialDiagnoser(
-                    self.A, self.B, self.C, self.K, self.T, variances, c.settings(),
-                    x0=self._x0, gust=None if self._gust_note else c.gust)
-                self._noise_std = np.asarray(noise, dtype=float).copy()
-                self._thresholds = None
-            assert self._engine is not None
-            self._engine.set_state(state["engine"])
+            self._rule.set_state(state, has_window=self._n_cal > 0)
         else:
-            self._engine, self._thresholds, self._noise_std = None, None, None
+            self._rule.uninstall()
         self._calibrated = calibrated
         self._delay = delay
         self._n_samples = int(state["n_samples"])
@@ -935,7 +406,7 @@ class DFChannel:
                              "window of this channel")
         self._cal_u, self._cal_y = cal_u.copy(), cal_y.copy()
         self._monitor.set_state(state["monitor"])
-        self._last = _output_from_state(state["last"])
+        self._last = output_from_state(state["last"])
         su = np.asarray(state["skew_u"], dtype=float)
         sy = np.asarray(state["skew_y"], dtype=float)
         if su.size == 0 and sy.size == 0:  # no skew line (also a version-0 state)
@@ -946,66 +417,6 @@ class DFChannel:
                              "sensor_delay_samples")
         self._skew_line.clear()
         self._skew_line.extend((a.copy(), b.copy()) for a, b in zip(su, sy, strict=True))
-
-    def _paper_isolator(self) -> SensorFaultIsolator:
-        c = self.config
-        return SensorFaultIsolator(
-            self.A, self.B, self.C, self.K, self.T, persistence_k=c.persistence_k,
-            persistence_n=c.persistence_n, confirm_samples=c.confirm_samples,
-            energy_window_s=c.isolation_window_in_use,
-            energy_baseline_s=c.isolation_baseline_s)
-
-    def _rebuild_paper(self, state: dict[str, Any]) -> None:
-        c = self.config
-        thresholds = [np.asarray(t, dtype=float) for t in state["thresholds"]]
-        noise = np.asarray(state["noise_std"], dtype=float)
-        iso = self._paper_isolator()
-        k = float(c.k_sigma)
-        stats = state["threshold_stats"]
-        if stats is None:  # none saved (state version 0): rebuilt from the thresholds
-            rebuilt = [_thresholds(t, k) for t in thresholds]
-        else:
-            if len(stats) != len(thresholds):
-                raise ValueError("state['threshold_stats'] must hold one (mean, std) per "
-                                 "threshold vector")
-            rebuilt = [ResidualThresholds(mean=np.asarray(ms[0], dtype=float),
-                                          std=np.asarray(ms[1], dtype=float),
-                                          threshold=t, k_sigma=k)
-                       for ms, t in zip(stats, thresholds, strict=True)]
-        iso.set_thresholds(rebuilt[0], rebuilt[1:], noise)
-        self._engine, self._thresholds, self._noise_std = iso, thresholds, noise
-
-
-def _thresholds(threshold: NDArray[np.float64], k_sigma: float) -> ResidualThresholds:
-    thr = np.asarray(threshold, dtype=float)
-    return ResidualThresholds(
-        mean=np.zeros_like(thr), std=thr / k_sigma, threshold=thr, k_sigma=k_sigma
-    )
-
-
-def _invalid(last: DFChannelOutput) -> DFChannelOutput:
-    d = dict(last.__dict__)
-    d["valid"] = False
-    return DFChannelOutput(**d)
-
-
-def _output_state(out: DFChannelOutput) -> dict[str, Any]:
-    return {k: (v.copy() if isinstance(v, np.ndarray) else v)
-            for k, v in out.__dict__.items()}
-
-
-def _output_from_state(state: dict[str, Any]) -> DFChannelOutput:
-    d = dict(state)
-    for key, dtype in (("residual", float), ("alarms", bool), ("statistic", float),
-                       ("sensor_fault_type", int), ("sensor_magnitude", float)):
-        d[key] = np.asarray(d[key], dtype=dtype).copy()
-    for key in ("valid", "calibrating", "detected", "magnitude_valid"):
-        d[key] = bool(d[key])
-    for key in ("episodes", "isolated_sensor", "isolated_mask", "fault_type",
-                "input_delay"):
-        d[key] = int(d[key])
-    d["magnitude"] = float(d["magnitude"])
-    return DFChannelOutput(**d)
 
 
 #: Version of :meth:`DFChannel.get_state`'s format (1: tagged; equaliser,
