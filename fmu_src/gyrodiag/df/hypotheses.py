@@ -90,8 +90,11 @@ class HypothesisBank:
     def step(self, w: _FloatArray) -> None:
         """Run the generators and their charts on ``w = [u; y]``."""
         zb, _ = self.stack.update(w)
-        if self.cusum.update(zb):
-            self.inconsistent[self.gen_of_channel[self.cusum.alarms]] = True
+        cusum = self.cusum
+        # a channel alarming now that did not before raised a chart now: without a
+        # newly raised chart every alarm is one already marked
+        if cusum.update(zb) and cusum.newly_raised.any():
+            self.inconsistent[self.gen_of_channel[cusum.alarms]] = True
             self._verdict = None
 
     def verdict(self) -> tuple[int, str]:

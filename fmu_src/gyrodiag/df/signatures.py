@@ -85,6 +85,8 @@ class FaultSignatures:
         self._sig_b = b_s[:, self._reg_sensor]
         self._sig_c = c_z
         self._sig_d = d_s[:, self._reg_sensor]
+        self._sig_db = np.vstack([self._sig_d, self._sig_b])
+        self._tmp_db = np.empty(self._sig_db.shape)
         power = np.zeros((self.m, self.m))
         for i in range(self.m):
             pi = scipy.linalg.solve_discrete_lyapunov(a_c, np.outer(b_s[:, i], b_s[:, i]))
@@ -136,7 +138,6 @@ class FaultSignatures:
         self._phi3[:, REG_BIAS] = 1.0
         self._phi_zero = np.zeros(nr)
         self._tmp_d = np.empty((m, nr))
-        self._tmp_b = np.empty((n_state, nr))
         self._tmp_gram = np.empty((m, nr, nr))
 
     def start(self, y_prev: _FloatArray) -> None:
@@ -161,9 +162,11 @@ class FaultSignatures:
         else:
             phi = self._phi_zero
         g = self._sig_c @ self._sig
-        g += np.multiply(self._sig_d, phi, out=self._tmp_d)
         sig = self._sig_a @ self._sig
-        sig += np.multiply(self._sig_b, phi, out=self._tmp_b)
+        # [Dz; B] * phi in one product: rows m on are the state's
+        db_phi = np.multiply(self._sig_db, phi, out=self._tmp_db)
+        g += db_phi[:self.m]
+        sig += db_phi[self.m:]
         self._sig = sig
         self._gram_c += np.multiply(g[:, :, None], g[:, None, :], out=self._tmp_gram)
         self._gz_c += np.multiply(g, z[:, None], out=self._tmp_d)
