@@ -152,9 +152,8 @@ class FaultTyper:
             return
         n_rec = self.signatures.n_rec
         tau0 = self.settings.type_significance
-        choice, explained_bias = self._choose_models(sensors)
+        choice, explained_bias, theta, rss_c = self._choose_models(sensors)
         cols = _columns(sensors, choice)
-        _, theta, rss_c = self.signatures.fit(cols)
         level_c = rss_c / n_rec
         worst = float(level_c.max())
         noisy = worst > 1.0 + max(0.2, 6.0 * math.sqrt(2.0 / n_rec))
@@ -187,8 +186,10 @@ class FaultTyper:
         self._model_cols, self._theta = np.array(cols, dtype=int), theta
         self._choose_presence(sensors)
 
-    def _choose_models(self, sensors: tuple[int, ...]) -> tuple[dict[int, list[int]], float]:
-        """(regressors per sensor, zᵀz the bias model explains).
+    def _choose_models(self, sensors: tuple[int, ...]
+                       ) -> tuple[dict[int, list[int]], float, _FloatArray, _FloatArray]:
+        """(regressors per sensor, zᵀz the bias model explains, and the chosen model's
+        θ and per-channel residual sums of squares, :meth:`FaultSignatures.fit`).
 
         Greedy model building: a bias on every isolated sensor, then each sensor's
         richer model where the likelihood ratio says so. z is white N(0, 1) per channel
@@ -200,20 +201,22 @@ class FaultTyper:
         n_rec = self.signatures.n_rec
         tau0 = self.settings.type_significance
         choice = {i: [REG_BIAS] for i in sensors}
-        rss_base, _, rss_c = self.signatures.fit(_columns(sensors, choice))
+        rss_base, theta, rss_c = self.signatures.fit(_columns(sensors, choice))
         explained_bias = self.signatures.energy - rss_base
         for i in sensors:
             alternatives = [[REG_BIAS, REG_RAMP]]
             if self.signatures.gain_identifiable(i):
                 alternatives.append([REG_BIAS, REG_GAIN])
             tau = tau0 * max(1.0, float(rss_c.max()) / n_rec)
-            best = (rss_base, choice[i], rss_c)
+            best = (rss_base, choice[i], theta, rss_c)
             for alt in alternatives:
-                rss, _, rss_alt = self.signatures.fit(_columns(sensors, {**choice, i: alt}))
+                rss, theta_alt, rss_alt = self.signatures.fit(
+                    _columns(sensors, {**choice, i: alt}))
                 if rss_base - rss > tau and rss < best[0]:
-                    best = (rss, alt, rss_alt)
-            rss_base, choice[i], rss_c = best
-        return choice, explained_bias
+                    best = (rss, alt, theta_alt, rss_alt)
+            rss_base, choice[i], theta, rss_c = best
+        # the fit of the model chosen (the same sums: the fit the caller needs)
+        return choice, explained_bias, theta, rss_c
 
     def _choose_presence(self, sensors: tuple[int, ...]) -> None:
         """How the episode follows the fault of these types."""

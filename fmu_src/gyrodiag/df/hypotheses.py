@@ -67,12 +67,14 @@ class HypothesisBank:
         self.gen_of_channel = np.concatenate([
             np.full(g.n_channels, k) for k, g in enumerate(generators)])
         self.inconsistent = np.zeros(len(generators), dtype=bool)
+        self._verdict: tuple[int, str] | None = None
 
     def reset(self) -> None:
         """States zero, charts cleared, every hypothesis consistent."""
         self.stack.reset()
         self.cusum.reset()
         self.inconsistent = np.zeros(len(self.stack.generators), dtype=bool)
+        self._verdict = None
 
     def start(self, xhat: _FloatArray, disturbance: _FloatArray, sample: int) -> None:
         """Every observer from the main filter's estimate ``xhat`` (and its whitening
@@ -83,16 +85,26 @@ class HypothesisBank:
             self.stack.set_observer_state(g, xhat, disturbance)
         self.cusum.reset(sample)
         self.inconsistent[:] = False
+        self._verdict = None
 
     def step(self, w: _FloatArray) -> None:
         """Run the generators and their charts on ``w = [u; y]``."""
         zb, _ = self.stack.update(w)
-        if self.cusum.update(zb):
-            self.inconsistent[self.gen_of_channel[self.cusum.alarms]] = True
+        cusum = self.cusum
+        # a channel alarming now that did not before raised a chart now: without a
+        # newly raised chart every alarm is one already marked
+        if cusum.update(zb) and cusum.newly_raised.any():
+            self.inconsistent[self.gen_of_channel[cusum.alarms]] = True
+            self._verdict = None
 
     def verdict(self) -> tuple[int, str]:
         """(the hypothesis isolated or −1, status): "single", "pair", "multiple" (no
         hypothesis left) or "not isolated" (several left)."""
+        if self._verdict is None:  # else: no hypothesis went inconsistent since
+            self._verdict = self._judge()
+        return self._verdict
+
+    def _judge(self) -> tuple[int, str]:
         consistent = ~self.inconsistent
         singles = np.flatnonzero(consistent[:self.m])
         gen = -1
@@ -142,3 +154,4 @@ class HypothesisBank:
         self.stack.x = got["bank_x"]
         self.cusum = got["bank_cusum"]
         self.inconsistent = got["inconsistent"]
+        self._verdict = None

@@ -69,17 +69,21 @@ def refine_onset(z_history: _FloatArray, step_response: _FloatArray, change: int
     z = z_history[np.arange(lo, k + 1) % z_history.shape[0]]  # (N, m)
     best, best_j = -1.0, change
     cols = list(sensors)
+    # the sensors' columns once (a C-ordered copy; its leading rows per onset are the
+    # same array the per-onset selection made)
+    h_cols = step_response[:k + 1 - lo][:, :, cols] if cols else None
+    eye = np.eye(len(cols))
     for j in range(lo, hi + 1):
-        h = step_response[:k + 1 - j]  # (L, channels, sensors)
         if not cols:
+            h = step_response[:k + 1 - j]  # (L, channels, sensors)
             num = np.einsum("lcs,lc->s", h, z[j - lo:])
             den = np.einsum("lcs,lcs->s", h, h)
             score = float(np.max(num * num / np.maximum(den, 1e-300)))
         else:
-            hs = h[:, :, cols]
+            hs = h_cols[:k + 1 - j]
             xz = np.einsum("lcs,lc->s", hs, z[j - lo:])
             gram = np.einsum("lcs,lct->st", hs, hs)
-            gram += 1e-12 * max(float(np.trace(gram)), 1e-300) * np.eye(len(cols))
+            gram += 1e-12 * max(float(np.trace(gram)), 1e-300) * eye
             score = float(xz @ np.linalg.solve(gram, xz))
         if score > best:
             best, best_j = score, j

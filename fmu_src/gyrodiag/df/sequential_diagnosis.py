@@ -131,6 +131,8 @@ _STATE_KEYS = (
     "previous_mags", "presence_mode", "presence_zero", "presence_start", "hist_c", "types",
     "mags", "mag_valid",
 )
+#: FaultKind.UNKNOWN as the int the typer's array holds.
+_UNKNOWN = int(FaultKind.UNKNOWN)
 #: Integer entries of the saved state the diagnoser itself owns.
 _INT_KEYS = ("count", "in_episode", "episodes", "bank_active", "last_end", "change",
              "record_episodes", "wait_clear")
@@ -394,9 +396,10 @@ class SequentialDiagnoser:
     def _publish(self) -> None:
         """Snapshot the diagnosis for the outputs when it changed."""
         typer = self.typer
-        if not (np.array_equal(typer.types, self._out_types)
-                and np.array_equal(typer.mags, self._out_mags)
-                and np.array_equal(typer.mag_valid, self._out_valid)):
+        # plain lists: the arrays are m long (as np.array_equal: NaN never equal)
+        if not (typer.types.tolist() == self._out_types.tolist()
+                and typer.mags.tolist() == self._out_mags.tolist()
+                and typer.mag_valid.tolist() == self._out_valid.tolist()):
             self._out_types = typer.types.copy()
             self._out_mags = typer.mags.copy()
             self._out_valid = typer.mag_valid.copy()
@@ -488,9 +491,12 @@ class SequentialDiagnoser:
                     self._change = onset
                     self._start_signatures(
                         max(oldest, onset - self._margin, self._last_end + 1), k)
-        if changed or (k - self._change) % self._type_every == 0 or (
-                self.typer.types[list(self._isolated)] == FaultKind.UNKNOWN).any():
+        if changed or (k - self._change) % self._type_every == 0:
             self._type(k)
+        else:
+            types = self.typer.types
+            if any(types[i] == _UNKNOWN for i in self._isolated):
+                self._type(k)
 
     def _type(self, k: int) -> None:
         """Type the isolated faults (:meth:`FaultTyper.type`); with a gust model, no
@@ -507,9 +513,18 @@ class SequentialDiagnoser:
         n = self._stuck_n
         if k - self._change + 1 < n:
             return None
-        idx = np.arange(k - n + 1, k + 1) % self._n_hist
-        y = self._hist_w[idx, self.p + sensor]
-        if y.std() < 0.1 * math.sqrt(self.sensor_variances[sensor]):
+        first, last = (k - n + 1) % self._n_hist, k % self._n_hist
+        col = self.p + sensor
+        if first <= last:  # no wrap: a contiguous copy of the same values
+            y = self._hist_w[first:last + 1, col].copy()
+        else:
+            y = self._hist_w[np.arange(k - n + 1, k + 1) % self._n_hist, col]
+        limit = 0.1 * math.sqrt(self.sensor_variances[sensor])
+        # std >= range / sqrt(2 n): a range well above limit * sqrt(2 n) is not constant
+        # (the margin covers the std's rounding), without computing the std
+        if float(y.max()) - float(y.min()) > 1.01 * limit * math.sqrt(2.0 * n):
+            return None
+        if y.std() < limit:
             return float(y.mean())
         return None
 

@@ -33,6 +33,8 @@ N_REG = 3
 
 #: Float arrays of the signatures' part of the diagnoser's saved state.
 _ARRAY_KEYS = ("sig", "gram_c", "gz_c", "zz_c", "g_last", "z_last", "y_prev")
+#: Identity matrices by size, for the fits' ridge (never modified).
+_EYE: dict[int, _FloatArray] = {}
 
 
 class FaultSignatures:
@@ -83,6 +85,8 @@ class FaultSignatures:
         self._sig_b = b_s[:, self._reg_sensor]
         self._sig_c = c_z
         self._sig_d = d_s[:, self._reg_sensor]
+        self._sig_db = np.vstack([self._sig_d, self._sig_b])
+        self._tmp_db = np.empty(self._sig_db.shape)
         power = np.zeros((self.m, self.m))
         for i in range(self.m):
             pi = scipy.linalg.solve_discrete_lyapunov(a_c, np.outer(b_s[:, i], b_s[:, i]))
@@ -127,6 +131,14 @@ class FaultSignatures:
         self._g_last = np.zeros((m, nr))
         self.z_last = np.zeros(m)
         self._y_prev = np.zeros(m)
+        # per-sample buffers of step(): the fault signals (bias column always 1) and
+        # the products' temporaries
+        self._phi = np.zeros(nr)
+        self._phi3 = self._phi.reshape(m, N_REG)
+        self._phi3[:, REG_BIAS] = 1.0
+        self._phi_zero = np.zeros(nr)
+        self._tmp_d = np.empty((m, nr))
+        self._tmp_gram = np.empty((m, nr, nr))
 
     def start(self, y_prev: _FloatArray) -> None:
         """Zero the signatures and their sums: a new record from the sample after the
@@ -142,18 +154,22 @@ class FaultSignatures:
         """Signatures and sums for sample j (``w = [u; y]``, main filter output z);
         the fault signals start at sample ``change``."""
         if j >= change:
-            phi = np.empty((self.m, N_REG))
-            phi[:, REG_BIAS] = 1.0
-            phi[:, REG_RAMP] = (j - change) * self.T
-            phi[:, REG_GAIN] = w[self.p:]
-            phi = phi.reshape(-1)
+            phi = self._phi
+            phi3 = self._phi3
+            phi3[:, REG_RAMP] = (j - change) * self.T
+            phi3[:, REG_GAIN] = w[self.p:]
             self.n_after += 1
         else:
-            phi = np.zeros(N_REG * self.m)
-        g = self._sig_c @ self._sig + self._sig_d * phi
-        self._sig = self._sig_a @ self._sig + self._sig_b * phi
-        self._gram_c += g[:, :, None] * g[:, None, :]
-        self._gz_c += g * z[:, None]
+            phi = self._phi_zero
+        g = self._sig_c @ self._sig
+        sig = self._sig_a @ self._sig
+        # [Dz; B] * phi in one product: rows m on are the state's
+        db_phi = np.multiply(self._sig_db, phi, out=self._tmp_db)
+        g += db_phi[:self.m]
+        sig += db_phi[self.m:]
+        self._sig = sig
+        self._gram_c += np.multiply(g[:, :, None], g[:, None, :], out=self._tmp_gram)
+        self._gz_c += np.multiply(g, z[:, None], out=self._tmp_d)
         self._zz_c += z * z
         self.n_rec += 1
         self._g_last, self.z_last = g, z
@@ -180,19 +196,24 @@ class FaultSignatures:
         squares; θ then estimates (g − 1)/g without the pull of the noise)."""
         if not cols:
             return float(self._zz_c.sum()), np.zeros(0), self._zz_c.copy()
-        gram_c = self._gram_c[:, cols][:, :, cols].copy()
-        gz_c = self._gz_c[:, cols].copy()
-        gains = [(pos, col // N_REG) for pos, col in enumerate(cols)
-                 if col % N_REG == REG_GAIN]
-        if gains:
-            noise = self._reading_noise()
-            for pos, sensor in gains:
+        idx = np.array(cols)
+        gram_c = self._gram_c[:, idx[:, None], idx].copy()  # C order, as the sums expect
+        gz_c = self._gz_c[:, idx].copy()
+        noise = None
+        for pos, col in enumerate(cols):
+            if col % N_REG == REG_GAIN:
+                if noise is None:
+                    noise = self._reading_noise()
+                sensor = col // N_REG
                 e = noise[:, sensor] * self.sensor_variances[sensor]
                 gram_c[:, pos, pos] -= e
                 gz_c[:, pos] -= e
         gram, xz = gram_c.sum(axis=0), gz_c.sum(axis=0)
         ridge = 1e-12 * max(float(np.trace(gram)), 1e-300)
-        theta = np.linalg.solve(gram + ridge * np.eye(len(cols)), xz)
+        eye = _EYE.get(len(cols))
+        if eye is None:
+            eye = _EYE[len(cols)] = np.eye(len(cols))
+        theta = np.linalg.solve(gram + ridge * eye, xz)
         rss_c = self._zz_c - 2.0 * gz_c @ theta + np.einsum("cij,i,j->c", gram_c, theta, theta)
         return float(self._zz_c.sum() - theta @ xz), theta, rss_c
 
