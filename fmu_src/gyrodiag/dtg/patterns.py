@@ -497,6 +497,10 @@ class PatternClassifier:
         if (single.fault_type not in (-1, 1, 4) or len(self._step) < 2
                 or not stats.raw_signals):
             return None
+        # a single class whose whole χ² is under half the margin leaves no pair a chance
+        # (its level χ² bounds every one-signal fit's): skip the ten fits (≈ 2.5 ms)
+        if single.fault_type > 0 and single.distance * 2 * N_CHANNELS < 0.5 * PAIR_MARGIN:
+            return None
         lib = self.library
         s_level = lib.noise.level_std * lib.noise.scale(stats.window_blocks)
         lv = np.clip(stats.log_variance, LOG_VAR_MIN, LOG_VAR_MAX)
