@@ -25,7 +25,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from harness.campaigns.campaign import CampaignSpec, load_campaign, run_campaign  # noqa: E402
+from gyrodiag_harness.campaigns.campaign import CampaignSpec, load_campaign, run_campaign  # noqa: E402
 
 
 def spec_for(runs: int, duration_s: float) -> tuple[CampaignSpec, Path]:

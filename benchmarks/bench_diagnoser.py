@@ -507,7 +507,7 @@ def measure_library(rec: np.ndarray, warmup: int, kernels: str) -> dict:
 # ------------------------------------------------------------------ DTG chain
 _CHAIN_RUNNER = """
 import json, os, sys, time
-from harness import load_scenario, run_scenario
+from gyrodiag_harness import load_scenario, run_scenario
 s = load_scenario(sys.argv[1])
 t0, c0 = time.perf_counter(), time.process_time()
 r = run_scenario(s, fmu_dir=sys.argv[2], progress=False)

@@ -41,7 +41,7 @@ FMU_DIR = ROOT / "build" / "fmus"
 _SCENARIO_RUNNER = textwrap.dedent(
     """
     import json, os, sys, time
-    from harness import load_scenario, run_scenario
+    from gyrodiag_harness import load_scenario, run_scenario
     s = load_scenario(sys.argv[1])
     results_dir = sys.argv[3] if len(sys.argv) > 3 else None
     t0 = time.perf_counter()
@@ -100,7 +100,7 @@ RECIPES = {"dtg_signatures.json": ROOT / "scenarios" / "training",
 
 
 def _learn_signatures(results: Path, name: str = "dtg_signatures.json") -> None:
-    subprocess.run([sys.executable, "-m", "harness", "learn-signatures",
+    subprocess.run([sys.executable, "-m", "gyrodiag_harness", "learn-signatures",
                     str(RECIPES[name]), "--out", str(results / name), "--fmu-dir",
                     str(FMU_DIR), "--no-progress", "-q"], cwd=ROOT, check=True, timeout=3600)
 
@@ -110,7 +110,7 @@ def prepare_results(paths: list[str], results: Path,
     """Provide in ``results`` the run-time files that the scenarios name through
     ``${out}/`` (the DTG signature and pattern libraries, learned from
     scenarios/training and scenarios/training/patterns)."""
-    from harness.cosim.scenario import RESULTS_PREFIX, load_scenario
+    from gyrodiag_harness.cosim.scenario import RESULTS_PREFIX, load_scenario
 
     needed = {spec[len(RESULTS_PREFIX):] for p in paths
               for inst in load_scenario(p).fmus.values() for spec in inst.files.values()

@@ -41,8 +41,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from harness.cosim.batch import run_all  # noqa: E402
-from harness.cosim.scenario import load_scenario  # noqa: E402
+from gyrodiag_harness.cosim.batch import run_all  # noqa: E402
+from gyrodiag_harness.cosim.scenario import load_scenario  # noqa: E402
 
 BASE = ROOT / "scenarios" / "system_nominal_step_small.toml"
 #: Diagnoser outputs recorded besides the base scenario's (which test alarmed, by how much)
@@ -117,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
         patterns = args.patterns
         if patterns is None:
             patterns = out / "dtg_patterns.json"
-            subprocess.run([sys.executable, "-m", "harness", "learn-signatures",
+            subprocess.run([sys.executable, "-m", "gyrodiag_harness", "learn-signatures",
                             str(ROOT / "scenarios" / "training" / "patterns"), "--out",
                             str(patterns), "--fmu-dir", str(fmu_dir), "--no-progress",
                             "--workers", str(args.workers)],

@@ -1,4 +1,4 @@
-"""``python -m harness``: see :mod:`harness.cli`.
+"""``python -m gyrodiag_harness``: see :mod:`gyrodiag_harness.cli`.
 
 The process ends with ``os._exit`` once the command has finished and its output is
 flushed. pythonfmu 0.7 writes into its freed interpreter guard at process exit (its
@@ -9,7 +9,7 @@ fmu_src/shim/fmi2_status_shim.c); ``os._exit`` stays so that FMUs built without 
 (no C compiler) cannot turn a passing run into exit status 134.
 """
 
-from harness.cli import console
+from gyrodiag_harness.cli import console
 
 if __name__ == "__main__":
     console()

@@ -33,7 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 if TYPE_CHECKING:
-    from harness import RunResult
+    from gyrodiag_harness import RunResult
 
 SCENARIO = ROOT / "scenarios" / "aircraft_q_bias.toml"
 CONTAINER = "aircraft_chain"
@@ -57,9 +57,9 @@ def container_description(scenario: Any, fmu_dir: Path, record: list[str]) -> di
     (what the harness sets before initialisation), ``record`` as outputs."""
     from fmpy import read_model_description
 
-    from harness.cosim.master import model_info, plan_coupling
-    from harness.cosim.scenario import split_name
-    from harness.cosim.timing import fill_timing_parameters
+    from gyrodiag_harness.cosim.master import model_info, plan_coupling
+    from gyrodiag_harness.cosim.scenario import split_name
+    from gyrodiag_harness.cosim.timing import fill_timing_parameters
 
     files = {n: f"{i.fmu}.fmu" for n, i in scenario.fmus.items()}
     if len(set(files.values())) != len(files):
@@ -111,7 +111,7 @@ def simulate_container(fmu: Path, record: list[str], duration_s: float,
     import fmpy
     import numpy as np
 
-    from harness import RunResult
+    from gyrodiag_harness import RunResult
 
     wall0 = time.perf_counter()
     res = fmpy.simulate_fmu(str(fmu), stop_time=duration_s, step_size=step_s,
@@ -128,8 +128,8 @@ def main(fmu_dir: Path, out_dir: Path) -> None:
 
     from fmpy import read_model_description
 
-    from harness import run_scenario
-    from harness.cosim.scenario import parse_scenario
+    from gyrodiag_harness import run_scenario
+    from gyrodiag_harness.cosim.scenario import parse_scenario
 
     data = tomllib.loads(SCENARIO.read_text(encoding="utf-8"))
     data.pop("record", None)  # record every output

@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _libcosim_runner import ROOT, _aircraft
 
 if TYPE_CHECKING:
-    from harness import RunResult
+    from gyrodiag_harness import RunResult
 
 ECOS_SEPARATOR = "::"  # Ecos names a variable "instance::variable"
 #: Recorded in the run that names no parameter set.
@@ -54,7 +54,7 @@ def run_ecos(ssp: Path, types: dict[str, str], duration_s: float, step_s: float,
     import numpy as np
     from ecospy import EcosLib, EcosSimulation
 
-    from harness import RunResult
+    from gyrodiag_harness import RunResult
 
     getters = []
     n_steps = round(duration_s / step_s)
@@ -89,9 +89,9 @@ def run_ecos(ssp: Path, types: dict[str, str], duration_s: float, step_s: float,
 def main(fmu_dir: Path, out_dir: Path) -> None:
     from fmpy import read_model_description
 
-    from harness import run_scenario
-    from harness.cosim.scenario import parse_scenario
-    from harness.cosim.ssp import PARAMETER_SET, export_ssp
+    from gyrodiag_harness import run_scenario
+    from gyrodiag_harness.cosim.scenario import parse_scenario
+    from gyrodiag_harness.cosim.ssp import PARAMETER_SET, export_ssp
 
     data = _aircraft()
     data["coupling"] = "jacobi"

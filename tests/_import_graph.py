@@ -12,8 +12,9 @@ import ast
 from pathlib import Path
 
 
-def module_name(path: Path, root: Path) -> str:
+def module_name(path: Path, root: Path, package: str | None = None) -> str:
     parts = list(path.relative_to(root.parent).with_suffix("").parts)
+    parts[0] = package or parts[0]
     if parts[-1] == "__init__":
         parts.pop()
     return ".".join(parts)
@@ -50,10 +51,13 @@ def imports(tree: ast.AST, module: str, is_package: bool) -> list[tuple[str, lis
     return found
 
 
-def import_graph(root: Path) -> dict[str, set[str]]:
-    """Module → modules of the same top-level package it imports (executed imports)."""
-    files = {module_name(p, root): p for p in sorted(root.rglob("*.py"))}
-    top = root.name
+def import_graph(root: Path, package: str | None = None) -> dict[str, set[str]]:
+    """Module → modules of the same top-level package it imports (executed imports).
+
+    ``package`` is the import name where it differs from the folder's name.
+    """
+    files = {module_name(p, root, package): p for p in sorted(root.rglob("*.py"))}
+    top = package or root.name
     graph: dict[str, set[str]] = {}
     for name, path in files.items():
         tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))

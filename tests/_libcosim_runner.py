@@ -3,7 +3,7 @@
 ``python _libcosim_runner.py FMU_DIR OUT_DIR`` runs every case of :data:`CASES`
 
 * with the harness's fmpy master, coupling forced to Jacobi (``harness``);
-* with libcosim from the scenario (``libcosim``, :mod:`harness.cosim.libcosim`);
+* with libcosim from the scenario (``libcosim``, :mod:`gyrodiag_harness.cosim.libcosim`);
 * with libcosim from the SSP that ``export-ssp`` writes (``ssp``; not for the case with a
   physical fault, which SSP cannot carry),
 
@@ -72,10 +72,10 @@ CASES = {"aircraft": _aircraft, "dtg": _dtg, "hrg_physical": _hrg_physical}
 def main(fmu_dir: Path, out_dir: Path) -> None:
     from fmpy import read_model_description
 
-    from harness import run_scenario
-    from harness.cosim.libcosim import run_scenario_libcosim, run_ssp_libcosim
-    from harness.cosim.scenario import parse_scenario
-    from harness.cosim.ssp import export_ssp
+    from gyrodiag_harness import run_scenario
+    from gyrodiag_harness.cosim.libcosim import run_scenario_libcosim, run_ssp_libcosim
+    from gyrodiag_harness.cosim.scenario import parse_scenario
+    from gyrodiag_harness.cosim.ssp import export_ssp
 
     results = out_dir / "results"
     results.mkdir(parents=True, exist_ok=True)

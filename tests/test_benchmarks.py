@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from harness.cosim.batch import scenario_files
-from harness.cosim.master import preflight
-from harness.cosim.scenario import ScenarioError, load_scenario
+from gyrodiag_harness.cosim.batch import scenario_files
+from gyrodiag_harness.cosim.master import preflight
+from gyrodiag_harness.cosim.scenario import ScenarioError, load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 BENCHMARKS = sorted((ROOT / "benchmarks").glob("*.py"))

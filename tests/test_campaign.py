@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.campaigns.campaign import (
+from gyrodiag_harness.campaigns.campaign import (
     RUN_TMP_PREFIX,
     CampaignSpec,
     _band_statistic,
@@ -30,13 +30,13 @@ from harness.campaigns.campaign import (
     load_campaign,
     run_campaign,
 )
-from harness.campaigns.campaign_report import (
+from gyrodiag_harness.campaigns.campaign_report import (
     clopper_pearson,
     garwood_interval,
     markdown_summary,
     summarize,
 )
-from harness.cosim.scenario import InjectorFault
+from gyrodiag_harness.cosim.scenario import InjectorFault
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "campaigns" / "smoke.toml"
@@ -217,7 +217,7 @@ def test_expansion_is_deterministic_and_applies_fault_seed_and_overrides(tmp_pat
 
 
 def test_aircraft_campaign_has_dual_faults_both_couplings_and_40_nominal_hours(tmp_path):
-    from harness.campaigns.campaign import _df_sequential
+    from gyrodiag_harness.campaigns.campaign import _df_sequential
 
     spec, base = load_campaign(ROOT / "campaigns" / "aircraft.toml")
     runs = expand_runs(spec, base, tmp_path)
@@ -303,7 +303,7 @@ def _wait_for(predicate, timeout_s: float) -> bool:
 DRIVER = """
 import json, sys
 sys.path.insert(0, {tests!r})
-from harness.campaigns.campaign import CampaignInterrupted, CampaignSpec, run_campaign
+from gyrodiag_harness.campaigns.campaign import CampaignInterrupted, CampaignSpec, run_campaign
 from pathlib import Path
 spec = CampaignSpec.model_validate(json.loads({spec!r}))
 try:
@@ -390,7 +390,7 @@ def test_smoke_campaign_pool_and_dask_give_the_same_figures(tmp_path, fmu_dir, m
     assert all(np.diff(sweep["detection_rate"]) <= 0)
     assert not math.isnan(sweep["upper_95_per_h"][0])
     # the report writes figures and plots
-    from harness.cli import main
+    from gyrodiag_harness.cli import main
 
     assert main(["campaign", str(SMOKE), "--out", str(tmp_path / "pool"),
                  "--report-only"]) == 0
@@ -404,7 +404,7 @@ def test_campaign_summary_pools_campaigns_and_counts_each_ones_runs(tmp_path):
     """`harness campaign-summary`: two campaigns (one stopped half way) as one summary:
     classes kept apart by campaign, a channel's false alarms pooled, the unfinished one
     counted as planned but not finished (exit 1); bad folders exit 2 naming them."""
-    from harness.cli.commands import main
+    from gyrodiag_harness.cli.commands import main
 
     a = fake_spec([0.6, 0.7], nominal_runs=2)
     b = fake_spec([0.3, 0.8, 0.9], nominal_runs=3).model_copy(update={"name": "other"})
@@ -447,7 +447,7 @@ def test_a_group_runs_alone_and_its_summary_says_so(tmp_path):
     """`--group`: only that flight condition group's runs (ids of the full campaign),
     recorded in campaign.json and named in campaign-summary's table; a bad name exits 2
     naming the spec's groups and writes nothing."""
-    from harness.cli.commands import main
+    from gyrodiag_harness.cli.commands import main
 
     base = Path(__file__).resolve().parents[1] / "scenarios" / "system_pitch_gyro_nominal.toml"
     data = fake_spec([0.6, 0.7], nominal_runs=2).model_dump(by_alias=True)
@@ -508,7 +508,7 @@ def test_every_shipped_campaign_learns_the_libraries_its_scenarios_read():
     """A base scenario (or witness copy) that reads ``${out}/NAME`` needs the spec to
     learn NAME first (``signatures_file`` with ``signatures_training``, or
     ``libraries``): campaigns/system.toml did not, and all 304 runs failed."""
-    from harness.cosim.scenario import load_scenario
+    from gyrodiag_harness.cosim.scenario import load_scenario
 
     for path in sorted((ROOT / "campaigns").glob("*.toml")):
         spec, base = load_campaign(path)
@@ -525,7 +525,7 @@ def test_every_shipped_campaign_learns_the_libraries_its_scenarios_read():
 
 
 def test_a_campaign_whose_chain_cannot_start_stops_before_any_run(tmp_path):
-    from harness.cosim.scenario import ScenarioError
+    from gyrodiag_harness.cosim.scenario import ScenarioError
 
     spec, base = load_campaign(ROOT / "campaigns" / "dtg.toml")
     spec = spec.model_copy(update={"signatures_training": None})  # the library is missing
@@ -539,7 +539,7 @@ def test_the_fmu_folder_of_a_campaign_follows_the_scenario_precedence(tmp_path, 
     """--fmu-dir, then $GYRODIAG_FMU_DIR, then the spec's fmu_dir (relative to the spec),
     then each scenario's own; the run ids do not depend on it (a resume on the build a
     campaign started with). campaigns/hrg.toml's fmu_dir hid the variable before."""
-    from harness.campaigns.campaign import campaign_fmu_dir
+    from gyrodiag_harness.campaigns.campaign import campaign_fmu_dir
 
     spec, base = load_campaign(SMOKE)
     monkeypatch.delenv("GYRODIAG_FMU_DIR", raising=False)
@@ -556,7 +556,7 @@ def test_the_fmu_folder_of_a_campaign_follows_the_scenario_precedence(tmp_path, 
 
 
 def test_campaign_command_names_a_missing_fmu_folder(tmp_path, capsys):
-    from harness.cli.commands import main
+    from gyrodiag_harness.cli.commands import main
 
     missing = tmp_path / "no_fmus"
     assert main(["campaign", str(SMOKE), "--out", str(tmp_path / "out"), "--fmu-dir",
@@ -569,7 +569,7 @@ def test_campaign_command_names_a_missing_fmu_folder(tmp_path, capsys):
 def test_the_judged_rule_reads_a_readout_model_given_as_a_file():
     """``df.sensor_dynamics_file`` in the instance's ``files`` (a path the harness
     resolves) makes the auto rule the paper's, as in the Diagnoser."""
-    from harness.campaigns.campaign import _df_sequential
+    from gyrodiag_harness.campaigns.campaign import _df_sequential
 
     sc = build_scenario(expand_runs(*load_campaign(ROOT / "campaigns" / "aircraft.toml"))[0])
     assert _df_sequential(sc, "diag")
@@ -581,7 +581,7 @@ def test_the_judged_rule_reads_a_readout_model_given_as_a_file():
 
 
 def test_a_spec_naming_an_unknown_instance_stops_with_its_class_named(tmp_path):
-    from harness.cosim.scenario import ScenarioError
+    from gyrodiag_harness.cosim.scenario import ScenarioError
 
     spec, base = load_campaign(SMOKE)
     cls = spec.classes["aircraft"].model_copy(update={"parameters": {"nope": {"x": 1.0}}})

@@ -17,8 +17,13 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from harness.campaigns.campaign import CampaignSpec, expand_runs, load_campaign, run_campaign
-from harness.campaigns.campaign_report import markdown_summary, summarize
+from gyrodiag_harness.campaigns.campaign import (
+    CampaignSpec,
+    expand_runs,
+    load_campaign,
+    run_campaign,
+)
+from gyrodiag_harness.campaigns.campaign_report import markdown_summary, summarize
 
 ROOT = Path(__file__).resolve().parents[1]
 BASE = ROOT / "scenarios" / "hrg_seed001_noise20mv.toml"

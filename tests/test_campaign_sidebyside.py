@@ -22,14 +22,14 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from harness.campaigns.campaign import (
+from gyrodiag_harness.campaigns.campaign import (
     CampaignSpec,
     build_scenario,
     expand_runs,
     load_campaign,
     run_campaign,
 )
-from harness.campaigns.campaign_report import markdown_summary, summarize
+from gyrodiag_harness.campaigns.campaign_report import markdown_summary, summarize
 
 ROOT = Path(__file__).resolve().parents[1]
 # where the session fixture ``fmu_dir`` builds the FMUs (request it before running them)

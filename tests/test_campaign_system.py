@@ -1,4 +1,4 @@
-"""System campaigns (harness.campaigns): flight conditions, physical faults, two witnesses.
+"""System campaigns (gyrodiag_harness.campaigns): flight conditions, physical faults, two witnesses.
 
 * conditions multiply sweeps and nominal runs, fly the same seed under every condition
   (a paired comparison), merge their manoeuvres and parameter overrides into the run,
@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from harness.campaigns.campaign import (
+from gyrodiag_harness.campaigns.campaign import (
     CampaignSpec,
     RunSpec,
     _judge_system,
@@ -26,7 +26,7 @@ from harness.campaigns.campaign import (
     expand_runs,
     select,
 )
-from harness.campaigns.campaign_report import markdown_summary, summarize
+from gyrodiag_harness.campaigns.campaign_report import markdown_summary, summarize
 
 ROOT = Path(__file__).resolve().parents[1]
 BASE = ROOT / "scenarios" / "system_pitch_gyro_nominal.toml"

@@ -1,4 +1,4 @@
-"""``python -m harness compare-results A B`` (harness/cli/compare.py) and the ``gyrodiag``
+"""``python -m gyrodiag_harness compare-results A B`` (harness/cli/compare.py) and the ``gyrodiag``
 console script.
 
 The results folders are written by the harness's own writers (RunResult.save,
@@ -22,14 +22,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.campaigns.campaign import CampaignSpec, load_records, run_campaign
-from harness.campaigns.campaign_report import summarize
-from harness.campaigns.campaign_report import write_report as write_campaign_report
-from harness.cli import main
-from harness.cli.compare import IGNORED, ResultsFolderError, compare_results
-from harness.cosim.results import FaultWindow, RunResult, drop_signals
-from harness.reporting.report import write_report
-from harness.verification.expectations import ExpectationResult, ScenarioVerdict
+from gyrodiag_harness.campaigns.campaign import CampaignSpec, load_records, run_campaign
+from gyrodiag_harness.campaigns.campaign_report import summarize
+from gyrodiag_harness.campaigns.campaign_report import write_report as write_campaign_report
+from gyrodiag_harness.cli import main
+from gyrodiag_harness.cli.compare import IGNORED, ResultsFolderError, compare_results
+from gyrodiag_harness.cosim.results import FaultWindow, RunResult, drop_signals
+from gyrodiag_harness.reporting.report import write_report
+from gyrodiag_harness.verification.expectations import ExpectationResult, ScenarioVerdict
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -317,8 +317,8 @@ def test_a_campaign_summary_folder_compares_its_summary(campaign_pair, tmp_path)
 # ------------------------------------------------------------------- the console script
 def test_console_script_is_the_harness_main():
     (ep,) = [e for e in entry_points(group="console_scripts") if e.name == "gyrodiag"]
-    assert ep.value == "harness.cli:console"
-    from harness.cli import console
+    assert ep.value == "gyrodiag_harness.cli:console"
+    from gyrodiag_harness.cli import console
 
     assert ep.load() is console
 
@@ -335,10 +335,11 @@ def test_gyrodiag_help_lists_the_same_commands_as_python_m_harness():
     env = {**os.environ, "COLUMNS": "100"}
     mine = subprocess.run([str(script), "--help"], capture_output=True, text=True, env=env,
                           timeout=60, check=True).stdout
-    theirs = subprocess.run([sys.executable, "-m", "harness", "--help"], capture_output=True,
-                            text=True, env=env, cwd=ROOT, timeout=60, check=True).stdout
+    theirs = subprocess.run([sys.executable, "-m", "gyrodiag_harness", "--help"],
+                            capture_output=True, text=True, env=env, cwd=ROOT, timeout=60,
+                            check=True).stdout
     assert mine.startswith("usage: gyrodiag ")
-    assert theirs.startswith("usage: python -m harness ")
+    assert theirs.startswith("usage: python -m gyrodiag_harness ")
     commands = _commands(theirs)
     assert "all" in commands and "compare-results" in commands and len(commands) >= 12
     assert _commands(mine) == commands

@@ -189,7 +189,7 @@ def test_decoupled_isolability_analytic_cases() -> None:
 def test_harness_isolability_report_shows_the_decoupled_table() -> None:
     import json
 
-    from harness.verification.isolability import render, seed_isolability_report
+    from gyrodiag_harness.verification.isolability import render, seed_isolability_report
 
     report = seed_isolability_report()
     data = json.loads(render(report, "json"))

@@ -22,11 +22,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.campaigns.campaign import expand_runs, load_campaign
-from harness.campaigns.signatures import check_training_scenarios
-from harness.cosim.results import RunResult
-from harness.cosim.scenario import load_scenario
-from harness.verification.metrics import detection_delay_s
+from gyrodiag_harness.campaigns.campaign import expand_runs, load_campaign
+from gyrodiag_harness.campaigns.signatures import check_training_scenarios
+from gyrodiag_harness.cosim.results import RunResult
+from gyrodiag_harness.cosim.scenario import load_scenario
+from gyrodiag_harness.verification.metrics import detection_delay_s
 
 ROOT = Path(__file__).resolve().parents[1]
 SCEN = ROOT / "scenarios"

@@ -1,7 +1,7 @@
 """Ecos runs the exported aircraft SSP like the harness (issue 32 item 5, docs/fmu.md "SSP").
 
 Ecos (ecospy, a C++ co-simulation master) loads the SSP that ``export-ssp`` writes; the
-one parameter set all its ``.ssv`` share (:data:`harness.cosim.ssp.PARAMETER_SET`) is
+one parameter set all its ``.ssv`` share (:data:`gyrodiag_harness.cosim.ssp.PARAMETER_SET`) is
 named at initialisation, as Ecos requires (it applies no set by default). The run is
 compared with the harness's Jacobi run of the aircraft seed scenario (q-sensor bias 0.1
 rad/s from 10 s), in a fresh process (tests/_ecos_runner.py).
@@ -28,8 +28,8 @@ import numpy as np
 import pytest
 from lxml import etree
 
-from harness import RunResult
-from harness.cosim.ssp import PARAMETER_SET
+from gyrodiag_harness import RunResult
+from gyrodiag_harness.cosim.ssp import PARAMETER_SET
 
 RUNNER = Path(__file__).resolve().parent / "_ecos_runner.py"
 REAL_TOL = 1e-10

@@ -22,9 +22,9 @@ import numpy as np
 import pytest
 from _host_runner import FMUS
 
-from harness import RunResult
-from harness.cosim.scenario import load_scenario
-from harness.verification.expectations import evaluate
+from gyrodiag_harness import RunResult
+from gyrodiag_harness.cosim.scenario import load_scenario
+from gyrodiag_harness.verification.expectations import evaluate
 
 HERE = Path(__file__).resolve().parent
 RUNNER = HERE / "_container_runner.py"

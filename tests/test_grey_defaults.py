@@ -26,7 +26,7 @@ from gyrodiag.grey import (
     ImprovedGreyPredictor,
     PaperThreshold,
 )
-from harness.verification.metrics import detection_delay_s, false_alarms
+from gyrodiag_harness.verification.metrics import detection_delay_s, false_alarms
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULTS_SCENARIO = ROOT / "scenarios" / "hrg_seed001_defaults_noise20mv.toml"

@@ -1,4 +1,4 @@
-"""``python -m harness`` in subprocesses: run, list, verify, and its error exits."""
+"""``python -m gyrodiag_harness`` in subprocesses: run, list, verify, and its error exits."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.cosim.results import RunResult
+from gyrodiag_harness.cosim.results import RunResult
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).resolve().parent / "data" / "scenarios"
@@ -21,7 +21,7 @@ DATA = Path(__file__).resolve().parent / "data" / "scenarios"
 def harness(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
     env = dict(os.environ)
     env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
-    return subprocess.run([sys.executable, "-m", "harness", *args], cwd=cwd, env=env,
+    return subprocess.run([sys.executable, "-m", "gyrodiag_harness", *args], cwd=cwd, env=env,
                           capture_output=True, text=True, timeout=120)
 
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from harness.cosim.results import FaultWindow, RunResult
-from harness.verification import expectations as ex
+from gyrodiag_harness.cosim.results import FaultWindow, RunResult
+from gyrodiag_harness.verification import expectations as ex
 
 STEP_S = 0.01
 
@@ -279,7 +279,7 @@ def test_verify_results_pairs_by_name_and_reports_orphans(run: RunResult) -> Non
 
 
 def test_verify_results_accepts_scenarios_from_the_loader(run: RunResult, tmp_path) -> None:
-    from harness.cosim import scenario as scenario_mod
+    from gyrodiag_harness.cosim import scenario as scenario_mod
     toml = tmp_path / "q_bias.toml"
     toml.write_text(
         'duration_s = 20.0\nstep_s = 0.01\n'

@@ -1,4 +1,4 @@
-"""Ctrl-C and SIGTERM on real runs: ``python -m harness`` stops between two steps, keeps
+"""Ctrl-C and SIGTERM on real runs: ``python -m gyrodiag_harness`` stops between two steps, keeps
 the partial signals of the runs in flight (marked interrupted in run.json and the report),
 starts nothing new and exits 130; the FMUs never see the interrupt as an exception.
 
@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.cosim.results import RunResult
+from gyrodiag_harness.cosim.results import RunResult
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).resolve().parent / "data" / "scenarios"
@@ -41,7 +41,7 @@ def _start(args: list[str], tmp: Path) -> tuple[subprocess.Popen, Path, Path]:
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     with open(stdout, "w") as out, open(stderr, "w") as err:  # the child keeps its copies
         proc = subprocess.Popen(
-            [sys.executable, "-m", "harness", *args, "-v", "--no-progress"], cwd=ROOT,
+            [sys.executable, "-m", "gyrodiag_harness", *args, "-v", "--no-progress"], cwd=ROOT,
             env=env, stdout=out, stderr=err,
             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     return proc, stdout, stderr
@@ -138,16 +138,16 @@ def test_run_scenario_api_raises_run_interrupted_with_the_partial_result(tmp_pat
     script = tmp_path / "api.py"
     script.write_text(f"""
 import logging, os, signal, sys, threading
-import harness
-from harness.cosim.interrupt import RunInterrupted, stop_requested
+import gyrodiag_harness
+from gyrodiag_harness.cosim.interrupt import RunInterrupted, stop_requested
 
 class SignalWhenStepping(logging.Handler):
     def emit(self, record):
         if "initialised, stepping" in record.getMessage():
             threading.Timer(0.5, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
 
-logging.getLogger("harness").addHandler(SignalWhenStepping())
-logging.getLogger("harness").setLevel(logging.DEBUG)
+logging.getLogger("gyrodiag_harness").addHandler(SignalWhenStepping())
+logging.getLogger("gyrodiag_harness").setLevel(logging.DEBUG)
 try:
     harness.run_scenario({str(scenario)!r}, fmu_dir={str(fmu_dir)!r}, progress=False,
                          out_dir={str(tmp_path / "api_out")!r})

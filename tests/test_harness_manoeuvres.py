@@ -16,15 +16,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.cosim.master import manoeuvre_windows, model_info
-from harness.cosim.results import FaultWindow, RunResult
-from harness.cosim.scenario import (
+from gyrodiag_harness.cosim.master import manoeuvre_windows, model_info
+from gyrodiag_harness.cosim.results import FaultWindow, RunResult
+from gyrodiag_harness.cosim.scenario import (
     MANOEUVRE_COMMAND_CODES,
     ScenarioError,
     check_against_models,
     load_scenario,
 )
-from harness.verification import expectations as ex
+from gyrodiag_harness.verification import expectations as ex
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -323,7 +323,7 @@ def test_witnesses_agree_on_one_root_cause(two_witnesses: RunResult) -> None:
 
 
 def test_witness_timeline_is_drawn_for_the_expectation(two_witnesses: RunResult) -> None:
-    from harness.reporting import plots
+    from gyrodiag_harness.reporting import plots
 
     scenario = {"expect": [{"kind": "witnesses_agree",
                             "witnesses": ["fine.dtg.alarm", "df.df.detected"],

@@ -1,4 +1,4 @@
-"""Co-simulation master (harness.cosim.master) on the real FMUs.
+"""Co-simulation master (gyrodiag_harness.cosim.master) on the real FMUs.
 
 All FMU work happens in ONE fresh process (this file run as a script through the
 ``run_fmu_script`` fixture, docs/methods.md §6.11): it runs every case below and saves the arrays;
@@ -21,7 +21,7 @@ H = 0.01
 
 
 # ---------------------------------------------------------------------------------------
-# scenarios (plain dicts, validated by harness.cosim.scenario.parse_scenario in the runner)
+# scenarios (plain dicts, validated by gyrodiag_harness.cosim.scenario.parse_scenario in the runner)
 # ---------------------------------------------------------------------------------------
 def chain_scenario(coupling: str) -> dict:
     """HRG → FaultInjector a → FaultInjector b, a bias on each injector."""
@@ -202,9 +202,9 @@ def _save_result(out: dict, prefix: str, result) -> None:
 def _runner(fmu_dir: Path, out_path: Path) -> None:
     root = Path(__file__).resolve().parents[1]
     sys.path.insert(0, str(root))
-    from harness.cosim.master import plan_coupling, run_scenario
-    from harness.cosim.results import RunResult
-    from harness.cosim.scenario import load_scenario, parse_scenario
+    from gyrodiag_harness.cosim.master import plan_coupling, run_scenario
+    from gyrodiag_harness.cosim.results import RunResult
+    from gyrodiag_harness.cosim.scenario import load_scenario, parse_scenario
 
     out: dict[str, np.ndarray] = {}
 

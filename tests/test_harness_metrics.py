@@ -9,8 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from harness.cosim.results import FaultWindow, RunResult
-from harness.verification import metrics
+from gyrodiag_harness.cosim.results import FaultWindow, RunResult
+from gyrodiag_harness.verification import metrics
 
 STEP_S = 0.01
 

@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.cosim.batch import default_workers, run_all
-from harness.cosim.results import RunResult
+from gyrodiag_harness.cosim.batch import default_workers, run_all
+from gyrodiag_harness.cosim.results import RunResult
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).resolve().parent / "data" / "scenarios"
@@ -29,7 +29,7 @@ def _verify(out: Path, fmu_dir: Path, workers: int,
             fork_server: bool = True) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     env["GYRODIAG_FORK_SERVER"] = "1" if fork_server else "0"
-    return subprocess.run([sys.executable, "-m", "harness", "verify", *map(str, SCENARIOS),
+    return subprocess.run([sys.executable, "-m", "gyrodiag_harness", "verify", *map(str, SCENARIOS),
                            "--out", str(out), "--fmu-dir", str(fmu_dir), "--workers",
                            str(workers), "--no-progress"], cwd=ROOT, env=env,
                           capture_output=True, text=True, timeout=600)

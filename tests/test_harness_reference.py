@@ -1,4 +1,4 @@
-"""The scenario reference: docs/scenarios.md and ``python -m harness schema`` come from the
+"""The scenario reference: docs/scenarios.md and ``python -m gyrodiag_harness schema`` come from the
 pydantic models that validate scenario files, and stay true to them."""
 
 from __future__ import annotations
@@ -12,11 +12,11 @@ from pathlib import Path
 import jsonschema
 import pytest
 
-from harness.cli import reference
-from harness.cosim.batch import scenario_files
-from harness.cosim.master import preflight
-from harness.cosim.scenario import ScenarioError, parse_scenario
-from harness.verification import expectations, metrics
+from gyrodiag_harness.cli import reference
+from gyrodiag_harness.cosim.batch import scenario_files
+from gyrodiag_harness.cosim.master import preflight
+from gyrodiag_harness.cosim.scenario import ScenarioError, parse_scenario
+from gyrodiag_harness.verification import expectations, metrics
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED_FILES = scenario_files([ROOT / "scenarios", ROOT / "scenarios" / "training"])
@@ -75,7 +75,7 @@ def test_json_schema_accepts_every_seed_scenario_and_rejects_what_the_loader_rej
 
 def test_schema_command_prints_the_json_schemas() -> None:
     def run(*args: str) -> dict:
-        proc = subprocess.run([sys.executable, "-m", "harness", "schema", *args], cwd=ROOT,
+        proc = subprocess.run([sys.executable, "-m", "gyrodiag_harness", "schema", *args], cwd=ROOT,
                               capture_output=True, text=True, timeout=120)
         assert proc.returncode == 0, proc.stderr
         return json.loads(proc.stdout)

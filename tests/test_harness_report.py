@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from matplotlib.figure import Figure
 
-from harness.cosim.results import FaultWindow, RunResult
-from harness.reporting import plots, report
-from harness.verification.expectations import verify_results
+from gyrodiag_harness.cosim.results import FaultWindow, RunResult
+from gyrodiag_harness.reporting import plots, report
+from gyrodiag_harness.verification.expectations import verify_results
 
 STEP_S = 0.01
 THETA_NOM = (1.9951, 0.9959, -0.0288, -0.0303, 0.0002)  # docs/methods.md §2, paper's θ_nom

@@ -1,4 +1,4 @@
-"""The run store (``signals.npz`` + ``run.json``, :mod:`harness.cosim.results`): how much
+"""The run store (``signals.npz`` + ``run.json``, :mod:`gyrodiag_harness.cosim.results`): how much
 it shrinks a real run, what it gives back, the formats of earlier versions, bad files.
 
 Claims under test (docs/notes.md, Harness): Real signals rounded to float32 come back
@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.cosim.batch import run_all
-from harness.cosim.results import (
+from gyrodiag_harness.cosim.batch import run_all
+from gyrodiag_harness.cosim.results import (
     CONTEXT_MAX_RELATIVE_ERROR,
     FLOAT32_MAX_RELATIVE_ERROR,
     META_FILE,
@@ -31,7 +31,7 @@ from harness.cosim.results import (
     drop_signals,
     signals_dropped,
 )
-from harness.cosim.scenario import expected_signals, load_scenario
+from gyrodiag_harness.cosim.scenario import expected_signals, load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).resolve().parent / "data" / "scenarios"
@@ -264,7 +264,7 @@ def test_dtg_nominal_run_takes_4x_less_disk_and_comes_back_within_its_bounds(
         tmp_path, gyrodiag_run):
     # the main job's largest run (60 s, 20 θ/η signals at 1 kHz), as the session's run
     # cache holds it (bit-exact)
-    from harness.verification.expectations import verify_results
+    from gyrodiag_harness.verification.expectations import verify_results
 
     scenario = load_scenario(ROOT / "scenarios" / "dtg_nominal.toml")
     judged = {q for e in scenario.expect for q in expected_signals(e)}
@@ -326,7 +326,7 @@ def test_report_on_the_saved_seed_runs_measures_what_verify_measured(tmp_path,
                                                                     gyrodiag_run):
     # every seed scenario of the main job, saved as `verify` saves it (its
     # record.precision) and judged again from the file, as `harness report` does
-    from harness.verification.expectations import verify_results
+    from gyrodiag_harness.verification.expectations import verify_results
 
     files = sorted((ROOT / "scenarios").glob("*.toml"))
     scenarios = [load_scenario(f) for f in files]

@@ -1,5 +1,6 @@
-"""Scenario files (harness.cosim.scenario): validation messages with file and key path, fault
-schedule → FaultInjector parameters, names checked against the FMUs' modelDescriptions.
+"""Scenario files (gyrodiag_harness.cosim.scenario): validation messages with file and key
+path, fault schedule → FaultInjector parameters, names checked against the FMUs'
+modelDescriptions.
 
 Only modelDescriptions are read here (fmpy.read_model_description on the built FMUs);
 no FMU binary is loaded into the test process.
@@ -15,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.cosim.master import fault_windows, model_info, plan_coupling
-from harness.cosim.results import FaultWindow, RunResult
-from harness.cosim.scenario import (
+from gyrodiag_harness.cosim.master import fault_windows, model_info, plan_coupling
+from gyrodiag_harness.cosim.results import FaultWindow, RunResult
+from gyrodiag_harness.cosim.scenario import (
     FAULT_TYPE_CODES,
     InjectorFault,
     ScenarioError,

@@ -24,10 +24,10 @@ import numpy as np
 import pytest
 from _libcosim_runner import CASES, ROOT, _hrg_physical
 
-from harness import RunResult
-from harness.cosim.scenario import parse_scenario
-from harness.cosim.ssp import PARAMETER_SET, check_ssp, export_ssp
-from harness.verification.expectations import evaluate
+from gyrodiag_harness import RunResult
+from gyrodiag_harness.cosim.scenario import parse_scenario
+from gyrodiag_harness.cosim.ssp import PARAMETER_SET, check_ssp, export_ssp
+from gyrodiag_harness.verification.expectations import evaluate
 
 RUNNER = Path(__file__).resolve().parent / "_libcosim_runner.py"
 REAL_TOL = 1e-10
@@ -147,7 +147,7 @@ def test_physical_faults_are_reported_as_not_carried(fmu_dir, tmp_path):
 
 def test_export_ssp_command_line(fmu_dir, tmp_path):
     out = tmp_path / "q_bias.ssp"
-    proc = subprocess.run([sys.executable, "-m", "harness", "export-ssp",
+    proc = subprocess.run([sys.executable, "-m", "gyrodiag_harness", "export-ssp",
                            str(ROOT / "scenarios" / "aircraft_q_bias.toml"), "--out", str(out),
                            "--fmu-dir", str(fmu_dir)], capture_output=True, text=True,
                           cwd=ROOT, timeout=300)
@@ -156,7 +156,7 @@ def test_export_ssp_command_line(fmu_dir, tmp_path):
     assert "not carried: coupling 'gauss-seidel'" in proc.stdout
     assert f"Ecos only when named (--parameterSet {PARAMETER_SET})" in proc.stdout
     check_ssp(out)
-    bad = subprocess.run([sys.executable, "-m", "harness", "export-ssp",
+    bad = subprocess.run([sys.executable, "-m", "gyrodiag_harness", "export-ssp",
                           str(ROOT / "scenarios" / "aircraft_q_bias.toml"), "--out",
                           str(tmp_path / "x.zip"), "--fmu-dir", str(fmu_dir)],
                          capture_output=True, text=True, cwd=ROOT, timeout=300)

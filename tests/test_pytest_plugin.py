@@ -158,7 +158,7 @@ def test_xdist_and_fixtures_share_one_run_per_scenario(project: pytest.Pytester,
     result.assert_outcomes(passed=6, failed=1)
     # one run of 'passing' for the scenario item and both user tests, whichever worker
     # got there first: the saved run's wall time is the one every test saw
-    from harness.cosim.results import RunResult
+    from gyrodiag_harness.cosim.results import RunResult
 
     saved = RunResult.load(results / "passing")
     assert result.stdout.str().count(f"WALL {saved.wall_time_s!r}") == 2

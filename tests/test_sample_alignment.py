@@ -23,9 +23,9 @@ from _system_chain import PitchCommand, run_chain  # noqa: E402
 from gyrodiag.df.channel import DFChannel, DFChannelConfig  # noqa: E402
 from gyrodiag.dtg.alignment import CaseRateAligner  # noqa: E402
 from gyrodiag.dtg.channel import DTGChannel, DTGChannelConfig  # noqa: E402
-from harness.cosim.master import plan_coupling  # noqa: E402
-from harness.cosim.scenario import Connection, load_scenario  # noqa: E402
-from harness.cosim.timing import timing_parameters  # noqa: E402
+from gyrodiag_harness.cosim.master import plan_coupling  # noqa: E402
+from gyrodiag_harness.cosim.scenario import Connection, load_scenario  # noqa: E402
+from gyrodiag_harness.cosim.timing import timing_parameters  # noqa: E402
 
 T = 1e-3
 #: The system scenarios' DTG channel with the ratio band alone (no pattern library).

@@ -30,10 +30,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.campaigns.signatures import check_training_scenarios
-from harness.cosim.results import RunResult
-from harness.cosim.scenario import ScenarioError, load_scenario, parse_scenario
-from harness.verification.metrics import detection_delay_s
+from gyrodiag_harness.campaigns.signatures import check_training_scenarios
+from gyrodiag_harness.cosim.results import RunResult
+from gyrodiag_harness.cosim.scenario import ScenarioError, load_scenario, parse_scenario
+from gyrodiag_harness.verification.metrics import detection_delay_s
 
 ROOT = Path(__file__).resolve().parents[1]
 SCEN = ROOT / "scenarios"
@@ -49,7 +49,7 @@ REF_D, REF_S = -5.435e-3, 8.711e-4
 
 
 def _cmd(*args: str) -> list[str]:
-    return [sys.executable, "-m", "harness", *args]
+    return [sys.executable, "-m", "gyrodiag_harness", *args]
 
 
 def _env() -> dict[str, str]:
@@ -283,7 +283,7 @@ def test_training_set_codes_are_one_to_n():
 
 
 def test_file_parameter_errors_name_the_key(tmp_path):
-    from harness.cosim.scenario import resolve_file_parameters
+    from gyrodiag_harness.cosim.scenario import resolve_file_parameters
 
     data = _minimal()
     data["fmus"]["diag"]["files"] = {"dtg.signature_file": "${out}/lib.json"}

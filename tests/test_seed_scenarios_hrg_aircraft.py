@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.cosim.results import RunResult
-from harness.cosim.scenario import load_scenario
-from harness.verification.expectations import verify_results
-from harness.verification.metrics import (
+from gyrodiag_harness.cosim.results import RunResult
+from gyrodiag_harness.cosim.scenario import load_scenario
+from gyrodiag_harness.verification.expectations import verify_results
+from gyrodiag_harness.verification.metrics import (
     detection_delay_s,
     detection_time_s,
     prediction_errors_percent,
@@ -251,8 +251,8 @@ def test_aircraft_fault_free_minute_has_no_alarm(verify):
 # ---------------------------------------------------------------------- isolability
 def test_isolability_command_prints_and_writes_json(tmp_path):
     out = tmp_path / "isolability.json"
-    proc = subprocess.run([sys.executable, "-m", "harness", "isolability", "--out", str(out)],
-                          cwd=ROOT, capture_output=True, text=True, timeout=120)
+    proc = subprocess.run([sys.executable, "-m", "gyrodiag_harness", "isolability", "--out",
+                           str(out)], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert "ISOLABLE FROM" in proc.stdout and "parity relation" in proc.stdout
     data = json.loads(out.read_text())
@@ -277,7 +277,7 @@ def test_isolability_command_prints_and_writes_json(tmp_path):
 def test_isolability_command_writes_text_and_html(tmp_path):
     for suffix in (".txt", ".html"):
         out = tmp_path / f"isolability{suffix}"
-        proc = subprocess.run([sys.executable, "-m", "harness", "isolability", "--out",
+        proc = subprocess.run([sys.executable, "-m", "gyrodiag_harness", "isolability", "--out",
                                str(out)], cwd=ROOT, capture_output=True, text=True, timeout=120)
         assert proc.returncode == 0, proc.stderr
         text = out.read_text()

@@ -105,7 +105,7 @@ def _dtg_library(v: Values, classifier: str, period: float, resources: str | Non
             raise ValueError(
                 f"dtg.signature_file {str(path)!r} holds no 'patterns' library (decade "
                 "signatures are for dtg.classifier = paper; learn patterns with "
-                "python -m harness learn-signatures on pattern training scenarios)")
+                "python -m gyrodiag_harness learn-signatures on pattern training scenarios)")
         try:
             return {}, PatternLibrary.from_dict(data["patterns"])
         except (ValueError, TypeError) as exc:

@@ -4,7 +4,7 @@ The library is learned from the pattern training scenarios (the paper DTG bench 
 1 kHz) and committed as ``gyrodiag/dtg/default_patterns.json``, because learning it
 takes 54 co-simulation runs. To regenerate it::
 
-    python -m harness learn-signatures scenarios/training/patterns --out learned.json
+    python -m gyrodiag_harness learn-signatures scenarios/training/patterns --out learned.json
     python fmu_src/tools/default_patterns.py learned.json          # rewrites the file
     python fmu_src/tools/default_patterns.py learned.json --check  # exit 1 if it differs
 

@@ -1,4 +1,4 @@
-"""Monte Carlo fault-injection campaigns: ``python -m harness campaign SPEC.toml``.
+"""Monte Carlo fault-injection campaigns: ``python -m gyrodiag_harness campaign SPEC.toml``.
 
 A campaign spec (TOML, validated by :class:`CampaignSpec`) names, per *class*, a base
 scenario (the chain of FMUs, e.g. ``scenarios/aircraft_q_bias.toml``) and sweeps over
@@ -10,7 +10,7 @@ so that a campaign can be interrupted and resumed.
 Execution
 ---------
 Each run is simulated in **its own fresh process** (``python -m
-harness.campaigns.supervise --child``): pythonfmu FMUs must not be loaded twice in one
+gyrodiag_harness.campaigns.supervise --child``): pythonfmu FMUs must not be loaded twice in one
 process, a crash (abort, segfault) only kills that process, and a hung run can be killed
 at its timeout.  The guard that starts the process, waits for it and writes the run's record
 (:func:`execute_run`) is the task that a pool runs:
@@ -123,33 +123,33 @@ fed substitutes and the CUSUM holds the alarm down to half its threshold.
 Modules
 -------
 This module is the campaigns' front: it re-exports the names of the modules that do the
-work, by role: :mod:`~harness.campaigns.spec` (the spec format, :func:`load_campaign`,
-:class:`RunSpec`), :mod:`~harness.campaigns.expand` (spec to runs, :func:`select`, a run
-to its scenario), :mod:`~harness.campaigns.judge` (a run's signals to its record,
-:func:`simulate_run`), :mod:`~harness.campaigns.supervise` (a run in a process of its
-own), :mod:`~harness.campaigns.execute` (pools, resume, interruption,
-:func:`run_campaign`) and :mod:`~harness.campaigns.records` (run records on disk).
+work, by role: :mod:`~gyrodiag_harness.campaigns.spec` (the spec format, :func:`load_campaign`,
+:class:`RunSpec`), :mod:`~gyrodiag_harness.campaigns.expand` (spec to runs, :func:`select`, a run
+to its scenario), :mod:`~gyrodiag_harness.campaigns.judge` (a run's signals to its record,
+:func:`simulate_run`), :mod:`~gyrodiag_harness.campaigns.supervise` (a run in a process of its
+own), :mod:`~gyrodiag_harness.campaigns.execute` (pools, resume, interruption,
+:func:`run_campaign`) and :mod:`~gyrodiag_harness.campaigns.records` (run records on disk).
 """
 
 from __future__ import annotations
 
 import sys
 
-from harness.campaigns.execute import (
+from gyrodiag_harness.campaigns.execute import (
     CampaignInterrupted,
     CampaignOutcome,
     preflight_runs,
     prepare,
     run_campaign,
 )
-from harness.campaigns.expand import (
+from gyrodiag_harness.campaigns.expand import (
     add_witness_copies,
     build_scenario,
     campaign_fmu_dir,
     expand_runs,
     select,
 )
-from harness.campaigns.judge import (
+from gyrodiag_harness.campaigns.judge import (
     DF_TYPE_NAMES,
     EXPECTED_DF_TYPE,
     GreyReplay,
@@ -160,12 +160,12 @@ from harness.campaigns.judge import (
     judge_grey_witness,
     simulate_run,
 )
-from harness.campaigns.judge import _band_statistic as _band_statistic
-from harness.campaigns.judge import _df_sequential as _df_sequential
-from harness.campaigns.judge import _judge_system as _judge_system
-from harness.campaigns.judge import _kth_largest_window as _kth_largest_window
-from harness.campaigns.records import CampaignOutput, load_campaign_output, load_records
-from harness.campaigns.spec import (
+from gyrodiag_harness.campaigns.judge import _band_statistic as _band_statistic
+from gyrodiag_harness.campaigns.judge import _df_sequential as _df_sequential
+from gyrodiag_harness.campaigns.judge import _judge_system as _judge_system
+from gyrodiag_harness.campaigns.judge import _kth_largest_window as _kth_largest_window
+from gyrodiag_harness.campaigns.records import CampaignOutput, load_campaign_output, load_records
+from gyrodiag_harness.campaigns.spec import (
     AIRCRAFT_SENSORS,
     DEFAULT_RUNNER,
     DEFAULT_THRESHOLDS,
@@ -183,7 +183,7 @@ from harness.campaigns.spec import (
     WitnessCopy,
     load_campaign,
 )
-from harness.campaigns.supervise import (
+from gyrodiag_harness.campaigns.supervise import (
     ORPHAN_POLL_S,
     PARENT_PID_ENV,
     REPO_ROOT,
@@ -204,7 +204,7 @@ __all__ = [
 ]
 
 if __name__ == "__main__":
-    # the run processes' entry moved to harness.campaigns.supervise
-    from harness.campaigns.supervise import child_entry
+    # the run processes' entry moved to gyrodiag_harness.campaigns.supervise
+    from gyrodiag_harness.campaigns.supervise import child_entry
 
     child_entry(sys.argv)

@@ -1,6 +1,6 @@
 """Summary figures, plots and HTML/JSON report of a fault-injection campaign.
 
-:func:`summarize` turns the run records of :mod:`harness.campaigns.campaign` into figures:
+:func:`summarize` turns the run records of :mod:`gyrodiag_harness.campaigns.campaign` into figures:
 
 * detection rate per class, fault type and magnitude, with a 95 % Clopper-Pearson
   interval, and in the same rows how many runs were isolated right (diagnosed class =
@@ -13,7 +13,7 @@
 * isolation confusion matrix per channel (injected vs diagnosed at the end of the run);
 * threshold sweep per channel: detection rate vs false alarms per hour at every
   threshold of the grid (recomputed offline from the alarm statistic, see
-  :mod:`harness.campaigns.campaign`);
+  :mod:`gyrodiag_harness.campaigns.campaign`);
 * system runs (two witnesses, flight conditions): per fault, magnitude and condition
   group the detection rate of each witness and how often both saw it; each group's
   rate against the "level" group's (difference in percentage points); false alarms per
@@ -287,7 +287,7 @@ def summarize(records: list[dict[str, Any]], n_planned: int | None = None) -> di
 def summarize_campaigns(outputs: Sequence[Any]) -> dict[str, Any]:
     """One summary of several campaigns' records (e.g. every family of issue 16).
 
-    ``outputs`` are :class:`harness.campaigns.campaign.CampaignOutput` (name, planned run
+    ``outputs`` are :class:`gyrodiag_harness.campaigns.campaign.CampaignOutput` (name, planned run
     count, records).  Classes are renamed ``<campaign>/<class>`` so that families with
     the same class name stay apart; channels are kept, so the false-alarm and isolation
     tables pool a channel over the campaigns that judge it.  ``campaigns`` adds one row

@@ -18,16 +18,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from harness.campaigns.expand import build_scenario, campaign_fmu_dir, expand_runs, select
-from harness.campaigns.records import load_records, remove_stale_temporaries, write_plan
-from harness.campaigns.spec import DEFAULT_RUNNER, CampaignSpec, RunSpec
-from harness.campaigns.supervise import (
+from gyrodiag_harness.campaigns.expand import build_scenario, campaign_fmu_dir, expand_runs, select
+from gyrodiag_harness.campaigns.records import load_records, remove_stale_temporaries, write_plan
+from gyrodiag_harness.campaigns.spec import DEFAULT_RUNNER, CampaignSpec, RunSpec
+from gyrodiag_harness.campaigns.supervise import (
     REPO_ROOT,
     _child_env,
     _worker_init,
     execute_run,
 )
-from harness.cosim.scenario import ScenarioError
+from gyrodiag_harness.cosim.scenario import ScenarioError
 
 log = logging.getLogger(__name__)
 
@@ -131,7 +131,7 @@ def preflight_runs(runs: Sequence[RunSpec]) -> None:
     ScenarioError, FileNotFoundError
         Naming the class's base scenario and what is missing.
     """
-    from harness.cosim.master import preflight
+    from gyrodiag_harness.cosim.master import preflight
 
     seen: set[str] = set()
     for run in runs:
@@ -155,7 +155,7 @@ def _learn_library(spec: CampaignSpec, base_dir: Path, out_dir: Path, name: str,
         return
     training = (base_dir / training_set).resolve()
     log.info("learning the DTG signatures from %s -> %s", training, target)
-    cmd = [sys.executable, "-m", "harness", "learn-signatures", str(training), "--out",
+    cmd = [sys.executable, "-m", "gyrodiag_harness", "learn-signatures", str(training), "--out",
            str(target)]
     if fmu_dir:
         cmd += ["--fmu-dir", fmu_dir]

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from harness.campaigns.spec import (
+from gyrodiag_harness.campaigns.spec import (
     AIRCRAFT_SENSORS,
     DEFAULT_THRESHOLDS,
     GREY_SIGNALS,
@@ -25,7 +25,7 @@ from harness.campaigns.spec import (
     Sweep,
     WitnessCopy,
 )
-from harness.cosim.scenario import FMU_DIR_ENV
+from gyrodiag_harness.cosim.scenario import FMU_DIR_ENV
 
 
 def _seed(base_seed: int, key: str) -> int:
@@ -42,7 +42,7 @@ def campaign_fmu_dir(spec: CampaignSpec, base_dir: Path,
                      fmu_dir: Path | str | None = None) -> str | None:
     """Folder of the FMUs the campaign's runs use: ``fmu_dir`` (the CLI's ``--fmu-dir``),
     else ``$GYRODIAG_FMU_DIR``, else the spec's ``fmu_dir`` (relative to ``base_dir``),
-    else None (each base scenario's own, :func:`harness.cosim.scenario.resolve_fmu_dir`):
+    else None (each base scenario's own, :func:`gyrodiag_harness.cosim.scenario.resolve_fmu_dir`):
     the precedence of a scenario run, so one environment variable points every command
     at a folder of FMUs (a campaign resumed on the build it started with)."""
     if fmu_dir is not None:
@@ -218,8 +218,9 @@ def _signals(run: RunSpec) -> list[str]:
 
 def build_scenario(run: RunSpec) -> Any:
     """The base scenario with the run's fault, seed, duration and recorded signals (in
-    memory, through :func:`harness.cosim.scenario.parse_scenario`); expectations dropped."""
-    from harness.cosim.scenario import parse_scenario
+    memory, through :func:`gyrodiag_harness.cosim.scenario.parse_scenario`); expectations
+    dropped."""
+    from gyrodiag_harness.cosim.scenario import parse_scenario
 
     path = Path(run.scenario)
     data = tomllib.loads(path.read_text(encoding="utf-8"))
@@ -229,7 +230,7 @@ def build_scenario(run: RunSpec) -> Any:
     if run.manoeuvres is not None:
         # A PitchController with no manoeuvre flies its built-in default (a 0.25 rad
         # square wave): one whose base manoeuvre is replaced by none is set to trim.
-        from harness.cosim.scenario import MANOEUVRE_COMMAND_CODES
+        from gyrodiag_harness.cosim.scenario import MANOEUVRE_COMMAND_CODES
 
         def commanded(entries: list[dict[str, Any]]) -> set[str]:
             return {m["instance"] for m in entries if m.get("kind") in MANOEUVRE_COMMAND_CODES}

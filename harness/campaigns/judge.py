@@ -1,7 +1,7 @@
 """Judging a run: its recorded signals into the record fields (detection, delay, false
 alarms, diagnosis, threshold sweep) per channel and rule, the grey replay and witnesses,
 and :func:`simulate_run`, the default runner.  What is judged how:
-:mod:`harness.campaigns.campaign` (module docstring)."""
+:mod:`gyrodiag_harness.campaigns.campaign` (module docstring)."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from harness.campaigns.expand import build_scenario
-from harness.campaigns.spec import (
+from gyrodiag_harness.campaigns.expand import build_scenario
+from gyrodiag_harness.campaigns.spec import (
     AIRCRAFT_SENSORS,
     DEFAULT_THRESHOLDS,
     GREY_SIGNALS,
@@ -216,7 +216,7 @@ def simulate_run(run_dict: dict[str, Any]) -> dict[str, Any]:
     RuntimeError
         If the co-simulation stopped on an FMU error (the message quotes it).
     """
-    from harness.cosim.master import run_scenario
+    from gyrodiag_harness.cosim.master import run_scenario
 
     run = RunSpec.model_validate(run_dict)
     scenario = build_scenario(run)
@@ -492,7 +492,7 @@ def _judge_grey(run: RunSpec, scenario: Any, t: np.ndarray, sig: dict[str, np.nd
 
 def _signature_names(scenario: Any, run: RunSpec) -> list[str]:
     """Class names in code order: of the decade signatures, or of a pattern library."""
-    from harness.cosim.scenario import resolve_file_parameters
+    from gyrodiag_harness.cosim.scenario import resolve_file_parameters
 
     files = resolve_file_parameters(scenario, run.results_dir, must_exist=False)
     path = files.get(run.diagnoser, {}).get("dtg.signature_file")

@@ -28,8 +28,8 @@ import math
 import numpy as np
 
 from gyrodiag.dtg.learning import N_CH, N_THETA, PatternRun
-from harness.cosim.results import RunResult
-from harness.cosim.scenario import InjectorFault, PhysicalFault, Scenario, ScenarioError
+from gyrodiag_harness.cosim.results import RunResult
+from gyrodiag_harness.cosim.scenario import InjectorFault, PhysicalFault, Scenario, ScenarioError
 
 __all__ = [
     "pattern_run",

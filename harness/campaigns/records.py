@@ -56,7 +56,7 @@ class CampaignOutput:
 
 def load_campaign_output(out_dir: Path | str) -> CampaignOutput:
     """The records of the runs a campaign output folder planned (its ``campaign.json``),
-    for summarising several campaigns as one (``python -m harness campaign-summary``).
+    for summarising several campaigns as one (``python -m gyrodiag_harness campaign-summary``).
 
     Raises ValueError naming the folder when it holds no readable ``campaign.json``.
     """
@@ -70,7 +70,7 @@ def load_campaign_output(out_dir: Path | str) -> CampaignOutput:
                      for k, v in dict(data.get("selection") or {}).items()}
     except FileNotFoundError:
         raise ValueError(f"{out_dir}: not a campaign output folder (no campaign.json; "
-                         "run `python -m harness campaign SPEC --out DIR` first)") from None
+                         "run `gyrodiag campaign SPEC --out DIR` first)") from None
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"{path}: unreadable campaign record ({exc})") from None
     done = load_records(out_dir / "runs")

@@ -2,11 +2,11 @@
 
 ::
 
-    python -m harness learn-signatures scenarios/training --out results/dtg_signatures.json
-    python -m harness verify scenarios/dtg_fault_*.toml --out results
+    python -m gyrodiag_harness learn-signatures scenarios/training --out results/dtg_signatures.json
+    python -m gyrodiag_harness verify scenarios/dtg_fault_*.toml --out results
 
 A training scenario is an ordinary scenario with a ``[training]`` table
-(:class:`harness.cosim.scenario.Training`)::
+(:class:`gyrodiag_harness.cosim.scenario.Training`)::
 
     [training]
     signature = "utx_step"   # fault class (identifier)
@@ -34,7 +34,7 @@ Learning
 
 A verification scenario names the file through a file parameter of its Diagnoser
 instance: ``files = { "dtg.signature_file" = "${out}/dtg_signatures.json" }`` (see
-:class:`harness.cosim.scenario.FmuInstance`).
+:class:`gyrodiag_harness.cosim.scenario.FmuInstance`).
 """
 
 from __future__ import annotations
@@ -49,9 +49,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from harness.campaigns.pattern_learning import pattern_signal_names
-from harness.cosim.results import RunResult
-from harness.cosim.scenario import Scenario, ScenarioError
+from gyrodiag_harness.campaigns.pattern_learning import pattern_signal_names
+from gyrodiag_harness.cosim.results import RunResult
+from gyrodiag_harness.cosim.scenario import Scenario, ScenarioError
 
 __all__ = [
     "N_THETA",
@@ -325,7 +325,7 @@ def learn_pattern_library(scenarios: Sequence[Scenario], results: Sequence[RunRe
         :func:`gyrodiag.dtg.learning.learn_patterns`.
     """
     from gyrodiag.dtg.learning import learn_patterns
-    from harness.campaigns.pattern_learning import pattern_run
+    from gyrodiag_harness.campaigns.pattern_learning import pattern_run
 
     if len(scenarios) != len(results):
         raise ValueError(f"{len(scenarios)} scenarios but {len(results)} runs")

@@ -1,6 +1,6 @@
 """Campaign specs: the TOML format (:class:`CampaignSpec` and its parts), loading it
 (:func:`load_campaign`) and one run's spec (:class:`RunSpec`, what travels to the run
-process).  The format and what a run records: :mod:`harness.campaigns.campaign`."""
+process).  The format and what a run records: :mod:`gyrodiag_harness.campaigns.campaign`."""
 
 from __future__ import annotations
 
@@ -12,11 +12,11 @@ from typing import Any, Literal
 
 from pydantic import ConfigDict, Field, ValidationError, model_validator
 
-from harness.cosim.scenario import FAULT_TYPE_PARAMETERS, ScenarioError
-from harness.verification.strict_model import StrictModel
+from gyrodiag_harness.cosim.scenario import FAULT_TYPE_PARAMETERS, ScenarioError
+from gyrodiag_harness.verification.strict_model import StrictModel
 
 #: The per-run function used unless the spec or the caller names another.
-DEFAULT_RUNNER = "harness.campaigns.campaign:simulate_run"
+DEFAULT_RUNNER = "gyrodiag_harness.campaigns.campaign:simulate_run"
 #: Sensor names of the seed aircraft (injector channel i feeds sensor i).
 AIRCRAFT_SENSORS = ("v", "alpha", "q", "theta", "gamma", "h")
 DEFAULT_THRESHOLDS = {

@@ -1,8 +1,8 @@
 """Process supervision of campaign runs: each run in a fresh process of its own session
 (:func:`execute_run`, the task the pools execute), killed at its timeout or when the
 campaign stops, watched for orphaning (:func:`_exit_when_orphaned`), and the run
-process's own entry (``python -m harness.campaigns.supervise --child``).  How this
-differs from the scenario batches' supervision (:mod:`harness.cosim.batch`):
+process's own entry (``python -m gyrodiag_harness.campaigns.supervise --child``).  How this
+differs from the scenario batches' supervision (:mod:`gyrodiag_harness.cosim.batch`):
 docs/notes.md, "Harness roles (campaign split)"."""
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from harness.campaigns.records import write_json_atomic
+from gyrodiag_harness.campaigns.records import write_json_atomic
 
 #: The repository: the run processes' working folder and first entry of their path.
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -56,8 +56,8 @@ def execute_run(run_dict: dict[str, Any], runner: str, timeout_s: float,
     with tempfile.TemporaryDirectory(prefix=RUN_TMP_PREFIX) as tmp:
         inp, out = Path(tmp) / "run.json", Path(tmp) / "out.json"
         inp.write_text(json.dumps(run_dict), encoding="utf-8")
-        cmd = [sys.executable, "-m", "harness.campaigns.supervise", "--child", runner, str(inp),
-               str(out)]
+        cmd = [sys.executable, "-m", "gyrodiag_harness.campaigns.supervise", "--child", runner,
+               str(inp), str(out)]
         env = {**_child_env(), PARENT_PID_ENV: str(os.getpid())}
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                 env=env, cwd=str(REPO_ROOT), text=True,
@@ -161,15 +161,17 @@ def _kill_live_runs() -> None:
 
 def _load_runner(runner: str) -> Callable[[dict[str, Any]], dict[str, Any]]:
     module, _, func = runner.partition(":")
+    if module == "harness" or module.startswith("harness."):    # records from before the rename
+        module = "gyrodiag_" + module
     if not module or not func:
         raise ValueError(f"runner: {runner!r} must be 'module:function'")
     return getattr(importlib.import_module(module), func)
 
 
 def _child_main(runner: str, inp: str, out: str) -> int:
-    from harness.cosim.niceness import keep_niceness
+    from gyrodiag_harness.cosim.niceness import keep_niceness
 
-    keep_niceness()  # its own session is its own autogroup (harness.cosim.niceness)
+    keep_niceness()  # its own session is its own autogroup (gyrodiag_harness.cosim.niceness)
     parent = int(os.environ.get(PARENT_PID_ENV, os.getppid()))
     folder = Path(inp).parent
     if folder.name.startswith(RUN_TMP_PREFIX):  # only execute_run's own folders
@@ -201,13 +203,13 @@ def _worker_terminate(signum: int, frame: Any) -> None:
 
 
 def child_entry(argv: list[str]) -> None:
-    """``python -m harness.campaigns.supervise --child RUNNER IN OUT``: a run process."""
+    """``python -m gyrodiag_harness.campaigns.supervise --child RUNNER IN OUT``: a run process."""
     if len(argv) == 5 and argv[1] == "--child":
         code = _child_main(*argv[2:])
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(code)  # see harness/__main__.py: pythonfmu's exit-time destructors
-    print("usage: python -m harness campaign SPEC.toml (this module's entry is internal)",
+    print("usage: python -m gyrodiag_harness campaign SPEC.toml (this module's entry is internal)",
           file=sys.stderr)
     sys.exit(2)
 

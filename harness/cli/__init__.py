@@ -1,10 +1,10 @@
-"""Command line of the harness (``python -m harness COMMAND``, or the ``gyrodiag``
-console script): see :mod:`harness.cli.commands`."""
+"""Command line of the harness (``python -m gyrodiag_harness COMMAND``, or the ``gyrodiag``
+console script): see :mod:`gyrodiag_harness.cli.commands`."""
 
 import os
 import sys
 
-from harness.cli.commands import main
+from gyrodiag_harness.cli.commands import main
 
 __all__ = ["console", "main"]
 

@@ -1,6 +1,6 @@
-"""``python -m harness campaign SPEC.toml``: run or resume a Monte Carlo campaign.
+"""``python -m gyrodiag_harness campaign SPEC.toml``: run or resume a Monte Carlo campaign.
 
-See :mod:`harness.campaigns.campaign` for the spec, the execution and what a run records.
+See :mod:`gyrodiag_harness.campaigns.campaign` for the spec, the execution and what a run records.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from harness.campaigns.campaign import (
+from gyrodiag_harness.campaigns.campaign import (
     REPO_ROOT,
     CampaignInterrupted,
     expand_runs,
@@ -21,9 +21,9 @@ from harness.campaigns.campaign import (
     run_campaign,
     select,
 )
-from harness.campaigns.campaign_report import summarize, summarize_campaigns, write_report
+from gyrodiag_harness.campaigns.campaign_report import summarize, summarize_campaigns, write_report
 
-log = logging.getLogger("harness.cli")
+log = logging.getLogger("gyrodiag_harness.cli")
 
 
 def add_parser(sub: Any) -> None:

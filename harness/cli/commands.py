@@ -1,27 +1,27 @@
-"""Command line of the harness: ``python -m harness COMMAND``.
+"""Command line of the harness: ``python -m gyrodiag_harness COMMAND``.
 
 ::
 
-    python -m harness run SCENARIO... [--out DIR] [--fmu-dir DIR] [--workers N]
+    python -m gyrodiag_harness run SCENARIO... [--out DIR] [--fmu-dir DIR] [--workers N]
                                       [--exact-signals]
-    python -m harness verify SCENARIO... [--out DIR] [--fmu-dir DIR] [--workers N]
+    python -m gyrodiag_harness verify SCENARIO... [--out DIR] [--fmu-dir DIR] [--workers N]
                                          [--exact-signals] [--junit PATH] [--html PATH]
-    python -m harness report SCENARIO... [--out DIR] [--junit PATH] [--html PATH]
-    python -m harness list [DIR]
-    python -m harness all [--out DIR] [--scenarios DIR] [--fmu-dir DIR] [--no-build]
+    python -m gyrodiag_harness report SCENARIO... [--out DIR] [--junit PATH] [--html PATH]
+    python -m gyrodiag_harness list [DIR]
+    python -m gyrodiag_harness all [--out DIR] [--scenarios DIR] [--fmu-dir DIR] [--no-build]
                           [--workers N] [--exact-signals]
-    python -m harness campaign SPEC.toml [--out DIR] [--workers N] [--dask local|ADDRESS]
+    python -m gyrodiag_harness campaign SPEC.toml [--out DIR] [--workers N] [--dask local|ADDRESS]
                                [--timeout S] [--fraction F] [--group NAME]
                                [--condition NAME] [--report-only]
-    python -m harness campaign-summary DIR... --out DIR [--title TEXT]
-    python -m harness compare-results A B [--rtol R] [--atol A] [--max-diffs N]
-    python -m harness isolability [--out FILE] [--format text|json|html]
-    python -m harness learn-signatures SCENARIO... [--out FILE.json] [--runs-out DIR]
+    python -m gyrodiag_harness campaign-summary DIR... --out DIR [--title TEXT]
+    python -m gyrodiag_harness compare-results A B [--rtol R] [--atol A] [--max-diffs N]
+    python -m gyrodiag_harness isolability [--out FILE] [--format text|json|html]
+    python -m gyrodiag_harness learn-signatures SCENARIO... [--out FILE.json] [--runs-out DIR]
                                        [--window-s S] [--saved] [--fmu-dir DIR]
                                        [--exact-signals]
-    python -m harness export-csv RUN... [--out FILE]
-    python -m harness export-ssp SCENARIO --out FILE.ssp [--fmu-dir DIR] [--results DIR]
-    python -m harness schema [--markdown] [--campaign]
+    python -m gyrodiag_harness export-csv RUN... [--out FILE]
+    python -m gyrodiag_harness export-ssp SCENARIO --out FILE.ssp [--fmu-dir DIR] [--results DIR]
+    python -m gyrodiag_harness schema [--markdown] [--campaign]
 
 Every command takes ``-v`` (debug) and ``-q`` (warnings and errors only).
 
@@ -34,20 +34,20 @@ and ``run.json`` per scenario and logs one line per scenario; Real signals are s
 rounded (what an expectation reads to float32, relative error <= 2**-24, the rest to
 13 significant bits, <= 2**-13) unless the scenario's ``record.precision`` or
 ``--exact-signals`` asks for more; time, integer, Boolean and constant signals are
-always exact (:mod:`harness.cosim.results`).
+always exact (:mod:`gyrodiag_harness.cosim.results`).
 ``verify`` runs the scenarios, evaluates their ``[[expect]]`` tables on the runs at full
 precision and writes a JUnit XML and an HTML report (default ``<out>/junit.xml``,
 ``<out>/report.html``).  ``report`` does the same from runs saved earlier in ``<out>``
 (the saved values) without running anything.  ``isolability`` prints
 which sensor faults of the seed aircraft are detectable and isolable
-(:mod:`harness.verification.isolability`, analysis only).  ``learn-signatures`` runs DTG
+(:mod:`gyrodiag_harness.verification.isolability`, analysis only).  ``learn-signatures`` runs DTG
 training scenarios and writes the fault-signature library that verification scenarios
-load through a ``files`` parameter (:mod:`harness.campaigns.signatures`).
+load through a ``files`` parameter (:mod:`gyrodiag_harness.campaigns.signatures`).
 ``export-csv`` writes a saved run's signals as CSV.  ``compare-results`` compares two
 results folders (verdicts, signals bit for bit, campaign summaries; exit 0 identical, 1
-different: :mod:`harness.cli.compare`).  ``export-ssp`` writes a scenario as
-an SSP package for other SSP tools (:mod:`harness.cosim.ssp`).  ``schema`` prints the JSON Schema
-of scenario files (for editors), or with ``--markdown`` the reference of
+different: :mod:`gyrodiag_harness.cli.compare`).  ``export-ssp`` writes a scenario as
+an SSP package for other SSP tools (:mod:`gyrodiag_harness.cosim.ssp`).  ``schema`` prints
+the JSON Schema of scenario files (for editors), or with ``--markdown`` the reference of
 ``docs/scenarios.md``.
 
 Scenarios run in worker processes, ``--workers`` at a time (default: the number of
@@ -57,10 +57,10 @@ Exit status: 0 all good; 1 a run stopped on an FMU error or an expectation faile
 2 invalid scenario files or command line; 130 stopped by Ctrl-C or SIGTERM (the runs in
 flight are saved as far as they got, marked interrupted, and reported).
 
-Every command mirrors the Python API: :func:`harness.cosim.scenario.load_scenario`,
-:func:`harness.cosim.master.run_scenario`, :func:`harness.cosim.batch.run_all`,
-``harness.verification.expectations.verify_results`` and
-``harness.reporting.report.write_report``.
+Every command mirrors the Python API: :func:`gyrodiag_harness.cosim.scenario.load_scenario`,
+:func:`gyrodiag_harness.cosim.master.run_scenario`, :func:`gyrodiag_harness.cosim.batch.run_all`,
+``gyrodiag_harness.verification.expectations.verify_results`` and
+``gyrodiag_harness.reporting.report.write_report``.
 """
 
 from __future__ import annotations
@@ -72,8 +72,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from harness.cli import campaign, compare, learn_signatures, pipeline, ssp
-from harness.cli.common import (
+from gyrodiag_harness.cli import campaign, compare, learn_signatures, pipeline, ssp
+from gyrodiag_harness.cli.common import (
     DEFAULT_RESULTS_ROOT,
     EXIT_FAILED,
     EXIT_INTERRUPTED,
@@ -88,14 +88,14 @@ from harness.cli.common import (
     signals_precision,
     verify_and_report,
 )
-from harness.cosim.batch import load_all, preflight_all, run_all
-from harness.cosim.interrupt import BatchInterrupted
-from harness.cosim.results import META_FILE, RunResult, signals_dropped
-from harness.cosim.scenario import Scenario, ScenarioError, load_scenario
+from gyrodiag_harness.cosim.batch import load_all, preflight_all, run_all
+from gyrodiag_harness.cosim.interrupt import BatchInterrupted
+from gyrodiag_harness.cosim.results import META_FILE, RunResult, signals_dropped
+from gyrodiag_harness.cosim.scenario import Scenario, ScenarioError, load_scenario
 
 DEFAULT_SCENARIO_DIR = "scenarios"
 
-log = logging.getLogger("harness.cli")
+log = logging.getLogger("gyrodiag_harness.cli")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -118,7 +118,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _parser() -> argparse.ArgumentParser:
     # the console script gyrodiag (pyproject.toml) runs this same parser
-    prog = "gyrodiag" if Path(sys.argv[0]).name == "gyrodiag" else "python -m harness"
+    prog = "gyrodiag" if Path(sys.argv[0]).name == "gyrodiag" else "python -m gyrodiag_harness"
     parser = argparse.ArgumentParser(
         prog=prog,
         description="Run gyrodiag co-simulation scenarios (fmpy master), verify their "
@@ -278,7 +278,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_isolability(args: argparse.Namespace) -> int:
-    from harness.verification.isolability import render, seed_isolability_report, write
+    from gyrodiag_harness.verification.isolability import render, seed_isolability_report, write
 
     report = seed_isolability_report()
     log.info("%s", render(report, "text").rstrip("\n"))
@@ -315,7 +315,7 @@ def cmd_export_csv(args: argparse.Namespace) -> int:
 
 
 def cmd_schema(args: argparse.Namespace) -> int:
-    from harness.cli import reference
+    from gyrodiag_harness.cli import reference
 
     if args.markdown:
         log.info("%s", reference.markdown().rstrip("\n"))

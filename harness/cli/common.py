@@ -8,10 +8,10 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from harness.cosim.interrupt import EXIT_INTERRUPTED
-from harness.cosim.results import RunResult
-from harness.cosim.scenario import Scenario
-from harness.reporting.folders import (
+from gyrodiag_harness.cosim.interrupt import EXIT_INTERRUPTED
+from gyrodiag_harness.cosim.results import RunResult
+from gyrodiag_harness.cosim.scenario import Scenario
+from gyrodiag_harness.reporting.folders import (
     DEFAULT_RESULTS_ROOT,
     LATEST_LINK,
     latest_results_folder,
@@ -39,7 +39,7 @@ EXIT_OK = 0
 EXIT_FAILED = 1
 EXIT_USAGE = 2
 
-log = logging.getLogger("harness")
+log = logging.getLogger("gyrodiag_harness")
 
 
 # ------------------------------------------------------------------------------- logging
@@ -90,7 +90,7 @@ def add_exact_signals(p: argparse.ArgumentParser) -> None:
 
 
 def signals_precision(args: argparse.Namespace) -> str | None:
-    """The ``precision`` for :func:`harness.cosim.batch.run_all` that ``args`` ask for."""
+    """The ``precision`` for :func:`gyrodiag_harness.cosim.batch.run_all` that ``args`` ask for."""
     return "float64" if getattr(args, "exact_signals", False) else None
 
 
@@ -107,7 +107,7 @@ def _positive_int(text: str) -> int:
 def configure_logging(verbosity: int) -> None:
     """Route the ``harness`` loggers to the console at the level ``verbosity`` asks."""
     level = {1: logging.DEBUG, -1: logging.WARNING}.get(verbosity, logging.INFO)
-    root = logging.getLogger("harness")
+    root = logging.getLogger("gyrodiag_harness")
     for h in list(root.handlers):
         if isinstance(h, _ConsoleHandler):
             root.removeHandler(h)
@@ -129,8 +129,8 @@ def verify_and_report(results: Sequence[RunResult], scenarios: Sequence[Scenario
     as not run.  Returns the exit status (130 if ``interrupted_by``).
     """
     # deferred: the report imports matplotlib, which commands that do not report skip
-    from harness.reporting.report import write_report
-    from harness.verification.expectations import ScenarioVerdict, verify_results
+    from gyrodiag_harness.reporting.report import write_report
+    from gyrodiag_harness.verification.expectations import ScenarioVerdict, verify_results
 
     skipped = set(not_started)
     verdicts = verify_results(results, [s for s in scenarios if s.name not in skipped])

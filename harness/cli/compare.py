@@ -1,4 +1,4 @@
-"""``python -m harness compare-results A B``: are two results folders the same?
+"""``python -m gyrodiag_harness compare-results A B``: are two results folders the same?
 
 For "no change of behaviour" checks (issue 31): run the same job before and after a
 change, then compare the two output folders.  Two kinds of folder are understood:
@@ -45,13 +45,13 @@ from typing import Any
 
 import numpy as np
 
-from harness.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE
-from harness.cosim.results import CSV_FILE, META_FILE, SIGNALS_FILE, RunResult
+from gyrodiag_harness.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE
+from gyrodiag_harness.cosim.results import CSV_FILE, META_FILE, SIGNALS_FILE, RunResult
 
 __all__ = ["ANYWHERE_KEYS", "IGNORED", "Comparison", "Ignored", "ResultsFolderError",
            "add_parser", "compare_results"]
 
-log = logging.getLogger("harness.cli")
+log = logging.getLogger("gyrodiag_harness.cli")
 
 JUNIT_FILE = "junit.xml"
 CAMPAIGN_FILE = "campaign.json"

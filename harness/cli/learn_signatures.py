@@ -1,6 +1,6 @@
-"""``python -m harness learn-signatures``: run DTG training scenarios, write the library.
+"""``python -m gyrodiag_harness learn-signatures``: run DTG training scenarios, write the library.
 
-See :mod:`harness.campaigns.signatures` for how the signatures are learned.
+See :mod:`gyrodiag_harness.campaigns.signatures` for how the signatures are learned.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from harness.campaigns.signatures import (
+from gyrodiag_harness.campaigns.signatures import (
     DEFAULT_WINDOW_S,
     SignatureLibrary,
     check_training_scenarios,
@@ -19,7 +19,7 @@ from harness.campaigns.signatures import (
     learn_pattern_library,
     learn_signatures,
 )
-from harness.cli.common import (
+from gyrodiag_harness.cli.common import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
     EXIT_OK,
@@ -29,11 +29,11 @@ from harness.cli.common import (
     new_results_folder,
     signals_precision,
 )
-from harness.cosim.batch import load_all, run_all
-from harness.cosim.interrupt import BatchInterrupted
-from harness.cosim.results import RunResult
+from gyrodiag_harness.cosim.batch import load_all, run_all
+from gyrodiag_harness.cosim.interrupt import BatchInterrupted
+from gyrodiag_harness.cosim.results import RunResult
 
-log = logging.getLogger("harness.cli")
+log = logging.getLogger("gyrodiag_harness.cli")
 
 
 def add_parser(sub: Any) -> None:

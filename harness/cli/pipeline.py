@@ -1,6 +1,6 @@
 """The main job: build the FMUs, learn the DTG signatures, verify every seed scenario.
 
-``python -m harness all [--out DIR] [--scenarios scenarios] [--fmu-dir build/fmus]
+``python -m gyrodiag_harness all [--out DIR] [--scenarios scenarios] [--fmu-dir build/fmus]
 [--no-build] [--workers N] [--exact-signals] [--keep-training-signals] [--no-progress]``
 does, in order (``OUT`` is ``--out`` or a new ``results/all-<time>/``, with
 ``results/latest`` pointing to it):
@@ -34,12 +34,12 @@ import time
 from pathlib import Path
 from typing import Any
 
-from harness.campaigns.signatures import (
+from gyrodiag_harness.campaigns.signatures import (
     check_training_scenarios,
     learn_pattern_library,
     learn_signatures,
 )
-from harness.cli.common import (
+from gyrodiag_harness.cli.common import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
     EXIT_OK,
@@ -49,13 +49,13 @@ from harness.cli.common import (
     signals_precision,
     verify_and_report,
 )
-from harness.cosim.batch import load_all, run_all
-from harness.cosim.interrupt import BatchInterrupted
-from harness.cosim.results import SIGNALS_FILE, drop_signals
-from harness.cosim.scenario import RESULTS_PREFIX
-from harness.verification.isolability import render, seed_isolability_report, write
+from gyrodiag_harness.cosim.batch import load_all, run_all
+from gyrodiag_harness.cosim.interrupt import BatchInterrupted
+from gyrodiag_harness.cosim.results import SIGNALS_FILE, drop_signals
+from gyrodiag_harness.cosim.scenario import RESULTS_PREFIX
+from gyrodiag_harness.verification.isolability import render, seed_isolability_report, write
 
-log = logging.getLogger("harness.cli")
+log = logging.getLogger("gyrodiag_harness.cli")
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 

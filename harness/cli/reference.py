@@ -1,9 +1,9 @@
 """The scenario format's reference, generated from the pydantic models that validate it.
 
 * :func:`scenario_schema` — JSON Schema of a scenario file (``[[expect]]`` entries with
-  every kind), for editors: ``python -m harness schema > scenario.schema.json``.
+  every kind), for editors: ``python -m gyrodiag_harness schema > scenario.schema.json``.
 * :func:`campaign_schema` — the same for campaign specs.
-* :func:`markdown` — ``docs/scenarios.md`` (``python -m harness schema --markdown``); a
+* :func:`markdown` — ``docs/scenarios.md`` (``python -m gyrodiag_harness schema --markdown``); a
   test fails when the committed file differs from what the models say.
 """
 
@@ -16,14 +16,14 @@ from typing import Any
 
 from pydantic import BaseModel, TypeAdapter
 
-from harness.campaigns.campaign import CampaignSpec
-from harness.cosim import scenario as sc
-from harness.verification import expectations as ex
-from harness.verification import metrics
+from gyrodiag_harness.campaigns.campaign import CampaignSpec
+from gyrodiag_harness.cosim import scenario as sc
+from gyrodiag_harness.verification import expectations as ex
+from gyrodiag_harness.verification import metrics
 
 __all__ = ["campaign_schema", "markdown", "scenario_schema"]
 
-REGENERATE = "python -m harness schema --markdown > docs/scenarios.md"
+REGENERATE = "python -m gyrodiag_harness schema --markdown > docs/scenarios.md"
 _ROLE = re.compile(r":\w+:`~?([^`]+)`")
 
 
@@ -206,7 +206,7 @@ def markdown() -> str:
         "checked against the FMUs' modelDescriptions before a run starts, with the closest "
         "names as suggestions. Signals are named `instance.variable`.",
         "",
-        "Editors: `python -m harness schema > scenario.schema.json` writes the JSON Schema "
+        "Editors: `gyrodiag schema > scenario.schema.json` writes the JSON Schema "
         "(with the TOML extension of VS Code, *Even Better TOML*, put "
         "`#:schema ./scenario.schema.json` on the first line of a scenario).",
         "",

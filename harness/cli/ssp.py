@@ -1,6 +1,6 @@
-"""``python -m harness export-ssp``: write a scenario as an SSP package.
+"""``python -m gyrodiag_harness export-ssp``: write a scenario as an SSP package.
 
-See :mod:`harness.cosim.ssp` for what is carried and what is not.
+See :mod:`gyrodiag_harness.cosim.ssp` for what is carried and what is not.
 """
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from harness.cli.common import EXIT_OK, EXIT_USAGE
-from harness.cosim.ssp import export_ssp
+from gyrodiag_harness.cli.common import EXIT_OK, EXIT_USAGE
+from gyrodiag_harness.cosim.ssp import export_ssp
 
 
 def add_parser(sub: Any) -> None:

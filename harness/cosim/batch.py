@@ -5,8 +5,8 @@ plugin and anything else that runs a list of scenarios.
 
 :func:`run_all` checks every scenario first (files, FMUs, variable names: an invalid
 one stops the batch before anything runs), then runs each scenario in a fresh process
-(:mod:`harness.cosim.worker`; docs/methods.md §6.11: pythonfmu FMUs are not loaded twice into
-one process), ``workers`` at a time, the longest first.  Each run saves its files as it
+(:mod:`gyrodiag_harness.cosim.worker`; docs/methods.md §6.11: pythonfmu FMUs are not loaded
+twice into one process), ``workers`` at a time, the longest first.  Each run saves its files as it
 ends; results come back in scenario order and are the same whatever the number of
 workers (every run is deterministic and alone in its process).  They are the runs at
 full precision, as the worker held them (handed over through the batch's temporary
@@ -15,7 +15,7 @@ folder), not the saved files, which may hold Real signals rounded to float32
 
 Ctrl-C or SIGTERM: no new run starts, the runs in flight get the signal once, stop
 between two steps and save what they recorded (marked interrupted), and
-:class:`~harness.cosim.interrupt.BatchInterrupted` is raised with the results so far.
+:class:`~gyrodiag_harness.cosim.interrupt.BatchInterrupted` is raised with the results so far.
 A second signal kills the runs still going.
 """
 
@@ -38,11 +38,11 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.cosim.interrupt import BatchInterrupted, stop_on_signals, stop_requested
-from harness.cosim.master import fault_windows, preflight
-from harness.cosim.results import META_FILE, PRECISIONS, RunResult
-from harness.cosim.scenario import Scenario, ScenarioError, load_scenario
-from harness.cosim.worker import Job
+from gyrodiag_harness.cosim.interrupt import BatchInterrupted, stop_on_signals, stop_requested
+from gyrodiag_harness.cosim.master import fault_windows, preflight
+from gyrodiag_harness.cosim.results import META_FILE, PRECISIONS, RunResult
+from gyrodiag_harness.cosim.scenario import Scenario, ScenarioError, load_scenario
+from gyrodiag_harness.cosim.worker import Job
 
 log = logging.getLogger(__name__)
 
@@ -115,7 +115,7 @@ def summary_line(result: RunResult, out_dir: Path | None) -> str:
 
 
 #: Environment variable: ``0`` starts every run process with ``python -m`` instead of
-#: forking it from a pre-imported server (:mod:`harness.cosim.zygote`).
+#: forking it from a pre-imported server (:mod:`gyrodiag_harness.cosim.zygote`).
 FORK_SERVER_ENV = "GYRODIAG_FORK_SERVER"
 
 
@@ -138,7 +138,7 @@ class _ForkedRun:
 
 
 class _RunServer:
-    """Client of :mod:`harness.cosim.zygote`: forks run processes from a process that
+    """Client of :mod:`gyrodiag_harness.cosim.zygote`: forks run processes from a process that
     has imported the harness already (0.2 s of CPU saved per run)."""
 
     def __init__(self) -> None:
@@ -146,7 +146,8 @@ class _RunServer:
         self._reply_r, reply_w = os.pipe()
         try:
             self.process = subprocess.Popen(
-                [sys.executable, "-m", "harness.cosim.zygote", str(request_r), str(reply_w)],
+                [sys.executable, "-m", "gyrodiag_harness.cosim.zygote", str(request_r),
+                 str(reply_w)],
                 pass_fds=(request_r, reply_w), stdin=subprocess.DEVNULL,
                 start_new_session=True)
         finally:
@@ -163,7 +164,7 @@ class _RunServer:
         while block or select.select([fd], [], [], 0)[0]:
             data = os.read(fd, 65536)
             if not data:
-                raise OSError("the run-process server (harness.cosim.zygote) exited")
+                raise OSError("the run-process server (gyrodiag_harness.cosim.zygote) exited")
             self._buffer += data
             *lines, self._buffer = self._buffer.split(b"\n")
             for line in lines:
@@ -251,7 +252,7 @@ def run_all(scenarios: Sequence[Scenario], out: Path | Sequence[Path],
         scenario its own folder (e.g. training runs beside seed scenarios in one batch).
     fmu_dir : Path, optional
         Folder of the FMUs (default: per scenario, see
-        :func:`harness.cosim.scenario.resolve_fmu_dir`).
+        :func:`gyrodiag_harness.cosim.scenario.resolve_fmu_dir`).
     progress : bool
         Progress bar of the run in flight (one worker, terminal only).
     workers : int, optional
@@ -344,7 +345,7 @@ def run_all(scenarios: Sequence[Scenario], out: Path | Sequence[Path],
 
 def preflight_all(scenarios: Sequence[Scenario], fmu_dir: Path | None,
                   results_dir: Path) -> None:
-    """:func:`harness.cosim.master.preflight` of every scenario; raises one ScenarioError
+    """:func:`gyrodiag_harness.cosim.master.preflight` of every scenario; raises one ScenarioError
     naming every problem of every scenario (FileNotFoundError for a missing FMU)."""
     errors: list[ScenarioError] = []
     for s in scenarios:
@@ -365,7 +366,7 @@ def _start(scenario: Scenario, index: int, out: Path, fmu_dir: Path | None,
     job = Job(scenario=scenario, out_dir=str(out / scenario.name),
               fmu_dir=None if fmu_dir is None else str(fmu_dir),
               results_dir=str(results_dir), status_file=str(status_file), progress=progress,
-              log_level=logging.getLogger("harness").getEffectiveLevel(),
+              log_level=logging.getLogger("gyrodiag_harness").getEffectiveLevel(),
               parent_pid=os.getpid() if server is None else server.process.pid,
               precision=precision,
               handover_file=str(handover_file))
@@ -383,7 +384,7 @@ def _start(scenario: Scenario, index: int, out: Path, fmu_dir: Path | None,
             job.parent_pid = os.getpid()
             job_file.write_bytes(pickle.dumps(job))
     if process is None:
-        process = subprocess.Popen([sys.executable, "-m", "harness.cosim.worker",
+        process = subprocess.Popen([sys.executable, "-m", "gyrodiag_harness.cosim.worker",
                                     str(job_file)],
                                    stdin=subprocess.DEVNULL, start_new_session=True)
     return _Running(index, process, job_file, status_file, handover_file)

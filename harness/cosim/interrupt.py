@@ -9,7 +9,7 @@ frees its FMUs, keeps the partial record and raises :class:`RunInterrupted`.
 
 A second signal while a stop is already requested is taken as "stop now": in a process
 that runs FMUs it raises KeyboardInterrupt at once (the user insisted; an FMU may see
-it), in a process that only supervises runs (:mod:`harness.cosim.batch`) it kills them.
+it), in a process that only supervises runs (:mod:`gyrodiag_harness.cosim.batch`) it kills them.
 
 Outside the main thread no handler can be installed; :func:`request_stop` sets the same
 request from code (a test, a pytest plugin, an orphan watch).

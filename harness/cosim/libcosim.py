@@ -8,12 +8,12 @@ project's FMUs work in a master other than fmpy, and that the Diagnoser gives th
 verdicts there (issue 13; the harness's own ``coupling = "jacobi"`` runs the same
 coupling).
 
-:func:`run_scenario_libcosim` runs a :class:`~harness.cosim.scenario.Scenario` (its
+:func:`run_scenario_libcosim` runs a :class:`~gyrodiag_harness.cosim.scenario.Scenario` (its
 connections, parameters, injector faults as FaultInjector parameters, physical faults as
 overrides of the tunable parameter at their start and end, the recorded signals) and
-returns a :class:`~harness.cosim.results.RunResult` like the harness's master, so that
+returns a :class:`~gyrodiag_harness.cosim.results.RunResult` like the harness's master, so that
 metrics and expectations apply unchanged. :func:`run_ssp_libcosim` runs an SSP package
-(e.g. from :mod:`harness.cosim.ssp`) and records outputs by name.
+(e.g. from :mod:`gyrodiag_harness.cosim.ssp`) and records outputs by name.
 
 Limits: libcosim couples by Jacobi whatever the scenario's ``coupling`` says; every FMU
 steps at the base step (``step_ratio`` 1: libcosimpy exposes no decimation factor).
@@ -31,8 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from harness.cosim.results import RunResult
-from harness.cosim.scenario import (
+from gyrodiag_harness.cosim.results import RunResult
+from gyrodiag_harness.cosim.scenario import (
     ModelInfo,
     PhysicalFault,
     Scenario,
@@ -46,7 +46,7 @@ from harness.cosim.scenario import (
     resolve_fmu_file,
     split_name,
 )
-from harness.cosim.timing import fill_timing_parameters
+from gyrodiag_harness.cosim.timing import fill_timing_parameters
 
 #: libcosim counts time in nanoseconds.
 NS = 1_000_000_000
@@ -74,7 +74,7 @@ def _libcosim() -> Any:
 def _model_info(fmu: Path) -> ModelInfo:
     from fmpy import read_model_description
 
-    from harness.cosim.master import model_info
+    from gyrodiag_harness.cosim.master import model_info
 
     return model_info(read_model_description(str(fmu)))
 
@@ -247,7 +247,7 @@ def run_scenario_libcosim(scenario: Scenario | Path | str, fmu_dir: Path | str |
             _, is_end, _, fault = events.pop(0)
             _apply_physical(values, slaves, fault, is_end, originals, execution, k)
 
-    from harness.cosim.master import fault_windows
+    from gyrodiag_harness.cosim.master import fault_windows
 
     return _simulate(execution, values, slaves, names, s.name, s.step_s, s.n_steps,
                      s.record.decimation, before_step, fault_windows(s))
@@ -306,7 +306,7 @@ def run_ssp_libcosim(ssp: Path | str, record: Sequence[str],
     ----------
     ssp : path
         The ``.ssp`` file (its DefaultExperiment must give the stop time and the OSP
-        fixed-step annotation the base step, as :func:`harness.cosim.ssp.export_ssp`
+        fixed-step annotation the base step, as :func:`gyrodiag_harness.cosim.ssp.export_ssp`
         writes).
     record : sequence of str
         ``"component.variable"`` names to record after every step.

@@ -1,4 +1,4 @@
-"""Co-simulation master: runs a :class:`~harness.cosim.scenario.Scenario` through fmpy.
+"""Co-simulation master: runs a :class:`~gyrodiag_harness.cosim.scenario.Scenario` through fmpy.
 
 Life of a run
 -------------
@@ -36,10 +36,10 @@ Life of a run
 5. An FMU call that fails (fmi2Error/fmi2Fatal) stops the run: ``RunResult.error`` says
    which instance, which call, at what time, and quotes the FMU's log lines; the rows
    recorded so far are kept (and saved when ``out_dir`` is given).
-   Ctrl-C or SIGTERM (:mod:`harness.cosim.interrupt`) stops the run between two steps,
+   Ctrl-C or SIGTERM (:mod:`gyrodiag_harness.cosim.interrupt`) stops the run between two steps,
    never inside an FMU call: the rows so far are kept and saved the same way, marked
    ``interrupted``, and :func:`run_scenario` raises
-   :class:`~harness.cosim.interrupt.RunInterrupted` carrying the partial result.
+   :class:`~gyrodiag_harness.cosim.interrupt.RunInterrupted` carrying the partial result.
 6. Instances are terminated and freed, but the shared libraries are **never unloaded**
    (fmpy's ``freeInstance`` would call ``freeLibrary``; unloading and reloading a
    pythonfmu binary in one process has crashed before, docs/methods.md §6.11).  Loading the same
@@ -65,9 +65,9 @@ from typing import Any
 
 import numpy as np
 
-from harness.cosim.interrupt import RunInterrupted, stop_on_signals, stop_requested
-from harness.cosim.results import PRECISIONS, FaultWindow, RunResult
-from harness.cosim.scenario import (
+from gyrodiag_harness.cosim.interrupt import RunInterrupted, stop_on_signals, stop_requested
+from gyrodiag_harness.cosim.results import PRECISIONS, FaultWindow, RunResult
+from gyrodiag_harness.cosim.scenario import (
     Connection,
     InjectorFault,
     ModelInfo,
@@ -83,7 +83,7 @@ from harness.cosim.scenario import (
     resolve_fmu_file,
     split_name,
 )
-from harness.cosim.timing import fill_timing_parameters
+from gyrodiag_harness.cosim.timing import fill_timing_parameters
 
 log = logging.getLogger(__name__)
 _STATUS = ["OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING"]
@@ -527,7 +527,7 @@ def run_scenario(scenario: Scenario | Path | str, fmu_dir: Path | str | None = N
         A validated scenario or its TOML file.
     fmu_dir : path, optional
         Folder of the ``<Name>.fmu`` files; default: see
-        :func:`harness.cosim.scenario.resolve_fmu_dir`.
+        :func:`gyrodiag_harness.cosim.scenario.resolve_fmu_dir`.
     progress : bool
         Show a tqdm progress bar (only when stderr is a terminal).
     out_dir : path, optional
@@ -535,7 +535,7 @@ def run_scenario(scenario: Scenario | Path | str, fmu_dir: Path | str | None = N
         when the run stops on an FMU error).
     results_dir : path, optional
         Results folder of the command: what ``${out}/`` stands for in the instances'
-        ``files`` (:func:`harness.cosim.scenario.resolve_file_parameters`).
+        ``files`` (:func:`gyrodiag_harness.cosim.scenario.resolve_file_parameters`).
     precision : {"compact", "float32", "float64"}, optional
         How the saved file stores Real signals (:meth:`RunResult.save`); default the
         scenario's ``record.precision``.  The returned run keeps full precision.
@@ -554,11 +554,11 @@ def run_scenario(scenario: Scenario | Path | str, fmu_dir: Path | str | None = N
     FileNotFoundError
         A missing FMU file.
     RunInterrupted
-        Ctrl-C or SIGTERM (or :func:`harness.cosim.interrupt.request_stop`) stopped the
+        Ctrl-C or SIGTERM (or :func:`gyrodiag_harness.cosim.interrupt.request_stop`) stopped the
         run between two steps; its ``result`` is the partial run (saved when
         ``out_dir`` is given), marked ``interrupted``.  A KeyboardInterrupt.  The stop
         request stays set, so that a loop over runs starts nothing new
-        (:func:`harness.cosim.interrupt.clear_stop` to go on on purpose).
+        (:func:`gyrodiag_harness.cosim.interrupt.clear_stop` to go on on purpose).
     """
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
@@ -747,7 +747,7 @@ class _Run:
         for name, var, value in fill_timing_parameters(params, s, self.plan.delayed,
                                                        variables):
             log.info("%s: %s.%s = %d (sample alignment under %s coupling, "
-                     "harness.cosim.timing)", s.name, name, var, value, s.coupling)
+                     "gyrodiag_harness.cosim.timing)", s.name, name, var, value, s.coupling)
         for name in self.plan.order:
             inst = self.inst[name]
             inst.instantiate(t0)

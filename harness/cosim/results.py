@@ -38,11 +38,11 @@ A run directory holds two files:
   about a sixth of the space of float64 this way (docs/notes.md).
 
   Verdicts do not depend on this: a command that runs scenarios judges the run it
-  holds in memory at full precision (:func:`harness.cosim.batch.run_all` hands each
+  holds in memory at full precision (:func:`gyrodiag_harness.cosim.batch.run_all` hands each
   run's full-precision signals from its worker process over); only ``report`` on saved
   runs, ``learn-signatures --saved`` and reloads read the stored values.  Read a run
   with :meth:`RunResult.load`, or with numpy alone: ``planes = np.load(f)[name]``, then
-  ``planes.T.copy().view("<f8" or "<f4").ravel()`` for byte planes; ``python -m harness
+  ``planes.T.copy().view("<f8" or "<f4").ravel()`` for byte planes; ``python -m gyrodiag_harness
   export-csv`` writes ``signals.csv`` (:meth:`RunResult.export_csv`).
 * ``run.json`` — everything else: scenario name, base step, planned duration, wall time,
   error text (``null`` when the run completed), whether a stop request interrupted it,

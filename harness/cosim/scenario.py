@@ -39,8 +39,8 @@ from pydantic import (
     model_validator,
 )
 
-from harness.verification import expectations
-from harness.verification.strict_model import StrictModel
+from gyrodiag_harness.verification import expectations
+from gyrodiag_harness.verification.strict_model import StrictModel
 
 #: FaultInjector fault codes (parameter ``fault_type_<channel>``), copied from the
 #: FaultInjector FMU's documentation (``FaultType`` in models/fault_injector); a test
@@ -143,7 +143,7 @@ class ScenarioError(ValueError):
 
 class _Strict(StrictModel):
     # attribute docstrings are the field descriptions of the JSON Schema and of
-    # docs/scenarios.md (python -m harness schema); extra="forbid" from StrictModel
+    # docs/scenarios.md (python -m gyrodiag_harness schema); extra="forbid" from StrictModel
     model_config = ConfigDict(populate_by_name=True, use_attribute_docstrings=True)
 
 
@@ -451,7 +451,7 @@ class Record(_Strict):
 
 class Expectation(BaseModel):
     """One ``[[expect]]`` entry.  Its arguments belong to
-    ``harness.verification.expectations``, which validates them; here only the references
+    ``gyrodiag_harness.verification.expectations``, which validates them; here only the references
     (``signal``, ``fault``, ``manoeuvre``) are checked."""
 
     model_config = ConfigDict(extra="allow")
@@ -475,13 +475,14 @@ class Expectation(BaseModel):
 class Training(_Strict):
     """``[training]``: the run is a training example of one DTG fault class.
 
-    Read by ``python -m harness learn-signatures`` (:mod:`harness.campaigns.signatures`), ignored by
-    the other commands.  ``signature`` names the fault class, ``code`` is its fault code
+    Read by ``gyrodiag learn-signatures`` (:mod:`gyrodiag_harness.campaigns.signatures`),
+    ignored by the other commands.  ``signature`` names the fault class, ``code`` is its fault code
     (1-based position in the learned library, i.e. the ``dtg.fault_code`` the Diagnoser
     reports for it), ``diagnoser`` the Diagnoser instance whose outputs are read.
 
     ``classifier = "paper"`` (default): decade signatures from ``dtg.eta_x``/``dtg.eta_y``.
-    ``classifier = "pattern"``: response patterns (:mod:`harness.campaigns.pattern_learning`);
+    ``classifier = "pattern"``: response patterns
+    (:mod:`gyrodiag_harness.campaigns.pattern_learning`);
     then ``type`` (step, drift, noise, loss, spin, torquer or nominal), ``signal`` (Utx,
     Uty, Ux, Uy; signal faults) and ``fault`` (the ``[[faults]]`` entry giving the size
     and the onset; default the only one) describe the example. A ``nominal`` run (code
@@ -812,13 +813,13 @@ def _cross_reference_problems(s: Scenario) -> list[tuple[str, str]]:
 
 
 def _expectations_module() -> Any:
-    # harness.verification.expectations owns the [[expect]] schema (a layer below)
+    # gyrodiag_harness.verification.expectations owns the [[expect]] schema (a layer below)
     return expectations
 
 
 def expected_signals(e: Expectation) -> list[str]:
     """Signals an ``[[expect]]`` entry reads (``signal`` and signal arguments of metrics,
-    as reported by ``harness.verification.expectations.referenced_signals``)."""
+    as reported by ``gyrodiag_harness.verification.expectations.referenced_signals``)."""
     expectations = _expectations_module()
     if expectations is not None:
         try:
@@ -943,7 +944,7 @@ def resolve_file_parameters(scenario: Scenario, results_dir: Path | str | None =
                     if not above.is_file():
                         problems.append((key, f"{rest} not found in {path.parent.resolve()} "
                                               f"nor in {above.parent.resolve()} (produce it "
-                                              "first, e.g. with 'python -m harness "
+                                              "first, e.g. with 'python -m gyrodiag_harness "
                                               f"learn-signatures ... --out {above}')"))
                         continue
                     path = above
@@ -952,7 +953,7 @@ def resolve_file_parameters(scenario: Scenario, results_dir: Path | str | None =
             path = path.resolve()
             if must_exist and not path.is_file():
                 problems.append((key, f"file {path} not found (produce it first, e.g. with "
-                                      "'python -m harness learn-signatures ... --out "
+                                      "'python -m gyrodiag_harness learn-signatures ... --out "
                                       f"{path}')"))
                 continue
             resolved.setdefault(name, {})[pname] = str(path)

@@ -1,6 +1,6 @@
 """Export a scenario as an SSP package (System Structure and Parameterization, SSP 1.0).
 
-``python -m harness export-ssp SCENARIO --out FILE.ssp`` (or :func:`export_ssp`) writes
+``python -m gyrodiag_harness export-ssp SCENARIO --out FILE.ssp`` (or :func:`export_ssp`) writes
 one ``.ssp`` file that any SSP tool can load and run without the harness:
 
 * ``SystemStructure.ssd``: one component per scenario instance (its FMU in
@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from harness.cosim.scenario import (
+from gyrodiag_harness.cosim.scenario import (
     ModelInfo,
     Scenario,
     ScenarioError,
@@ -56,7 +56,7 @@ from harness.cosim.scenario import (
     resolve_fmu_file,
     split_name,
 )
-from harness.cosim.timing import fill_timing_parameters
+from gyrodiag_harness.cosim.timing import fill_timing_parameters
 
 #: Annotation type understood by libcosim (fixed-step algorithm, step-size hints).
 OSP_ANNOTATION = "com.opensimulationplatform"
@@ -104,7 +104,7 @@ def _pyssp() -> Any:
 def _model_info(fmu: Path) -> ModelInfo:
     from fmpy import read_model_description
 
-    from harness.cosim.master import model_info
+    from gyrodiag_harness.cosim.master import model_info
 
     return model_info(read_model_description(str(fmu)))
 

@@ -1,10 +1,10 @@
-"""One scenario run in a process of its own: ``python -m harness.cosim.worker JOB``.
+"""One scenario run in a process of its own: ``python -m gyrodiag_harness.cosim.worker JOB``.
 
-:mod:`harness.cosim.batch` starts one such process per scenario: pythonfmu FMUs must
+:mod:`gyrodiag_harness.cosim.batch` starts one such process per scenario: pythonfmu FMUs must
 not be loaded again into a process that ran them (docs/methods.md §6.11), a crash or abort of
 an FMU only ends its own run, and runs can go in parallel.  ``JOB`` is a pickle written
 by the batch (:class:`Job`); the run's files are saved into ``Job.out_dir`` as by
-:func:`harness.cosim.master.run_scenario`, and a small status file (JSON) says how the
+:func:`gyrodiag_harness.cosim.master.run_scenario`, and a small status file (JSON) says how the
 run ended::
 
     {"status": "ok" | "failed" | "interrupted" | "crashed", "message": "..."}
@@ -34,8 +34,8 @@ import traceback
 from dataclasses import dataclass
 from typing import Any
 
-from harness.cosim.interrupt import RunInterrupted, request_stop, stop_on_signals
-from harness.cosim.niceness import keep_niceness
+from gyrodiag_harness.cosim.interrupt import RunInterrupted, request_stop, stop_on_signals
+from gyrodiag_harness.cosim.niceness import keep_niceness
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +47,7 @@ ORPHAN_POLL_S = 0.5
 class Job:
     """What one worker process runs (pickled by the batch)."""
 
-    scenario: Any           # harness.cosim.scenario.Scenario
+    scenario: Any           # gyrodiag_harness.cosim.scenario.Scenario
     out_dir: str
     fmu_dir: str | None
     results_dir: str | None
@@ -77,7 +77,7 @@ def _write_status(path: str, status: str, message: str = "") -> None:
 
 def run_job(job: Job) -> str:
     """Run one job; returns the status written."""
-    from harness.cosim.master import run_scenario
+    from gyrodiag_harness.cosim.master import run_scenario
 
     result = None
     try:
@@ -112,8 +112,8 @@ def _hand_over(path: str, result: Any) -> None:
 
 def main(argv: list[str]) -> int:
     if len(argv) != 1:
-        print("usage: python -m harness.cosim.worker JOB (started by harness.cosim.batch)",
-              file=sys.stderr)
+        print("usage: python -m gyrodiag_harness.cosim.worker JOB "
+              "(started by gyrodiag_harness.cosim.batch)", file=sys.stderr)
         return 2
     with open(argv[0], "rb") as fh:
         job: Job = pickle.load(fh)  # written by this package's batch, never by a user

@@ -1,11 +1,11 @@
 """A pre-imported server that forks the run processes of a batch.
 
-``python -m harness.cosim.zygote REQUEST_FD REPLY_FD`` (started by
-:mod:`harness.cosim.batch`). Starting Python and importing the harness costs about 0.2 s
+``python -m gyrodiag_harness.cosim.zygote REQUEST_FD REPLY_FD`` (started by
+:mod:`gyrodiag_harness.cosim.batch`). Starting Python and importing the harness costs about 0.2 s
 of CPU per run, as much as a short run itself; this process imports
-:mod:`harness.cosim.worker` once and, for each job file named on ``REQUEST_FD`` (one path
+:mod:`gyrodiag_harness.cosim.worker` once and, for each job file named on ``REQUEST_FD`` (one path
 per line), forks a child that starts a session of its own and runs exactly what
-``python -m harness.cosim.worker JOB`` runs. It answers ``pid N`` for every child and
+``python -m gyrodiag_harness.cosim.worker JOB`` runs. It answers ``pid N`` for every child and
 ``exit N CODE`` when the child ends (``CODE`` as :attr:`subprocess.Popen.returncode`:
 negative for a signal).
 
@@ -14,7 +14,7 @@ not be loaded twice into a process, docs/methods.md §6.11), and it has no threa
 reaped by a SIGCHLD handler), so a fork copies a consistent process. It exits when the
 request pipe closes, i.e. when its batch is done or has died; children still running
 then see their parent change and stop as orphans of a killed batch do
-(:func:`harness.cosim.worker._watch_parent`).
+(:func:`gyrodiag_harness.cosim.worker._watch_parent`).
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import os
 import signal
 import sys
 
-from harness.cosim import master, worker
+from gyrodiag_harness.cosim import master, worker
 
 # what a run process imports anyway, once here instead of once per run
 _PRELOADED = (master, worker)
@@ -46,7 +46,7 @@ def _reap(signum: int, frame: object) -> None:
 
 
 def _run_child(job_file: str, request_fd: int) -> None:
-    """In the forked child: what ``python -m harness.cosim.worker JOB`` does."""
+    """In the forked child: what ``python -m gyrodiag_harness.cosim.worker JOB`` does."""
     os.setsid()  # a session of its own, as start_new_session gives the Popen path
     os.close(request_fd)
     os.close(_reply_fd)
@@ -88,8 +88,8 @@ def serve(request_fd: int, reply_fd: int) -> None:
 
 def main(argv: list[str]) -> int:
     if len(argv) != 2:
-        print("usage: python -m harness.cosim.zygote REQUEST_FD REPLY_FD (started by "
-              "harness.cosim.batch)", file=sys.stderr)
+        print("usage: python -m gyrodiag_harness.cosim.zygote REQUEST_FD REPLY_FD (started by "
+              "gyrodiag_harness.cosim.batch)", file=sys.stderr)
         return 2
     # the batch forwards Ctrl-C and SIGTERM to the runs itself; the server just ends
     # when its request pipe closes

@@ -51,11 +51,11 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from numpy.typing import ArrayLike, NDArray
 
-from harness.verification import expectations as _expectations
+from gyrodiag_harness.verification import expectations as _expectations
 
 if TYPE_CHECKING:
-    from harness.cosim.results import FaultWindow, RunResult
-    from harness.verification.expectations import ScenarioVerdict
+    from gyrodiag_harness.cosim.results import FaultWindow, RunResult
+    from gyrodiag_harness.verification.expectations import ScenarioVerdict
 
 __all__ = [
     "FLAG_PATTERN",
@@ -1000,7 +1000,7 @@ def _witness_specs(scenario: Any) -> list[tuple[list[str], list[str], str]]:
     """(witnesses, details, label) of the scenario's witnesses_agree expectations."""
     if scenario is None:
         return []
-    from harness.verification import expectations as ex
+    from gyrodiag_harness.verification import expectations as ex
 
     raw = scenario.get("expect", []) if isinstance(scenario, Mapping) else getattr(
         scenario, "expect", [])

@@ -8,8 +8,8 @@
   passing cases show what was measured too.
 * :func:`write_html` — summary table, and per scenario: run facts, fault windows,
   expectations (pass/fail, measured value, message), a table of standard metrics
-  (:func:`summary_metrics`) and the plots of :func:`harness.reporting.plots.figures_for_result`
-  embedded as base64 PNG.
+  (:func:`summary_metrics`) and the plots of
+  :func:`gyrodiag_harness.reporting.plots.figures_for_result` embedded as base64 PNG.
 * :func:`write_report` — both, into one directory.
 """
 
@@ -34,14 +34,14 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
-from harness.reporting import plots
-from harness.verification import metrics
-from harness.verification.expectations import ScenarioVerdict
+from gyrodiag_harness.reporting import plots
+from gyrodiag_harness.verification import metrics
+from gyrodiag_harness.verification.expectations import ScenarioVerdict
 
 _log = logging.getLogger(__name__)
 
 if TYPE_CHECKING:
-    from harness.cosim.results import RunResult
+    from gyrodiag_harness.cosim.results import RunResult
 
 __all__ = [
     "MetricRow",
@@ -103,7 +103,7 @@ def write_junit(
     Parameters
     ----------
     verdicts : sequence of ScenarioVerdict
-        From :func:`harness.verification.expectations.verify_results`.
+        From :func:`gyrodiag_harness.verification.expectations.verify_results`.
     path : path-like
         Output file (parent directories are created).
     results : sequence of RunResult, optional
@@ -194,8 +194,8 @@ def summary_metrics(result: RunResult, scenario: Any = None) -> list[MetricRow]:
       detection delay (s) per fault window, false alarms (count, rate per hour of
       fault-free time);
     * every grey prediction with a known measurement (see
-      :func:`harness.reporting.plots.figures_for_result`): prediction error, % of y, before the
-      first fault (the whole run without faults);
+      :func:`gyrodiag_harness.reporting.plots.figures_for_result`): prediction error, % of y,
+      before the first fault (the whole run without faults);
     * every θ signal: statistics over the second half of the fault-free time before the
       first fault (the first half holds the estimator's convergence transient).
 
@@ -424,7 +424,7 @@ def witness_table(verdicts: Sequence[ScenarioVerdict]) -> str:
     the witnesses agree and what each one did (the expectation's message: each witness's
     delay, "missed", "quiet" or its alarm time, and the quoted details); "" when no
     scenario has one.  Every witness's alarm is drawn on one timeline in the scenario's
-    section (:func:`harness.reporting.plots.plot_witnesses`)."""
+    section (:func:`gyrodiag_harness.reporting.plots.plot_witnesses`)."""
     rows = []
     for v in verdicts:
         for e in v.expectations:
@@ -452,7 +452,7 @@ def write_html(
     Parameters
     ----------
     verdicts : sequence of ScenarioVerdict
-        From :func:`harness.verification.expectations.verify_results`.
+        From :func:`gyrodiag_harness.verification.expectations.verify_results`.
     results : sequence of RunResult
         The runs (matched to verdicts by scenario name); plots and metrics come from them.
     path : path-like
@@ -516,7 +516,7 @@ def write_report(
     Parameters
     ----------
     verdicts : sequence of ScenarioVerdict
-        From :func:`harness.verification.expectations.verify_results`.
+        From :func:`gyrodiag_harness.verification.expectations.verify_results`.
     results : sequence of RunResult
         The runs.
     out_dir : path-like

@@ -33,7 +33,7 @@ Fixtures for users' own tests (available whenever the package is installed):
 ``gyrodiag_run`` (the run of a scenario, run once per session whoever asks first, also
 across pytest-xdist workers).
 
-Runs happen in worker processes (:func:`harness.cosim.batch.run_all`), never in the
+Runs happen in worker processes (:func:`gyrodiag_harness.cosim.batch.run_all`), never in the
 pytest process; with ``pytest -n auto`` (pytest-xdist) scenarios run in parallel.
 """
 
@@ -53,15 +53,15 @@ from typing import Any
 
 import pytest
 
-from harness.campaigns.signatures import (
+from gyrodiag_harness.campaigns.signatures import (
     check_training_scenarios,
     learn_pattern_library,
     learn_signatures,
 )
-from harness.cosim.batch import load_all
-from harness.cosim.results import RunResult
-from harness.cosim.scenario import FMU_DIR_ENV, Scenario, ScenarioError, load_scenario
-from harness.testing.runs import RunCache
+from gyrodiag_harness.cosim.batch import load_all
+from gyrodiag_harness.cosim.results import RunResult
+from gyrodiag_harness.cosim.scenario import FMU_DIR_ENV, Scenario, ScenarioError, load_scenario
+from gyrodiag_harness.testing.runs import RunCache
 
 __all__ = ["ScenarioFile", "ScenarioItem", "ScenarioRuns"]
 
@@ -302,7 +302,7 @@ class ScenarioItem(pytest.Item):
             pytest.fail(f"the run did not complete: {self.result.error}", pytrace=False)
 
     def runtest(self) -> None:
-        from harness.verification.expectations import verify_results
+        from gyrodiag_harness.verification.expectations import verify_results
 
         assert self.result is not None
         (verdict,) = verify_results([self.result], [self.scenario])
@@ -357,8 +357,8 @@ def pytest_sessionfinish(session: pytest.Session) -> None:
     _REPORTS.clear()
     if state is None or state.is_worker or not state.report or not reported:
         return
-    from harness.reporting.report import write_report
-    from harness.verification.expectations import verify_results
+    from gyrodiag_harness.reporting.report import write_report
+    from gyrodiag_harness.verification.expectations import verify_results
 
     scenarios, results = [], []
     for folder, source in sorted(set(reported.values())):

@@ -3,7 +3,7 @@
 Several pytest items and fixtures may want the run of one scenario, in one process or in
 several (pytest-xdist workers).  :class:`RunCache` runs a scenario at most once per
 results folder: under a file lock per scenario, the first asker runs it (in a worker
-process of its own, :func:`harness.cosim.batch.run_all`) and writes a marker with the
+process of its own, :func:`gyrodiag_harness.cosim.batch.run_all`) and writes a marker with the
 scenario's fingerprint; later askers, in this process or another, load the saved run.
 A scenario edited since (other fingerprint) runs again.
 
@@ -21,9 +21,9 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from harness.cosim.batch import run_all
-from harness.cosim.results import META_FILE, RunResult
-from harness.cosim.scenario import Scenario
+from gyrodiag_harness.cosim.batch import run_all
+from gyrodiag_harness.cosim.results import META_FILE, RunResult
+from gyrodiag_harness.cosim.scenario import Scenario
 
 __all__ = ["RunCache"]
 

@@ -22,8 +22,8 @@ witnesses_agree            two or more independent alarm ``witnesses`` tell the 
 value_at_end / value_at    the last sample (or the sample held at ``t_s``) equals
                            ``equals`` ± ``tol`` or lies in ``[min, max]``
 value_in_window            every sample in ``[t0_s, t1_s]`` lies in ``[min, max]``
-metric                     a metric of :data:`harness.verification.metrics.METRICS`, called with
-                           ``args`` (``field`` picks one value), lies in ``[min, max]``
+metric                     a metric of :data:`~gyrodiag_harness.verification.metrics.METRICS`,
+                           called with ``args`` (``field`` picks one value), lies in ``[min, max]``
 ========================== ==============================================================
 
 Every kind also takes an optional ``name`` (label in reports; default built from the
@@ -40,7 +40,7 @@ for value_at_end / value_at; the sample nearest to (or farthest beyond) a bound 
 value_in_window; the metric's value for metric. None where nothing was measured.
 
 :func:`evaluate` turns one expectation and a
-:class:`harness.cosim.results.RunResult` into an :class:`ExpectationResult`;
+:class:`gyrodiag_harness.cosim.results.RunResult` into an :class:`ExpectationResult`;
 :func:`verify_results` does it for whole scenarios and returns
 :class:`ScenarioVerdict` objects. Evaluation never raises on a bad run: an unknown
 signal or fault, or a failed run, fails the expectation with the reason as message.
@@ -56,11 +56,11 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal, Protocol, Self
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
 
-from harness.verification import metrics
-from harness.verification.strict_model import StrictModel
+from gyrodiag_harness.verification import metrics
+from gyrodiag_harness.verification.strict_model import StrictModel
 
 if TYPE_CHECKING:
-    from harness.cosim.results import RunResult
+    from gyrodiag_harness.cosim.results import RunResult
 
 __all__ = [
     "DetectedWithin",
@@ -163,7 +163,7 @@ class ScenarioLike(Protocol):
 # -------------------------------------------------------------------- models
 class _Base(StrictModel):
     # attribute docstrings are the field descriptions of the JSON Schema and of
-    # docs/scenarios.md (python -m harness schema); extra="forbid" from StrictModel
+    # docs/scenarios.md (python -m gyrodiag_harness schema); extra="forbid" from StrictModel
     model_config = ConfigDict(frozen=True, use_attribute_docstrings=True)
 
     name: str | None = Field(default=None, description="Label in reports")
@@ -351,7 +351,8 @@ class ValueInWindow(_Bounds):
 
 
 class MetricExpectation(_Bounds):
-    """A registered metric (:data:`harness.verification.metrics.METRICS`) lies in [min, max]."""
+    """A registered metric (:data:`gyrodiag_harness.verification.metrics.METRICS`) lies in
+    [min, max]."""
 
     kind: Literal["metric"]
     metric: str

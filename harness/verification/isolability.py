@@ -1,4 +1,4 @@
-"""Sensor-fault isolability report of the seed aircraft: ``python -m harness isolability``.
+"""Sensor-fault isolability report of the seed aircraft: ``python -m gyrodiag_harness isolability``.
 
 Which faults on the six sensors (v, α, q, ϑ, γ, h) the detection-filter channel can
 detect and from which other sensors it can tell them apart, worked out from the model by

@@ -7,9 +7,9 @@ Two layers:
   :func:`false_alarms`, :func:`isolation_result`, :func:`signal_statistics`,
   :func:`theta_statistics`, :func:`prediction_errors_percent`, :func:`absolute_errors`.
 * The registry :data:`METRICS` (name -> :class:`MetricSpec`): the same metrics on a
-  :class:`harness.cosim.results.RunResult`, addressed by recorded signal names and fault names,
-  so that a scenario's ``[[expect]] kind = "metric"`` can call them by name with keyword
-  arguments from TOML.  :func:`check_metric_args` validates such a call before the run,
+  :class:`gyrodiag_harness.cosim.results.RunResult`, addressed by recorded signal names and
+  fault names, so that a scenario's ``[[expect]] kind = "metric"`` can call them by name
+  with keyword arguments from TOML.  :func:`check_metric_args` validates such a call before the run,
   :func:`compute_metric` evaluates it.
 
 Conventions shared by every function:
@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 if TYPE_CHECKING:
-    from harness.cosim.results import FaultWindow, RunResult
+    from gyrodiag_harness.cosim.results import FaultWindow, RunResult
 
 __all__ = [
     "METRICS",

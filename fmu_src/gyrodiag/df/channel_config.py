@@ -143,7 +143,7 @@ class DFChannelConfig:
         under Jacobi coupling: 1). Every other channel, inputs included, is held back to
         match, before anything else (so the outputs describe the sample max(e) earlier).
         None (default): all zeros. The harness sets it from its coupling plan
-        (:mod:`harness.cosim.timing`).
+        (:mod:`gyrodiag_harness.cosim.timing`).
     gust : GustModel or None
         Sequential rule: turbulence its residual model includes (the whitened residual
         is then the innovation of the plant augmented with the Dryden filter, white in

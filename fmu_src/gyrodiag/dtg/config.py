@@ -175,7 +175,7 @@ class DTGChannelConfig:
         Diagnoser: d = 1; d < 0: the case rate arrives later, and every output describes
         the sample |d| earlier). The delay in use at the start when
         ``case_rate_align_max`` > 0. The harness sets it from its coupling plan
-        (:mod:`harness.cosim.timing`).
+        (:mod:`gyrodiag_harness.cosim.timing`).
     case_rate_align_max : int
         Case rate only: choose d in −this … this from the data (0, the default: keep
         ``case_rate_delay_samples``). For hosts whose timing is unknown; measured limits

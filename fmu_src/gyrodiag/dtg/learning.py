@@ -1,7 +1,7 @@
 """Learning the DTG pattern library from training runs (numpy only).
 
 A training run (:class:`PatternRun`) is what a Diagnoser reported during one training
-scenario: the harness reads it (:mod:`harness.campaigns.pattern_learning`), this module
+scenario: the harness reads it (:mod:`gyrodiag_harness.campaigns.pattern_learning`), this module
 learns from it.
 
 What is learned (:func:`learn_patterns`), from the Diagnoser's own outputs so that what

@@ -57,7 +57,7 @@ class PaperRule(ChannelClassifier):
         self._signatures = (
             SignatureClassifier(c.signatures, c.max_distance) if c.signatures else None
         )
-        # both ends of the window, as the training window of harness.campaigns.signatures
+        # both ends of the window, as the training window of gyrodiag_harness.campaigns.signatures
         self._features = WindowedMedianFeature(N_THETA, self._window)
         self._learn_sum = np.zeros(self._theta0_shape)
         self._learn_count = 0
