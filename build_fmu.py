@@ -291,19 +291,23 @@ def postprocess_model_description(
         If ``variable_meta`` or ``output_dependencies`` name a variable the FMU lacks.
     """
     root = ET.fromstring(xml_bytes)
-    notes: list[str] = []
-    model_vars = root.find("ModelVariables")
-    svs = list(model_vars)
+    svs = list(root.find("ModelVariables"))
     by_name = {sv.get("name"): sv for sv in svs}
-    index_of = {sv.get("name"): i + 1 for i, sv in enumerate(svs)}
-
     unknown = sorted(set(variable_meta) - set(by_name))
     if unknown:
         raise ValueError(f"VARIABLE_META names unknown variables: {unknown}")
     unknown = sorted(set(output_dependencies) - set(by_name))
     if unknown:
         raise ValueError(f"OUTPUT_DEPENDENCIES names unknown variables: {unknown}")
+    units_used = _apply_variable_meta(svs, variable_meta)
+    notes = _write_unit_definitions(root, units_used)
+    _write_model_structure(root, svs, output_dependencies)
+    ET.indent(root, space="  ")
+    return ET.tostring(root, encoding="UTF-8", xml_declaration=True), notes
 
+
+def _apply_variable_meta(svs: list[ET.Element], variable_meta: dict[str, dict]) -> list[str]:
+    """Variability, description, unit and bounds of each variable; the units used."""
     units_used: list[str] = []
     for sv in svs:
         name = sv.get("name")
@@ -324,8 +328,12 @@ def postprocess_model_description(
         unit = type_el.get("unit")
         if unit is not None and unit not in units_used:
             units_used.append(unit)
+    return units_used
 
-    # <UnitDefinitions> goes right after <CoSimulation> (schema order).
+
+def _write_unit_definitions(root: ET.Element, units_used: list[str]) -> list[str]:
+    """<UnitDefinitions> right after <CoSimulation> (schema order); notes on unknown units."""
+    notes: list[str] = []
     for old in root.findall("UnitDefinitions"):
         root.remove(old)
     if units_used:
@@ -336,8 +344,15 @@ def postprocess_model_description(
             unit_defs.append(_unit_element(unit))
         cosim_pos = list(root).index(root.find("CoSimulation"))
         root.insert(cosim_pos + 1, unit_defs)
+    return notes
 
-    # Rebuild <ModelStructure> from scratch.
+
+def _write_model_structure(root: ET.Element, svs: list[ET.Element],
+                           output_dependencies: dict[str, list[str]]) -> None:
+    """<ModelStructure> rebuilt from scratch: outputs with their dependencies, and the
+    initial unknowns."""
+    by_name = {sv.get("name"): sv for sv in svs}
+    index_of = {sv.get("name"): i + 1 for i, sv in enumerate(svs)}
     old_structure = root.find("ModelStructure")
     if old_structure is not None:
         root.remove(old_structure)
@@ -367,9 +382,6 @@ def postprocess_model_description(
         for sv in initial_unknowns:
             # no dependencies attribute: depends on all knowns (parameters, start values)
             ET.SubElement(init_el, "Unknown", {"index": str(index_of[sv.get("name")])})
-
-    ET.indent(root, space="  ")
-    return ET.tostring(root, encoding="UTF-8", xml_declaration=True), notes
 
 
 def compile_status_shim(work_dir: Path) -> Path | None:
