@@ -397,6 +397,7 @@ class Diagnoser(FacadeBase):
         if out.unchecked:
             self._guard_finite_outputs()
 
+    # ------------------------------------------------------------------ state
     def _capture_state(self) -> dict[str, Any]:
         return {
             "ready": self._ready,

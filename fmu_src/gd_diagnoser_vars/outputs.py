@@ -119,6 +119,7 @@ class OutputWriter:
             v[_DF_OFFSET_KEYS[i]] = size if kind in _OFFSET_TYPES else 0.0
             v[_DF_GAIN_KEYS[i]] = size if kind in _GAIN_TYPES and size != 0.0 else 1.0
             v[_DF_RATE_KEYS[i]] = size if kind in _RATE_TYPES else 0.0
+            v[_DF_NOISE_RATIO_KEYS[i]] = size if kind in _NOISE_TYPES and size else 1.0
 
     def copy_grey(self, g: Any, channel: GreyFaultDetector) -> None:
         """Outputs of the grey channel (0 for a prediction or error not defined)."""
