@@ -42,10 +42,9 @@ import re
 from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
 from gd_diagnoser_vars import MESSAGE_NAMES, TUNABLE, VARIABLE_META, VARIABLES, adapters
 from gd_diagnoser_vars.df import DF_M, DF_P
-from gd_diagnoser_vars.dtg import PHYSICAL_NAMES
+from gd_diagnoser_vars.outputs import OutputWriter
 from gd_fmu_base import FacadeBase, sample_instants, samples_in_step
 from pythonfmu import DefaultExperiment
 from pythonfmu.enums import Fmi2Status
@@ -53,15 +52,11 @@ from pythonfmu.enums import Fmi2Status
 from gyrodiag.dtg.channel import (
     DTGChannel,
     DTGChannelConfig,
-    DTGChannelOutput,
 )
-from gyrodiag.dtg.model import N_THETA
-from gyrodiag.dtg.patterns import SEVERAL_CODE
-from gyrodiag.dtg.reference import N_CHANNELS
 from gyrodiag.grey import GreyFaultDetector
 
 if TYPE_CHECKING:  # imported when the channel is built: it needs SciPy (design time)
-    from gyrodiag.df.channel import DFChannel, DFChannelConfig, DFChannelOutput
+    from gyrodiag.df.channel import DFChannel, DFChannelConfig
 
 #: Fault codes of the summary output ``fault_code``.
 SUMMARY_CODE_BASE = {"dtg": 100, "grey": 200, "df": 300}
@@ -80,38 +75,10 @@ _TUNABLE_NAMES = frozenset(n for names in TUNABLE.values() for n in names)
 _DTG_INPUT_KEYS = ("dtg.Utx", "dtg.Uty", "dtg.Ux", "dtg.Uy", "dtg.case_rate_x",
                    "dtg.case_rate_y")
 _dtg_inputs = operator.itemgetter(*_DTG_INPUT_KEYS)
-_DTG_THETA_KEYS = tuple(tuple(f"dtg.theta_{axis}[{i + 1}]" for i in range(N_THETA))
-                        for axis in ("x", "y"))
-_DTG_ETA_KEYS = tuple(tuple(f"dtg.eta_{axis}[{i + 1}]" for i in range(N_THETA))
-                      for axis in ("x", "y"))
-_DTG_THETA_FLAT_KEYS = tuple(k for row in _DTG_THETA_KEYS for k in row)
-_DTG_ETA_FLAT_KEYS = tuple(k for row in _DTG_ETA_KEYS for k in row)
-_DTG_THETA_ETA_KEYS = _DTG_THETA_FLAT_KEYS + _DTG_ETA_FLAT_KEYS
-_DTG_THETA0_KEYS = tuple(f"dtg.theta0_used[{i + 1}]" for i in range(N_THETA))
-_DTG_THETA0_Y_KEYS = tuple(f"dtg.theta0_used_y[{i + 1}]" for i in range(N_THETA))
-_DTG_PHYSICAL_KEYS = tuple(f"dtg.{name}" for name in PHYSICAL_NAMES)
-_ZEROS_5 = (0.0,) * N_THETA
 _DF_U_KEYS = tuple(f"df.u[{j + 1}]" for j in range(DF_P))
 _DF_Y_KEYS = tuple(f"df.y[{i + 1}]" for i in range(DF_M))
 _df_u = operator.itemgetter(*_DF_U_KEYS)
 _df_y = operator.itemgetter(*_DF_Y_KEYS)
-_DF_RESIDUAL_KEYS = tuple(f"df.residual[{i + 1}]" for i in range(DF_M))
-_DF_ALARM_KEYS = tuple(f"df.alarm[{i + 1}]" for i in range(DF_M))
-_DF_THRESHOLD_KEYS = tuple(f"df.threshold_in_use[{i + 1}]" for i in range(DF_M))
-_DF_STATISTIC_KEYS = tuple(f"df.statistic[{i + 1}]" for i in range(DF_M))
-_DF_SENSOR_TYPE_KEYS = tuple(f"df.sensor_fault_type[{i + 1}]" for i in range(DF_M))
-_DF_OFFSET_KEYS = tuple(f"df.fault_offset[{i + 1}]" for i in range(DF_M))
-_DF_GAIN_KEYS = tuple(f"df.fault_gain[{i + 1}]" for i in range(DF_M))
-_DF_RATE_KEYS = tuple(f"df.fault_rate[{i + 1}]" for i in range(DF_M))
-_DF_NOISE_RATIO_KEYS = tuple(f"df.noise_ratio[{i + 1}]" for i in range(DF_M))
-_DF_NOISE_STD_KEYS = tuple(f"df.noise_std_in_use[{i + 1}]" for i in range(DF_M))
-#: outputs of the detection filter written at every sample, in _copy_df's order
-_DF_SAMPLE_KEYS = (*_DF_RESIDUAL_KEYS, *_DF_ALARM_KEYS, *_DF_STATISTIC_KEYS,
-                   "df.calibrating", "df.detected", "df.episodes", "df.isolated_sensor",
-                   "df.isolated_mask", "df.fault_type", "df.fault_magnitude",
-                   "df.fault_magnitude_valid", "df.input_delay_in_use", "df.valid")
-#: df.sensor_fault_type codes whose size goes to each per-sensor output.
-_OFFSET_TYPES, _GAIN_TYPES, _RATE_TYPES, _NOISE_TYPES = {1, 3, 4, 7}, {2}, {6}, {5}
 
 class Diagnoser(FacadeBase):
     """Sensor-fault diagnoser for gyros and flight-control sensors (gyrodiag)."""
@@ -135,7 +102,6 @@ class Diagnoser(FacadeBase):
         self._dtg: DTGChannel | None = None
         self._grey: GreyFaultDetector | None = None
         self._df: DFChannel | None = None
-        self._df_copied: tuple[bool, Any, Any] | None = None
         self._period = math.nan
         self._last_step, self._last_samples = math.nan, 0
         # last outputs of each channel not yet copied into the variables (_sync_outputs)
@@ -143,17 +109,14 @@ class Diagnoser(FacadeBase):
         self._pending_grey: Any = None
         self._pending_df: Any = None
         self._outputs_pending = False
-        # a copy wrote an output it did not check for finiteness (see _sync_outputs)
-        self._outputs_unchecked = False
+        # copies the channels' outputs into the variables (and flags unchecked ones)
+        self._out = OutputWriter(self.values, lambda text: self.log(text, Fmi2Status.ok),
+                                 self.report_warning)
         self._ready = False
         self._start_time = 0.0
         # Host time of the first DTG alarm: the channel's own clock counts valid samples
         # only, so after a skipped NaN sample it would lag the simulation time.
         self._dtg_first_alarm_time = math.nan
-        self._dtg_block_copied = -1
-        self._dtg_named_code: int | str | None = None
-        self._unclassified_note = ""  # why DTG alarms go unclassified (set at build)
-        self._theta0_copied: Any = False  # never a channel's theta0: copy at first
         self._dtg_reference_warned = False
         # tunable values the running channels were built with
         self._applied: dict[str, Any] = {}
@@ -175,51 +138,6 @@ class Diagnoser(FacadeBase):
     def _df_config(self, period: float) -> DFChannelConfig:
         return adapters.df_config(self.values, period, self.resources)
 
-    def _copy_df(self, out: DFChannelOutput) -> None:
-        v = self.values
-        magnitude_valid = bool(out.magnitude_valid) and math.isfinite(out.magnitude)
-        residual, statistic = _as_list(out.residual), _as_list(out.statistic)
-        checked = sum(residual) + sum(statistic)
-        if checked - checked != 0.0:
-            self._outputs_unchecked = True
-        # one dict update of the per-sample outputs (keys in _DF_SAMPLE_KEYS order)
-        v.update(zip(_DF_SAMPLE_KEYS, (
-            *map(float, residual), *map(bool, _as_list(out.alarms)),
-            *map(float, statistic),
-            bool(out.calibrating), bool(out.detected), int(out.episodes),
-            int(out.isolated_sensor), int(out.isolated_mask), int(out.fault_type),
-            float(out.magnitude) if magnitude_valid else 0.0, magnitude_valid,
-            int(out.input_delay), bool(out.valid)), strict=True))
-        # the diagnosis and the calibration results change rarely: copy them on change
-        # (the channel hands over the same arrays while they do not change)
-        prev = self._df_copied
-        if (prev is not None and prev[0] == out.calibrating
-                and prev[1] is out.sensor_fault_type and prev[2] is out.sensor_magnitude):
-            return
-        self._df_copied = (out.calibrating, out.sensor_fault_type, out.sensor_magnitude)
-        self._outputs_unchecked = True  # thresholds, noise and sizes: the full guard
-        assert self._df is not None
-        if prev is not None and prev[0] and not out.calibrating and self._df.gust_note:
-            # information, not a warning status: the step itself succeeded
-            self.log(f"df: {self._df.gust_note}", Fmi2Status.ok)
-        thresholds = self._df.thresholds
-        for k, value in zip(_DF_THRESHOLD_KEYS, [0.0] * DF_M if thresholds is None
-                            else _as_list(thresholds[0]), strict=True):
-            v[k] = float(value)
-        noise = self._df.noise_std
-        for k, value in zip(_DF_NOISE_STD_KEYS, [0.0] * DF_M if noise is None
-                            else _as_list(noise), strict=True):
-            v[k] = float(value)
-        types = _as_list(out.sensor_fault_type)
-        sizes = _as_list(out.sensor_magnitude)
-        for i in range(DF_M):
-            kind, size = int(types[i]), float(sizes[i])
-            v[_DF_SENSOR_TYPE_KEYS[i]] = kind
-            v[_DF_OFFSET_KEYS[i]] = size if kind in _OFFSET_TYPES else 0.0
-            v[_DF_GAIN_KEYS[i]] = size if kind in _GAIN_TYPES and size != 0.0 else 1.0
-            v[_DF_RATE_KEYS[i]] = size if kind in _RATE_TYPES else 0.0
-            v[_DF_NOISE_RATIO_KEYS[i]] = size if kind in _NOISE_TYPES and size else 1.0
-
     # ------------------------------------------------------------------ lifecycle
     def setup_experiment(self, start_time: float, stop_time: float | None = None,
                          tolerance: float | None = None) -> None:
@@ -231,12 +149,12 @@ class Diagnoser(FacadeBase):
             self._dtg_first_alarm_time = math.nan
             # Outputs at the start time (before the first step) describe the channels'
             # initial state, e.g. df.calibrating and dtg.learning are already true.
-            self._dtg_block_copied = -1
-            self._dtg_named_code = None
+            self._out.dtg_block_copied = -1
+            self._out.dtg_named_code = None
             if self._dtg is not None:
-                self._copy_dtg(self._dtg.last_output)
+                self._out.copy_dtg(self._dtg.last_output, self._dtg, self._dtg_first_alarm_time)
             if self._df is not None:
-                self._copy_df(self._df.last_output)
+                self._out.copy_df(self._df.last_output, self._df)
             self._guard_finite_outputs()
             self._ready = True
         except MissingPackageError as exc:
@@ -255,13 +173,13 @@ class Diagnoser(FacadeBase):
         if errors:
             raise ValueError("; ".join(errors))
         period = float(v["sample_period_s"])
-        self._unclassified_note = ""
+        self._out.unclassified_note = ""
         # sample_period_s is fixed after initialisation (not tunable)
         self._period = period
         self._last_step, self._last_samples = math.nan, 0
         self._dtg = self._grey = self._df = None
-        self._df_copied = None
-        self._theta0_copied = False
+        self._out.df_copied = None
+        self._out.theta0_copied = False
         self._pending_dtg = self._pending_grey = self._pending_df = None
         self._outputs_pending = False
         with _channel_context("dtg"):
@@ -358,7 +276,7 @@ class Diagnoser(FacadeBase):
 
     def _note_unclassified(self, text: str) -> None:
         """Keep why DTG alarms go unclassified: reported at the first one, if any."""
-        self._unclassified_note = f"{self.instance_name}: {text}"
+        self._out.unclassified_note = f"{self.instance_name}: {text}"
 
     def _grey_detector(self, period: float) -> GreyFaultDetector:
         v = self.values
@@ -465,123 +383,19 @@ class Diagnoser(FacadeBase):
         self._outputs_pending = False
         # the copies check the Real outputs they write at every sample (one sum) and
         # flag the rest: the full guard runs only when something may be non-finite
-        self._outputs_unchecked = False
+        out = self._out
+        out.unchecked = False
         if self._pending_dtg is not None:
-            self._copy_dtg(self._pending_dtg)
+            assert self._dtg is not None
+            out.copy_dtg(self._pending_dtg, self._dtg, self._dtg_first_alarm_time)
         if self._pending_grey is not None:
-            self._copy_grey(self._pending_grey)
+            assert self._grey is not None
+            out.copy_grey(self._pending_grey, self._grey)
         if self._pending_df is not None:
-            self._copy_df(self._pending_df)
-        if self._outputs_unchecked:
+            assert self._df is not None
+            out.copy_df(self._pending_df, self._df)
+        if out.unchecked:
             self._guard_finite_outputs()
-
-    def _copy_grey(self, g: Any) -> None:
-        v = self.values
-        prediction_valid = math.isfinite(g.prediction)
-        v["grey.prediction"] = g.prediction if prediction_valid else 0.0
-        v["grey.error"] = g.error if math.isfinite(g.error) else 0.0
-        v["grey.prediction_valid"] = prediction_valid
-        v["grey.alarm"] = g.alarm
-        v["grey.valid"] = g.valid
-        v["grey.calibrating"] = g.calibrating
-        v["grey.statistic"] = g.statistic
-        assert self._grey is not None
-        sigma = self._grey.sigma
-        sigma = sigma if sigma == sigma else 0.0
-        v["grey.sigma"] = sigma
-        noise = self._grey.noise_sigma
-        noise = noise if noise == noise else 0.0
-        v["grey.noise_sigma"] = noise
-        checked = g.statistic + sigma + noise
-        if checked - checked != 0.0:
-            self._outputs_unchecked = True
-
-    def _copy_dtg(self, out: Any) -> None:
-        v = self.values
-        # the channel's arrays have fixed shapes (2×5, 2×5, 5): plain zips
-        theta_eta = out.theta.ravel().tolist() + out.eta.ravel().tolist()
-        v.update(zip(_DTG_THETA_ETA_KEYS, theta_eta, strict=True))
-        assert self._dtg is not None
-        theta0 = self._dtg.theta0
-        if theta0 is not self._theta0_copied:  # set once, when learning ends
-            self._theta0_copied = theta0
-            self._outputs_unchecked = True
-            rows = (_ZEROS_5, _ZEROS_5) if theta0 is None else theta0.reshape(-1, N_THETA)
-            v.update(zip(_DTG_THETA0_KEYS, _flat_floats(rows[0]), strict=True))
-            v.update(zip(_DTG_THETA0_Y_KEYS, _flat_floats(rows[-1]), strict=True))
-        physical = out.physical.tolist()
-        # the sum of finite values is finite unless it overflows (then: the exact test)
-        total = sum(physical)
-        physical_valid = total - total == 0.0 or all(math.isfinite(x) for x in physical)
-        v.update(zip(_DTG_PHYSICAL_KEYS, physical if physical_valid else _ZEROS_5, strict=True))
-        v["dtg.physical_valid"] = physical_valid
-        v["dtg.learning"] = bool(out.learning)
-        v["dtg.alarm"] = bool(out.alarm)
-        code = int(out.fault_code) if out.alarm else 0
-        v["dtg.fault_code"] = code
-        named = code if code != SEVERAL_CODE else out.diagnosis.class_name
-        if named != self._dtg_named_code:  # the name follows the code (a pair: names)
-            self._dtg_named_code = named
-            v["dtg.fault_name"] = self._dtg.class_name(code)
-            if code != 0 and self._unclassified_note:
-                self.report_warning(self._unclassified_note)
-                self._unclassified_note = ""
-        first = self._dtg_first_alarm_time
-        first = -1.0 if math.isnan(first) else first
-        v["dtg.first_alarm_time"] = first
-        checked = sum(theta_eta) + first  # physical: checked above
-        if checked - checked != 0.0:
-            self._outputs_unchecked = True
-        v["dtg.valid"] = bool(out.valid)
-        v["dtg.case_rate_delay_in_use"] = self._dtg.case_rate_delay
-        d = out.diagnosis
-        if d.block != self._dtg_block_copied:  # block-rate outputs change at block ends
-            self._copy_dtg_diagnosis(out)
-            self._dtg_block_copied = d.block
-        if not out.alarm and v["dtg.fault_type"] != 0:
-            self._copy_dtg_diagnosis(out)
-
-    def _copy_dtg_diagnosis(self, out: DTGChannelOutput) -> None:
-        """Reference, residual tests and class (sentinels instead of NaN)."""
-        self._outputs_unchecked = True  # a block's outputs: the full guard checks them
-        v = self.values
-        d = out.diagnosis
-        v["dtg.reference_status"] = int(d.reference_status)
-        v["dtg.reference_valid"] = d.reference_status == 1
-        v["dtg.residual_alarm"] = bool(d.residual_alarm)
-        alarm = bool(out.alarm)
-        v["dtg.fault_type"] = int(d.fault_type) if alarm else 0
-        v["dtg.fault_signal"] = int(d.fault_signal) if alarm else 0
-        v["dtg.fault_axis"] = int(d.fault_axis) if alarm else 0
-        v["dtg.fault_signals"] = int(d.signal_mask) if alarm else 0
-        v["dtg.class_distance"] = _finite_or(d.distance, -1.0) if alarm else -1.0
-        size_ok = alarm and math.isfinite(d.size)
-        v["dtg.fault_size"] = float(d.size) if size_ok else 0.0
-        v["dtg.fault_size_valid"] = size_ok
-        v["dtg.fault_rate"] = _finite_or(d.rate, 0.0) if alarm else 0.0
-        v["dtg.fault_ratio"] = _finite_or(d.ratio, 1.0) if alarm else 1.0
-        for i in range(N_CHANNELS):
-            v[f"dtg.level[{i + 1}]"] = _finite_or(float(d.level[i]), 0.0)
-            v[f"dtg.log_var_ratio[{i + 1}]"] = _finite_or(float(d.log_variance[i]), 0.0)
-        v["dtg.level_growth"] = _finite_or(d.growth, 0.0)
-        v["dtg.stat_window_s"] = float(d.window_s)
-        for a in range(2):
-            v[f"dtg.residual_level_z[{a + 1}]"] = _finite_or(float(d.tests[a]), 0.0)
-            v[f"dtg.residual_var_ratio[{a + 1}]"] = _finite_or(float(d.tests[2 + a]), 0.0)
-            v[f"dtg.residual_long_var_ratio[{a + 1}]"] = _finite_or(float(d.tests[4 + a]),
-                                                                    0.0)
-            v[f"dtg.residual_power_cusum[{a + 1}]"] = _finite_or(float(d.tests[6 + a]), 0.0)
-        assert self._dtg is not None
-        ref = self._dtg.reference
-        per_axis = None if ref is None else ref.theta0.reshape(-1, N_THETA)
-        for i in range(N_THETA):
-            v[f"dtg.ref_theta0[{i + 1}]"] = 0.0 if per_axis is None else float(per_axis[0, i])
-            v[f"dtg.ref_theta0_y[{i + 1}]"] = (0.0 if per_axis is None
-                                               else float(per_axis[-1, i]))
-        for key, attr in (("ref_mean", "mean"), ("ref_block_std", "block_std"),
-                          ("ref_var_short", "var_short"), ("ref_var_long", "var_long")):
-            for i in range(N_CHANNELS):
-                v[f"dtg.{key}[{i + 1}]"] = 0.0 if ref is None else float(getattr(ref, attr)[i])
 
     # ------------------------------------------------------------------ state
     def _capture_state(self) -> dict[str, Any]:
@@ -599,14 +413,15 @@ class Diagnoser(FacadeBase):
         # the restored variables hold the outputs (saved after _sync_outputs)
         self._pending_dtg = self._pending_grey = self._pending_df = None
         self._outputs_pending = False
-        self._theta0_copied = False
+        self._out.theta0_copied = False
         if state["ready"]:
             self._build_channels()
         self._ready = bool(state["ready"])
         self._start_time = float(state["start_time"])
         self._dtg_first_alarm_time = float(state["dtg_first_alarm_time"])
-        self._dtg_block_copied = -1  # the restored values are complete; recopy at the next block
-        self._dtg_named_code = None
+        # the restored values are complete; recopy at the next block
+        self._out.dtg_block_copied = -1
+        self._out.dtg_named_code = None
         for name, channel in (("dtg", self._dtg), ("grey", self._grey), ("df", self._df)):
             sub = state[name]
             if (sub is None) != (channel is None):
@@ -633,21 +448,6 @@ def _channel_context(prefix: str) -> Iterator[None]:
         raise ValueError(
             f"channel {prefix!r} (parameters {prefix}.*): {text}"
         ) from None
-
-
-def _finite_or(value: float, fallback: float) -> float:
-    """``value`` if finite, else the documented sentinel (outputs never carry NaN)."""
-    return float(value) if math.isfinite(value) else fallback
-
-
-def _flat_floats(values: Any) -> list[float]:
-    """Row-major Python floats of an array or a (nested) sequence of numbers."""
-    return np.asarray(values, dtype=float).ravel().tolist()
-
-
-def _as_list(values: Any) -> list:
-    """Plain Python values of an array or sequence (one call for a numpy array)."""
-    return values.tolist() if isinstance(values, np.ndarray) else list(values)
 
 
 class MissingPackageError(ImportError):
