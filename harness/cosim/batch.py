@@ -16,7 +16,9 @@ folder), not the saved files, which may hold Real signals rounded to float32
 Ctrl-C or SIGTERM: no new run starts, the runs in flight get the signal once, stop
 between two steps and save what they recorded (marked interrupted), and
 :class:`~gyrodiag_harness.cosim.interrupt.BatchInterrupted` is raised with the results so far.
-A second signal kills the runs still going.
+A second signal kills the runs still going (the stop policy
+:class:`~gyrodiag_harness.cosim.supervision.SaveThenKill`; the process mechanics are in
+:mod:`gyrodiag_harness.cosim.supervision`, shared with the campaigns).
 """
 
 from __future__ import annotations
@@ -42,12 +44,15 @@ from gyrodiag_harness.cosim.interrupt import BatchInterrupted, stop_on_signals, 
 from gyrodiag_harness.cosim.master import fault_windows, preflight
 from gyrodiag_harness.cosim.results import META_FILE, PRECISIONS, RunResult
 from gyrodiag_harness.cosim.scenario import Scenario, ScenarioError, load_scenario
+from gyrodiag_harness.cosim.supervision import SaveThenKill, Supervised, start_in_session
 from gyrodiag_harness.cosim.worker import Job
 
 log = logging.getLogger(__name__)
 
 #: After forwarding a stop request, how long the runs get to stop and save, s.
 STOP_GRACE_S = 30.0
+#: What the runs in flight get on a stop request: the signal once, SIGKILL after the grace.
+_STOP = SaveThenKill(grace_s=STOP_GRACE_S)
 _POLL_S = 0.01
 
 
@@ -121,7 +126,8 @@ FORK_SERVER_ENV = "GYRODIAG_FORK_SERVER"
 
 class _ForkedRun:
     """The part of :class:`subprocess.Popen` the batch uses, for a run process forked by
-    the server: ``pid``, ``poll()``, ``returncode``, ``send_signal()``."""
+    the server: ``pid``, ``poll()``, ``returncode``, ``send_signal()``
+    (:class:`~gyrodiag_harness.cosim.supervision.Supervised`)."""
 
     def __init__(self, pid: int, server: _RunServer) -> None:
         self.pid = pid
@@ -145,11 +151,10 @@ class _RunServer:
         request_r, self._request_w = os.pipe()
         self._reply_r, reply_w = os.pipe()
         try:
-            self.process = subprocess.Popen(
+            self.process = start_in_session(
                 [sys.executable, "-m", "gyrodiag_harness.cosim.zygote", str(request_r),
                  str(reply_w)],
-                pass_fds=(request_r, reply_w), stdin=subprocess.DEVNULL,
-                start_new_session=True)
+                pass_fds=(request_r, reply_w), stdin=subprocess.DEVNULL)
         finally:
             os.close(request_r)
             os.close(reply_w)
@@ -224,7 +229,7 @@ def _run_server(n_runs: int) -> _RunServer | None:
 @dataclass
 class _Running:
     index: int
-    process: subprocess.Popen[bytes] | _ForkedRun
+    process: Supervised
     job_file: Path
     status_file: Path
     handover_file: Path
@@ -300,7 +305,7 @@ def run_all(scenarios: Sequence[Scenario], out: Path | Sequence[Path],
 
     def kill_all(signum: int) -> None:
         for r in running.values():
-            _signal(r.process, signal.SIGKILL)
+            _STOP.kill(r.process)
             r.killed = True
 
     server = _run_server(len(scenarios))
@@ -317,7 +322,7 @@ def run_all(scenarios: Sequence[Scenario], out: Path | Sequence[Path],
                 signum = getattr(signal, reason, signal.SIGTERM) if reason.startswith("SIG") \
                     else signal.SIGTERM
                 for r in running.values():
-                    _signal(r.process, signum)
+                    _STOP.stop(r.process, signum)
                 forwarded_at = time.monotonic()
                 if running:
                     log.warning("%s: stopping %d run(s) in flight, starting nothing new",
@@ -332,7 +337,7 @@ def run_all(scenarios: Sequence[Scenario], out: Path | Sequence[Path],
                 del running[i]
                 results[i] = _collect(scenarios[i], outs[i] / scenarios[i].name, r)
                 _log_result(results[i], outs[i] / scenarios[i].name)
-            if forwarded_at is not None and time.monotonic() - forwarded_at > STOP_GRACE_S:
+            if forwarded_at is not None and time.monotonic() - forwarded_at > _STOP.grace_s:
                 kill_all(signal.SIGKILL)
             if running:
                 time.sleep(_POLL_S)
@@ -374,7 +379,7 @@ def _start(scenario: Scenario, index: int, out: Path, fmu_dir: Path | None,
     log.debug("%s: starting", scenario.name)
     # a session of its own: the terminal's Ctrl-C reaches the batch only, which forwards
     # it exactly once (a second one would be "stop now" inside the run)
-    process: subprocess.Popen[bytes] | _ForkedRun | None = None
+    process: Supervised | None = None
     if server is not None:
         try:
             process = server.spawn(job_file)
@@ -384,18 +389,9 @@ def _start(scenario: Scenario, index: int, out: Path, fmu_dir: Path | None,
             job.parent_pid = os.getpid()
             job_file.write_bytes(pickle.dumps(job))
     if process is None:
-        process = subprocess.Popen([sys.executable, "-m", "gyrodiag_harness.cosim.worker",
-                                    str(job_file)],
-                                   stdin=subprocess.DEVNULL, start_new_session=True)
+        process = start_in_session([sys.executable, "-m", "gyrodiag_harness.cosim.worker",
+                                    str(job_file)], stdin=subprocess.DEVNULL)
     return _Running(index, process, job_file, status_file, handover_file)
-
-
-def _signal(process: subprocess.Popen[bytes] | _ForkedRun, signum: int) -> None:
-    if process.poll() is None:
-        try:
-            process.send_signal(signum)
-        except ProcessLookupError:
-            pass
 
 
 def _collect(scenario: Scenario, target: Path, run: _Running) -> RunResult:
