@@ -280,6 +280,24 @@ def run_all(scenarios: Sequence[Scenario], out: Path | Sequence[Path],
     BatchInterrupted
         Ctrl-C or SIGTERM (see the module's doc).
     """
+    workers, outs = _checked_arguments(scenarios, out, workers, precision)
+    results_dir = (outs[0] if outs else Path(".")) if results_dir is None \
+        else Path(results_dir)
+    preflight_all(scenarios, fmu_dir, results_dir)
+    order = sorted(range(len(scenarios)), key=lambda i: -_cost(scenarios[i]))
+    results, not_started = _supervise(scenarios, order, outs, fmu_dir, results_dir, workers,
+                                      progress, precision)
+    reason = stop_requested()
+    if reason is not None:
+        raise BatchInterrupted(reason, [r for r in results if r is not None],
+                               [scenarios[i].name for i in not_started])
+    return [r for r in results if r is not None]
+
+
+def _checked_arguments(scenarios: Sequence[Scenario], out: Path | Sequence[Path],
+                       workers: int | None, precision: str | None) -> tuple[int, list[Path]]:
+    """:func:`run_all`'s worker count (None: the default) and one results folder per
+    scenario; ValueError for a bad worker count, precision or number of folders."""
     if workers is None:
         workers = default_workers()
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
@@ -294,10 +312,15 @@ def run_all(scenarios: Sequence[Scenario], out: Path | Sequence[Path],
         if len(outs) != len(scenarios):
             raise ValueError(f"out must be one folder or one per scenario ({len(scenarios)}),"
                              f" got {len(outs)}")
-    results_dir = (outs[0] if outs else Path(".")) if results_dir is None \
-        else Path(results_dir)
-    preflight_all(scenarios, fmu_dir, results_dir)
-    order = sorted(range(len(scenarios)), key=lambda i: -_cost(scenarios[i]))
+    return workers, outs
+
+
+def _supervise(scenarios: Sequence[Scenario], order: list[int], outs: list[Path],
+               fmu_dir: Path | None, results_dir: Path, workers: int, progress: bool,
+               precision: str | None) -> tuple[list[RunResult | None], list[int]]:
+    """Run the scenarios in ``order``, ``workers`` at a time, until all ended or a stop
+    request (module doc) ended those in flight; returns the results by scenario index
+    (None: not run) and the indices never started."""
     results: list[RunResult | None] = [None] * len(scenarios)
     running: dict[int, _Running] = {}
     not_started: list[int] = []
@@ -319,33 +342,42 @@ def run_all(scenarios: Sequence[Scenario], out: Path | Sequence[Path],
             if reason is not None and forwarded_at is None:
                 not_started = sorted(pending)
                 pending.clear()
-                signum = getattr(signal, reason, signal.SIGTERM) if reason.startswith("SIG") \
-                    else signal.SIGTERM
-                for r in running.values():
-                    _STOP.stop(r.process, signum)
-                forwarded_at = time.monotonic()
-                if running:
-                    log.warning("%s: stopping %d run(s) in flight, starting nothing new",
-                                reason, len(running))
+                forwarded_at = _forward_stop(reason, running)
             while pending and len(running) < workers:
                 i = pending.pop(0)
                 running[i] = _start(scenarios[i], i, outs[i], fmu_dir, results_dir, Path(tmp),
                                     progress and workers == 1, precision, server)
-            for i, r in list(running.items()):
-                if r.process.poll() is None:
-                    continue
-                del running[i]
-                results[i] = _collect(scenarios[i], outs[i] / scenarios[i].name, r)
-                _log_result(results[i], outs[i] / scenarios[i].name)
+            _collect_ended(scenarios, outs, running, results)
             if forwarded_at is not None and time.monotonic() - forwarded_at > _STOP.grace_s:
                 kill_all(signal.SIGKILL)
             if running:
                 time.sleep(_POLL_S)
-    reason = stop_requested()
-    if reason is not None:
-        raise BatchInterrupted(reason, [r for r in results if r is not None],
-                               [scenarios[i].name for i in not_started])
-    return [r for r in results if r is not None]
+    return results, not_started
+
+
+def _forward_stop(reason: str, running: dict[int, _Running]) -> float:
+    """Give the runs in flight the stop request (its signal, SIGTERM if none); returns
+    when, for the grace period."""
+    signum = getattr(signal, reason, signal.SIGTERM) if reason.startswith("SIG") \
+        else signal.SIGTERM
+    for r in running.values():
+        _STOP.stop(r.process, signum)
+    forwarded_at = time.monotonic()
+    if running:
+        log.warning("%s: stopping %d run(s) in flight, starting nothing new",
+                    reason, len(running))
+    return forwarded_at
+
+
+def _collect_ended(scenarios: Sequence[Scenario], outs: list[Path],
+                   running: dict[int, _Running], results: list[RunResult | None]) -> None:
+    """Move the runs that ended from ``running`` into ``results``, logging each."""
+    for i, r in list(running.items()):
+        if r.process.poll() is None:
+            continue
+        del running[i]
+        results[i] = _collect(scenarios[i], outs[i] / scenarios[i].name, r)
+        _log_result(results[i], outs[i] / scenarios[i].name)
 
 
 def preflight_all(scenarios: Sequence[Scenario], fmu_dir: Path | None,
