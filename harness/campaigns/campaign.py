@@ -184,12 +184,12 @@ from gyrodiag_harness.campaigns.spec import (
     load_campaign,
 )
 from gyrodiag_harness.campaigns.supervise import (
-    ORPHAN_POLL_S,
     PARENT_PID_ENV,
     REPO_ROOT,
     RUN_TMP_PREFIX,
     execute_run,
 )
+from gyrodiag_harness.cosim.supervision import ORPHAN_POLL_S
 
 __all__ = [
     "AIRCRAFT_SENSORS", "DEFAULT_RUNNER", "DEFAULT_THRESHOLDS", "DF_TYPE_NAMES",

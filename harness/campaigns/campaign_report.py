@@ -193,6 +193,30 @@ def summarize(records: list[dict[str, Any]], n_planned: int | None = None) -> di
                     key=lambda r: r["run"]["run_id"])
     fault = [r for r in ok if r["run"]["kind"] == "fault"]
 
+    detection = _detection_rows(fault)
+    false_alarms = _false_alarms(ok)
+    delay = _delay_summary(fault)
+    confusion = _confusion(fault)
+    sweep = _threshold_sweep(ok)
+
+    return {
+        "n_planned": n_planned if n_planned is not None else n_records,
+        "n_finished": n_records, "n_ok": len(ok), "n_failed": len(failed),
+        # runs, not rules: a grey run judged by two rules counts once
+        "n_fault_runs": n_fault_raw, "n_nominal_runs": n_ok_raw - n_fault_raw,
+        "failures": [{"run_id": r["run"]["run_id"], "status": r["status"],
+                      "error": str(r.get("error")).strip().splitlines()[0][:300]}
+                     for r in failed],
+        "class_channels": {r["run"]["cls"]: r["run"]["channel"] for r in ok},
+        "detection": detection, "false_alarms": false_alarms, "delay": delay,
+        "confusion": confusion, "threshold_sweep": sweep,
+        "witnesses": _witness_summary(ok),
+        "grey": _grey_summary(ok),
+    }
+
+
+def _detection_rows(fault: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Detection and isolation per class, fault type and magnitude (:func:`summarize`)."""
     groups: dict[tuple, list[dict]] = defaultdict(list)
     for r in fault:
         run = r["run"]
@@ -217,9 +241,11 @@ def summarize(records: list[dict[str, Any]], n_planned: int | None = None) -> di
             row["typed"] = sum(r.get("typed") == r["expected_type"] for r in typed)
             row["n_typed"] = len(typed)
         detection.append(row)
+    return detection
 
-    false_alarms = _false_alarms(ok)
 
+def _delay_summary(fault: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Detection delay statistics per class and fault type, then per channel."""
     delay: dict[str, dict[str, Any]] = {}
     by_type: dict[str, list[float]] = defaultdict(list)
     by_channel: dict[str, list[float]] = defaultdict(list)
@@ -231,7 +257,11 @@ def summarize(records: list[dict[str, Any]], n_planned: int | None = None) -> di
         delay[key] = _delay_stats(by_type[key])
     for key in sorted(by_channel):
         delay[key] = _delay_stats(by_channel[key])
+    return delay
 
+
+def _confusion(fault: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Injected against diagnosed sensor per channel that classifies."""
     confusion: dict[str, dict[str, Any]] = {}
     for ch in sorted({r["run"]["channel"] for r in fault if r["diagnosed"] is not None}):
         rs = [r for r in fault if r["run"]["channel"] == ch]
@@ -243,7 +273,12 @@ def summarize(records: list[dict[str, Any]], n_planned: int | None = None) -> di
         right = sum(_diagnosed_right(r) for r in rs)
         confusion[ch] = {"injected": inj, "diagnosed": diag, "matrix": m.tolist(),
                          "correct": int(right), "n": len(rs)}
+    return confusion
 
+
+def _threshold_sweep(ok: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Detection rate and false alarms per hour over each channel's threshold grid (per
+    class where the classes' grids differ)."""
     sweep: dict[str, dict[str, Any]] = {}
     for ch in sorted({r["run"]["channel"] for r in ok if r["run"]["thresholds"]}):
         rs = [r for r in ok if r["run"]["channel"] == ch]
@@ -267,21 +302,7 @@ def summarize(records: list[dict[str, Any]], n_planned: int | None = None) -> di
                           "upper_95_per_h": up, "n_fault_runs": len(fr), "hours": hours,
                           "configured_threshold": config,
                           "max_mismatch": max(float(r["sweep_mismatch"]) for r in sub)}
-
-    return {
-        "n_planned": n_planned if n_planned is not None else n_records,
-        "n_finished": n_records, "n_ok": len(ok), "n_failed": len(failed),
-        # runs, not rules: a grey run judged by two rules counts once
-        "n_fault_runs": n_fault_raw, "n_nominal_runs": n_ok_raw - n_fault_raw,
-        "failures": [{"run_id": r["run"]["run_id"], "status": r["status"],
-                      "error": str(r.get("error")).strip().splitlines()[0][:300]}
-                     for r in failed],
-        "class_channels": {r["run"]["cls"]: r["run"]["channel"] for r in ok},
-        "detection": detection, "false_alarms": false_alarms, "delay": delay,
-        "confusion": confusion, "threshold_sweep": sweep,
-        "witnesses": _witness_summary(ok),
-        "grey": _grey_summary(ok),
-    }
+    return sweep
 
 
 def summarize_campaigns(outputs: Sequence[Any]) -> dict[str, Any]:
@@ -448,6 +469,15 @@ def _witness_summary(ok: list[dict[str, Any]]) -> dict[str, Any]:
         k = sum(bool(r["detected"]) for r in rs)
         row["either"] = {"detected": k, "rate": k / len(rs)}
         detection.append(row)
+    comparison = _group_comparison(detection, names)
+    false_alarms = _witness_false_alarms(system, names)
+    return {"names": names, "detection": detection, "comparison": comparison,
+            "false_alarms": false_alarms}
+
+
+def _group_comparison(detection: list[dict[str, Any]], names: list[str]
+                      ) -> list[dict[str, Any]]:
+    """Each group's detection rate per witness beside level flight's, in points."""
     comparison = []
     for row in detection:
         if row["group"] == "level":
@@ -462,6 +492,12 @@ def _witness_summary(ok: list[dict[str, Any]]) -> dict[str, Any]:
                            **{w: {"level": ref[w]["rate"], "group": row[w]["rate"],
                                   "points": 100.0 * (row[w]["rate"] - ref[w]["rate"])}
                               for w in [*names, "both", "either"]}})
+    return comparison
+
+
+def _witness_false_alarms(system: list[dict[str, Any]], names: list[str]
+                          ) -> dict[str, dict[str, Any]]:
+    """False alarms per witness and condition group, per hour with the 95 % interval."""
     false_alarms: dict[str, dict[str, Any]] = {}
     for w in names:
         for group in sorted({r["run"].get("group") or "base" for r in system}):
@@ -477,8 +513,7 @@ def _witness_summary(ok: list[dict[str, Any]]) -> dict[str, Any]:
                 "lower_95": lo, "upper_95": hi,
                 "runs_with_false_alarm": sum(int(r["witnesses"][w]["false_alarms"]) > 0
                                              for r in rs)}
-    return {"names": names, "detection": detection, "comparison": comparison,
-            "false_alarms": false_alarms}
+    return false_alarms
 
 
 # --------------------------------------------------------------------------- plots
@@ -489,7 +524,19 @@ def _plots(summary: dict[str, Any], records: list[dict[str, Any]], out: Path) ->
     import matplotlib.pyplot as plt
 
     paths: list[Path] = []
-    rows = summary["detection"]
+    _detection_plot(summary["detection"], out, plt, paths)
+    _delay_plot(records, out, plt, paths)
+    if summary.get("grey"):
+        paths.append(_grey_plot(summary["grey"], out, plt))
+    _confusion_plots(summary["confusion"], out, plt, paths)
+    _sweep_plots(summary["threshold_sweep"], out, plt, paths)
+    return paths
+
+
+def _detection_plot(rows: list[dict[str, Any]], out: Path, plt: Any,
+                    paths: list[Path]) -> None:
+    """detection_rate.png: the detection rate (95 % CI) against the magnitude, a panel per
+    class; appended to ``paths``."""
     classes = sorted({r["class"] for r in rows})
     if rows:
         # one panel per class: magnitudes of different classes have different units
@@ -522,6 +569,10 @@ def _plots(summary: dict[str, Any], records: list[dict[str, Any]], out: Path) ->
         fig.savefig(paths[-1], dpi=110)
         plt.close(fig)
 
+
+def _delay_plot(records: list[dict[str, Any]], out: Path, plt: Any,
+                paths: list[Path]) -> None:
+    """delay_hist.png: the detection delays of the fault runs, a panel per channel."""
     delays = defaultdict(list)
     for r in records:
         if r.get("status") == "ok" and r["run"]["kind"] == "fault" and r["detected"]:
@@ -538,9 +589,11 @@ def _plots(summary: dict[str, Any], records: list[dict[str, Any]], out: Path) ->
         fig.savefig(paths[-1], dpi=110)
         plt.close(fig)
 
-    if summary.get("grey"):
-        paths.append(_grey_plot(summary["grey"], out, plt))
-    for ch, c in summary["confusion"].items():
+
+def _confusion_plots(confusion: dict[str, dict[str, Any]], out: Path, plt: Any,
+                     paths: list[Path]) -> None:
+    """confusion_<channel>.png: injected against diagnosed sensor."""
+    for ch, c in confusion.items():
         m = np.asarray(c["matrix"])
         fig, ax = plt.subplots(figsize=(1.2 + 0.8 * m.shape[1], 1.2 + 0.6 * m.shape[0]))
         ax.imshow(m, cmap="Blues")
@@ -557,7 +610,11 @@ def _plots(summary: dict[str, Any], records: list[dict[str, Any]], out: Path) ->
         fig.savefig(paths[-1], dpi=110)
         plt.close(fig)
 
-    for key, s in summary["threshold_sweep"].items():
+
+def _sweep_plots(sweeps: dict[str, dict[str, Any]], out: Path, plt: Any,
+                 paths: list[Path]) -> None:
+    """threshold_sweep_<key>.png: detection rate against false alarms per hour."""
+    for key, s in sweeps.items():
         fig, ax = plt.subplots(figsize=(6, 4))
         fa = np.asarray(s["false_alarms_per_h"], dtype=float)
         ax.plot(fa, s["detection_rate"], "o-", label="false alarms/h")
@@ -576,7 +633,6 @@ def _plots(summary: dict[str, Any], records: list[dict[str, Any]], out: Path) ->
         paths.append(out / f"threshold_sweep_{key.replace(':', '_').replace('/', '_')}.png")
         fig.savefig(paths[-1], dpi=110)
         plt.close(fig)
-    return paths
 
 
 def _grey_plot(g: dict[str, Any], out: Path, plt: Any) -> Path:

@@ -1,9 +1,11 @@
 """Process supervision of campaign runs: each run in a fresh process of its own session
 (:func:`execute_run`, the task the pools execute), killed at its timeout or when the
-campaign stops, watched for orphaning (:func:`_exit_when_orphaned`), and the run
-process's own entry (``python -m gyrodiag_harness.campaigns.supervise --child``).  How this
-differs from the scenario batches' supervision (:mod:`gyrodiag_harness.cosim.batch`):
-docs/notes.md, "Harness roles (campaign split)"."""
+campaign stops, watched for orphaning (:func:`_exit_orphaned`), and the run
+process's own entry (``python -m gyrodiag_harness.campaigns.supervise --child``).  The
+process mechanics are :mod:`gyrodiag_harness.cosim.supervision`'s, shared with the scenario
+batches; this module keeps the campaign's policies (kill the run's group at a stop or
+timeout, :class:`~gyrodiag_harness.cosim.supervision.KillGroup`; an orphan kills its runs
+and exits) and its hand-over (run dict as JSON in, ``{error, result}`` JSON out)."""
 
 from __future__ import annotations
 
@@ -23,6 +25,14 @@ from pathlib import Path
 from typing import Any
 
 from gyrodiag_harness.campaigns.records import write_json_atomic
+from gyrodiag_harness.cosim.supervision import (
+    KillGroup,
+    communicate_within,
+    enter_run_process,
+    exit_process,
+    start_in_session,
+    watch_parent,
+)
 
 #: The repository: the run processes' working folder and first entry of their path.
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -59,27 +69,25 @@ def execute_run(run_dict: dict[str, Any], runner: str, timeout_s: float,
         cmd = [sys.executable, "-m", "gyrodiag_harness.campaigns.supervise", "--child", runner,
                str(inp), str(out)]
         env = {**_child_env(), PARENT_PID_ENV: str(os.getpid())}
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                env=env, cwd=str(REPO_ROOT), text=True,
-                                start_new_session=True)
+        proc = start_in_session(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                env=env, cwd=str(REPO_ROOT), text=True)
         _LIVE_RUNS[proc] = tmp
         try:
-            _, stderr = proc.communicate(timeout=timeout_s)
+            output = communicate_within(proc, timeout_s)
             _hold_if_stopping()
-        except subprocess.TimeoutExpired:
-            _hold_if_stopping()
-            _LIVE_RUNS.pop(proc, None)
-            _kill_group(proc)
-            record.update(status="timeout",
-                          error=f"timeout: run killed after {timeout_s:g} s")
         except BaseException:
             # interrupted: the run process lives in its own session, so nobody else will
             # stop it; the run is redone on resume
             _LIVE_RUNS.pop(proc, None)
             _kill_group(proc)
             raise
+        _LIVE_RUNS.pop(proc, None)
+        if output is None:
+            _kill_group(proc)
+            record.update(status="timeout",
+                          error=f"timeout: run killed after {timeout_s:g} s")
         else:
-            _LIVE_RUNS.pop(proc, None)
+            stderr = output[1]
             payload = json.loads(out.read_text(encoding="utf-8")) if out.is_file() else None
             if payload is not None and payload.get("error") is None:
                 record.update(status="ok", error=None, **payload["result"])
@@ -101,36 +109,26 @@ _LIVE_RUNS: dict[subprocess.Popen[str], str] = {}
 PARENT_PID_ENV = "GYRODIAG_CAMPAIGN_PARENT_PID"
 
 
+#: What a run gets when its worker stops, times it out or is orphaned: its process group
+#: is killed at once (records are all or nothing; the run is redone on resume).
+_STOP = KillGroup()
+
+
 def _kill_group(proc: subprocess.Popen[str]) -> None:
-    _killpg(proc.pid)
+    _STOP.kill(proc)
     proc.communicate()
 
 
-def _killpg(pid: int) -> None:
-    try:
-        os.killpg(pid, signal.SIGKILL)
-    except ProcessLookupError:
-        pass
-
-
-#: How often a run process checks that its parent (the pool or Dask worker) lives, s.
-ORPHAN_POLL_S = 0.5
-
-
-def _exit_when_orphaned(parent_pid: int) -> None:
-    """Daemon thread of run processes and pool workers: when the process that started
-    this one is gone (a killed pool worker, a closed Dask cluster, a SIGKILL of the
-    campaign), kill the runs this process started and exit: a run process has its own
-    session, so no signal of the campaign reaches it, and its result would have nobody
-    to read it.  ``parent_pid`` is passed down by the parent (not read here), so a
-    parent that died before this thread started is noticed too."""
-    while True:
-        if os.getppid() != parent_pid:
-            _kill_live_runs()
-            for folder in _ORPHAN_CLEANUP:
-                shutil.rmtree(folder, ignore_errors=True)
-            os._exit(3)
-        time.sleep(ORPHAN_POLL_S)
+def _exit_orphaned() -> None:
+    """Orphan action of run processes and pool workers (:func:`watch_parent`): the process
+    that started this one is gone (a killed pool worker, a closed Dask cluster, a SIGKILL
+    of the campaign), so kill the runs this process started and exit: a run process has
+    its own session, so no signal of the campaign reaches it, and its result would have
+    nobody to read it."""
+    _kill_live_runs()
+    for folder in _ORPHAN_CLEANUP:
+        shutil.rmtree(folder, ignore_errors=True)
+    os._exit(3)
 
 
 #: Folders a run process removes when it finds itself orphaned: its own temporary
@@ -155,7 +153,7 @@ def _hold_if_stopping() -> None:
 def _kill_live_runs() -> None:
     _STOPPING.set()
     for proc, tmp in list(_LIVE_RUNS.items()):
-        _killpg(proc.pid)
+        _STOP.kill(proc)
         shutil.rmtree(tmp, ignore_errors=True)  # os._exit follows: no with-block cleanup
 
 
@@ -169,15 +167,11 @@ def _load_runner(runner: str) -> Callable[[dict[str, Any]], dict[str, Any]]:
 
 
 def _child_main(runner: str, inp: str, out: str) -> int:
-    from gyrodiag_harness.cosim.niceness import keep_niceness
-
-    keep_niceness()  # its own session is its own autogroup (gyrodiag_harness.cosim.niceness)
     parent = int(os.environ.get(PARENT_PID_ENV, os.getppid()))
     folder = Path(inp).parent
     if folder.name.startswith(RUN_TMP_PREFIX):  # only execute_run's own folders
         _ORPHAN_CLEANUP.append(str(folder))
-    threading.Thread(target=_exit_when_orphaned, args=(parent,), daemon=True,
-                     name="orphan-watch").start()
+    enter_run_process(parent, _exit_orphaned, name="orphan-watch")
     run_dict = json.loads(Path(inp).read_text(encoding="utf-8"))
     try:
         result = _load_runner(runner)(run_dict)
@@ -193,8 +187,7 @@ def _worker_init(campaign_pid: int) -> None:
     # Ctrl-C reaches the whole foreground process group: the campaign process decides
     # (it terminates the workers, see _iter_pool)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    threading.Thread(target=_exit_when_orphaned, args=(campaign_pid,), daemon=True,
-                     name="orphan-watch").start()
+    watch_parent(campaign_pid, _exit_orphaned, name="orphan-watch")
 
 
 def _worker_terminate(signum: int, frame: Any) -> None:
@@ -205,10 +198,7 @@ def _worker_terminate(signum: int, frame: Any) -> None:
 def child_entry(argv: list[str]) -> None:
     """``python -m gyrodiag_harness.campaigns.supervise --child RUNNER IN OUT``: a run process."""
     if len(argv) == 5 and argv[1] == "--child":
-        code = _child_main(*argv[2:])
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(code)  # see harness/__main__.py: pythonfmu's exit-time destructors
+        exit_process(_child_main(*argv[2:]))
     print("usage: python -m gyrodiag_harness campaign SPEC.toml (this module's entry is internal)",
           file=sys.stderr)
     sys.exit(2)

@@ -71,6 +71,7 @@ import logging
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from gyrodiag_harness.cli import campaign, compare, learn_signatures, pipeline, ssp
 from gyrodiag_harness.cli.common import (
@@ -125,46 +126,69 @@ def _parser() -> argparse.ArgumentParser:
                     "expectations and report.")
     add_verbosity(parser, top=True)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    _add_scenario_commands(sub)
+    _add_tool_commands(sub)
+    learn_signatures.add_parser(sub)
+    pipeline.add_parser(sub)
+    campaign.add_parser(sub)
+    campaign.add_summary_parser(sub)
+    compare.add_parser(sub)
+    ssp.add_parser(sub)
+    for p in sub.choices.values():
+        add_verbosity(p)
+    return parser
 
-    def scenario_args(p: argparse.ArgumentParser, running: bool) -> None:
-        p.add_argument("scenarios", nargs="+", metavar="SCENARIO", type=Path,
-                       help="scenario .toml files or folders of them")
-        if running:
-            p.add_argument("--out", type=Path, default=None,
-                           help=f"results folder, one sub-folder per scenario (default: a "
-                                f"new {DEFAULT_RESULTS_ROOT}/<command>-<time>/, "
-                                f"{DEFAULT_RESULTS_ROOT}/latest points to it)")
-            p.add_argument("--fmu-dir", type=Path, default=None,
-                           help="folder of the .fmu files (default: the scenario's fmu_dir, "
-                                "$GYRODIAG_FMU_DIR or build/fmus)")
-            add_workers(p)
-            add_exact_signals(p)
-            p.add_argument("--no-progress", action="store_true", help="no progress bar")
-        else:
-            p.add_argument("--out", type=Path, default=None,
-                           help=f"results folder of the saved runs, where the report is "
-                                f"written too (default {DEFAULT_RESULTS_ROOT}/latest)")
 
-    def report_args(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--junit", type=Path, default=None,
-                       help="JUnit XML file (default <out>/junit.xml)")
-        p.add_argument("--html", type=Path, default=None,
-                       help="HTML report (default <out>/report.html)")
+def _scenario_args(p: argparse.ArgumentParser, running: bool) -> None:
+    """The scenario files and ``--out`` (a new results folder if ``running``, else the
+    saved one), plus the running options."""
+    p.add_argument("scenarios", nargs="+", metavar="SCENARIO", type=Path,
+                   help="scenario .toml files or folders of them")
+    if running:
+        p.add_argument("--out", type=Path, default=None,
+                       help=f"results folder, one sub-folder per scenario (default: a "
+                            f"new {DEFAULT_RESULTS_ROOT}/<command>-<time>/, "
+                            f"{DEFAULT_RESULTS_ROOT}/latest points to it)")
+        p.add_argument("--fmu-dir", type=Path, default=None,
+                       help="folder of the .fmu files (default: the scenario's fmu_dir, "
+                            "$GYRODIAG_FMU_DIR or build/fmus)")
+        add_workers(p)
+        add_exact_signals(p)
+        p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    else:
+        p.add_argument("--out", type=Path, default=None,
+                       help=f"results folder of the saved runs, where the report is "
+                            f"written too (default {DEFAULT_RESULTS_ROOT}/latest)")
 
+
+def _report_args(p: argparse.ArgumentParser) -> None:
+    """Where the JUnit and HTML reports go."""
+    p.add_argument("--junit", type=Path, default=None,
+                   help="JUnit XML file (default <out>/junit.xml)")
+    p.add_argument("--html", type=Path, default=None,
+                   help="HTML report (default <out>/report.html)")
+
+
+def _add_scenario_commands(sub: Any) -> None:
+    """``run``, ``verify`` and ``report``: the commands on scenario files."""
     p_run = sub.add_parser("run", help="run scenarios and save their signals")
-    scenario_args(p_run, running=True)
+    _scenario_args(p_run, running=True)
     p_run.set_defaults(func=cmd_run)
 
     p_verify = sub.add_parser("verify", help="run scenarios, check expectations, report")
-    scenario_args(p_verify, running=True)
-    report_args(p_verify)
+    _scenario_args(p_verify, running=True)
+    _report_args(p_verify)
     p_verify.set_defaults(func=cmd_verify)
 
     p_report = sub.add_parser("report", help="check expectations and report on saved runs")
-    scenario_args(p_report, running=False)
-    report_args(p_report)
+    _scenario_args(p_report, running=False)
+    _report_args(p_report)
     p_report.set_defaults(func=cmd_report)
 
+
+def _add_tool_commands(sub: Any) -> None:
+    """``list``, ``isolability``, ``export-csv`` and ``schema``: the commands that run
+    nothing."""
     p_list = sub.add_parser("list", help="list the scenarios of a folder")
     p_list.add_argument("directory", nargs="?", type=Path, default=Path(DEFAULT_SCENARIO_DIR),
                         metavar="DIR", help=f"folder of .toml files (default "
@@ -197,16 +221,6 @@ def _parser() -> argparse.ArgumentParser:
     p_schema.add_argument("--campaign", action="store_true",
                           help="the JSON Schema of campaign specs instead")
     p_schema.set_defaults(func=cmd_schema)
-
-    learn_signatures.add_parser(sub)
-    pipeline.add_parser(sub)
-    campaign.add_parser(sub)
-    campaign.add_summary_parser(sub)
-    compare.add_parser(sub)
-    ssp.add_parser(sub)
-    for p in sub.choices.values():
-        add_verbosity(p)
-    return parser
 
 
 def output_folder(out: Path | None, command: str, scenarios: Sequence[Scenario],

@@ -117,15 +117,9 @@ def _reads_results(scenario: Any) -> bool:
 def cmd_all(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     training_dir = args.scenarios / "training"
-    # every file is read first: an invalid one stops the job before anything is built
-    training = load_all([training_dir]) if training_dir.is_dir() else []
-    if training:
-        check_training_scenarios(training)
     patterns_dir = training_dir / "patterns"
-    patterns = load_all([patterns_dir]) if patterns_dir.is_dir() else []
-    if patterns:
-        check_training_scenarios(patterns)
-    scenarios = load_all([args.scenarios])
+    # every file is read first: an invalid one stops the job before anything is built
+    training, patterns, scenarios = _load_inputs(args.scenarios, training_dir, patterns_dir)
     out: Path = args.out if args.out is not None else new_results_folder("all")
     out.mkdir(parents=True, exist_ok=True)
     log.info("results: %s", out)
@@ -164,31 +158,10 @@ def cmd_all(args: argparse.Namespace) -> int:
     n_train = len(training) + len(patterns)
     train_runs, free_runs = first_runs[:len(training)], first_runs[n_train:]
     pattern_runs = first_runs[len(training):n_train]
-    if stop is None and training:
-        if any(r.error is not None for r in train_runs):
-            log.error("a training run failed")
-            return EXIT_FAILED
-        try:
-            library = learn_signatures(training, train_runs)
-        except (ValueError, KeyError) as exc:
-            log.error("learning the signatures failed: %s", exc)
-            return EXIT_FAILED
-        library.write(out / "dtg_signatures.json")
-        for name, sig in library.signatures.items():
-            log.info("  signature %s %s: C = %s", library.codes[name], name, sig.tolist())
-    if stop is None and patterns:
-        if any(r.error is not None for r in pattern_runs):
-            log.error("a pattern training run failed")
-            return EXIT_FAILED
-        try:
-            _, content = learn_pattern_library(patterns, pattern_runs)
-        except (ValueError, KeyError) as exc:
-            log.error("learning the patterns failed: %s", exc)
-            return EXIT_FAILED
-        (out / "dtg_patterns.json").write_text(json.dumps(content, indent=1) + "\n",
-                                               encoding="utf-8")
-        log.info("  %d classes -> %s", len(content["patterns"]["classes"]),
-                 out / "dtg_patterns.json")
+    if stop is None and training and not _learn_signatures(out, training, train_runs):
+        return EXIT_FAILED
+    if stop is None and patterns and not _learn_patterns(out, patterns, pattern_runs):
+        return EXIT_FAILED
 
     if (training or patterns) and not args.keep_training_signals:
         _drop_training_signals(out / "training", [*training, *patterns])
@@ -202,6 +175,70 @@ def cmd_all(args: argparse.Namespace) -> int:
         except BatchInterrupted as exc:
             stop = exc
             results += exc.results
+    not_started = _not_started(stop, first_runs, waiting, results)
+    status = verify_and_report(results, scenarios, out, None, None,
+                               not_started=not_started,
+                               interrupted_by=stop.reason if stop else None)
+    if stop is not None:
+        return status
+
+    _write_isolability(out)
+    log.info("== done in %.0f s: %s", time.perf_counter() - t0,
+             "all scenarios passed" if status == EXIT_OK else "FAILURES, see above")
+    return status
+
+
+def _load_inputs(scenario_dir: Path, training_dir: Path, patterns_dir: Path
+                 ) -> tuple[list[Any], list[Any], list[Any]]:
+    """The training scenarios, the pattern training scenarios (both checked as training
+    sets; empty without their folder) and the seed scenarios, all loaded first."""
+    training = load_all([training_dir]) if training_dir.is_dir() else []
+    if training:
+        check_training_scenarios(training)
+    patterns = load_all([patterns_dir]) if patterns_dir.is_dir() else []
+    if patterns:
+        check_training_scenarios(patterns)
+    return training, patterns, load_all([scenario_dir])
+
+
+def _learn_signatures(out: Path, training: list[Any], train_runs: list[Any]) -> bool:
+    """Learn the DTG signature library from the training runs into
+    ``out/dtg_signatures.json``; False (logged) if a run or the learning failed."""
+    if any(r.error is not None for r in train_runs):
+        log.error("a training run failed")
+        return False
+    try:
+        library = learn_signatures(training, train_runs)
+    except (ValueError, KeyError) as exc:
+        log.error("learning the signatures failed: %s", exc)
+        return False
+    library.write(out / "dtg_signatures.json")
+    for name, sig in library.signatures.items():
+        log.info("  signature %s %s: C = %s", library.codes[name], name, sig.tolist())
+    return True
+
+
+def _learn_patterns(out: Path, patterns: list[Any], pattern_runs: list[Any]) -> bool:
+    """Learn the DTG pattern library from the pattern runs into ``out/dtg_patterns.json``;
+    False (logged) if a run or the learning failed."""
+    if any(r.error is not None for r in pattern_runs):
+        log.error("a pattern training run failed")
+        return False
+    try:
+        _, content = learn_pattern_library(patterns, pattern_runs)
+    except (ValueError, KeyError) as exc:
+        log.error("learning the patterns failed: %s", exc)
+        return False
+    (out / "dtg_patterns.json").write_text(json.dumps(content, indent=1) + "\n",
+                                           encoding="utf-8")
+    log.info("  %d classes -> %s", len(content["patterns"]["classes"]),
+             out / "dtg_patterns.json")
+    return True
+
+
+def _not_started(stop: BatchInterrupted | None, first_runs: list[Any], waiting: list[Any],
+                 results: list[Any]) -> list[str]:
+    """Names of the scenarios a stop left unstarted (logged with the count saved)."""
     not_started: list[str] = []
     if stop is not None:
         not_started = list(stop.not_started)
@@ -209,16 +246,12 @@ def cmd_all(args: argparse.Namespace) -> int:
             not_started += [sc.name for sc in waiting]
         log.warning("stopped by %s: %d run(s) saved, %d not started", stop.reason,
                     len(results), len(not_started))
-    status = verify_and_report(results, scenarios, out, None, None,
-                               not_started=not_started,
-                               interrupted_by=stop.reason if stop else None)
-    if stop is not None:
-        return status
+    return not_started
 
+
+def _write_isolability(out: Path) -> None:
+    """The seed aircraft's isolability report beside the results (HTML and text)."""
     report = seed_isolability_report()
     write(out / "isolability.html", report, "html")
     (out / "isolability.txt").write_text(render(report, "text"), encoding="utf-8")
     log.info("isolability report: %s", out / "isolability.html")
-    log.info("== done in %.0f s: %s", time.perf_counter() - t0,
-             "all scenarios passed" if status == EXIT_OK else "FAILURES, see above")
-    return status

@@ -16,7 +16,9 @@ folder), not the saved files, which may hold Real signals rounded to float32
 Ctrl-C or SIGTERM: no new run starts, the runs in flight get the signal once, stop
 between two steps and save what they recorded (marked interrupted), and
 :class:`~gyrodiag_harness.cosim.interrupt.BatchInterrupted` is raised with the results so far.
-A second signal kills the runs still going.
+A second signal kills the runs still going (the stop policy
+:class:`~gyrodiag_harness.cosim.supervision.SaveThenKill`; the process mechanics are in
+:mod:`gyrodiag_harness.cosim.supervision`, shared with the campaigns).
 """
 
 from __future__ import annotations
@@ -42,12 +44,15 @@ from gyrodiag_harness.cosim.interrupt import BatchInterrupted, stop_on_signals, 
 from gyrodiag_harness.cosim.master import fault_windows, preflight
 from gyrodiag_harness.cosim.results import META_FILE, PRECISIONS, RunResult
 from gyrodiag_harness.cosim.scenario import Scenario, ScenarioError, load_scenario
+from gyrodiag_harness.cosim.supervision import SaveThenKill, Supervised, start_in_session
 from gyrodiag_harness.cosim.worker import Job
 
 log = logging.getLogger(__name__)
 
 #: After forwarding a stop request, how long the runs get to stop and save, s.
 STOP_GRACE_S = 30.0
+#: What the runs in flight get on a stop request: the signal once, SIGKILL after the grace.
+_STOP = SaveThenKill(grace_s=STOP_GRACE_S)
 _POLL_S = 0.01
 
 
@@ -121,7 +126,8 @@ FORK_SERVER_ENV = "GYRODIAG_FORK_SERVER"
 
 class _ForkedRun:
     """The part of :class:`subprocess.Popen` the batch uses, for a run process forked by
-    the server: ``pid``, ``poll()``, ``returncode``, ``send_signal()``."""
+    the server: ``pid``, ``poll()``, ``returncode``, ``send_signal()``
+    (:class:`~gyrodiag_harness.cosim.supervision.Supervised`)."""
 
     def __init__(self, pid: int, server: _RunServer) -> None:
         self.pid = pid
@@ -145,11 +151,10 @@ class _RunServer:
         request_r, self._request_w = os.pipe()
         self._reply_r, reply_w = os.pipe()
         try:
-            self.process = subprocess.Popen(
+            self.process = start_in_session(
                 [sys.executable, "-m", "gyrodiag_harness.cosim.zygote", str(request_r),
                  str(reply_w)],
-                pass_fds=(request_r, reply_w), stdin=subprocess.DEVNULL,
-                start_new_session=True)
+                pass_fds=(request_r, reply_w), stdin=subprocess.DEVNULL)
         finally:
             os.close(request_r)
             os.close(reply_w)
@@ -224,7 +229,7 @@ def _run_server(n_runs: int) -> _RunServer | None:
 @dataclass
 class _Running:
     index: int
-    process: subprocess.Popen[bytes] | _ForkedRun
+    process: Supervised
     job_file: Path
     status_file: Path
     handover_file: Path
@@ -275,6 +280,24 @@ def run_all(scenarios: Sequence[Scenario], out: Path | Sequence[Path],
     BatchInterrupted
         Ctrl-C or SIGTERM (see the module's doc).
     """
+    workers, outs = _checked_arguments(scenarios, out, workers, precision)
+    results_dir = (outs[0] if outs else Path(".")) if results_dir is None \
+        else Path(results_dir)
+    preflight_all(scenarios, fmu_dir, results_dir)
+    order = sorted(range(len(scenarios)), key=lambda i: -_cost(scenarios[i]))
+    results, not_started = _supervise(scenarios, order, outs, fmu_dir, results_dir, workers,
+                                      progress, precision)
+    reason = stop_requested()
+    if reason is not None:
+        raise BatchInterrupted(reason, [r for r in results if r is not None],
+                               [scenarios[i].name for i in not_started])
+    return [r for r in results if r is not None]
+
+
+def _checked_arguments(scenarios: Sequence[Scenario], out: Path | Sequence[Path],
+                       workers: int | None, precision: str | None) -> tuple[int, list[Path]]:
+    """:func:`run_all`'s worker count (None: the default) and one results folder per
+    scenario; ValueError for a bad worker count, precision or number of folders."""
     if workers is None:
         workers = default_workers()
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
@@ -289,10 +312,15 @@ def run_all(scenarios: Sequence[Scenario], out: Path | Sequence[Path],
         if len(outs) != len(scenarios):
             raise ValueError(f"out must be one folder or one per scenario ({len(scenarios)}),"
                              f" got {len(outs)}")
-    results_dir = (outs[0] if outs else Path(".")) if results_dir is None \
-        else Path(results_dir)
-    preflight_all(scenarios, fmu_dir, results_dir)
-    order = sorted(range(len(scenarios)), key=lambda i: -_cost(scenarios[i]))
+    return workers, outs
+
+
+def _supervise(scenarios: Sequence[Scenario], order: list[int], outs: list[Path],
+               fmu_dir: Path | None, results_dir: Path, workers: int, progress: bool,
+               precision: str | None) -> tuple[list[RunResult | None], list[int]]:
+    """Run the scenarios in ``order``, ``workers`` at a time, until all ended or a stop
+    request (module doc) ended those in flight; returns the results by scenario index
+    (None: not run) and the indices never started."""
     results: list[RunResult | None] = [None] * len(scenarios)
     running: dict[int, _Running] = {}
     not_started: list[int] = []
@@ -300,7 +328,7 @@ def run_all(scenarios: Sequence[Scenario], out: Path | Sequence[Path],
 
     def kill_all(signum: int) -> None:
         for r in running.values():
-            _signal(r.process, signal.SIGKILL)
+            _STOP.kill(r.process)
             r.killed = True
 
     server = _run_server(len(scenarios))
@@ -314,33 +342,42 @@ def run_all(scenarios: Sequence[Scenario], out: Path | Sequence[Path],
             if reason is not None and forwarded_at is None:
                 not_started = sorted(pending)
                 pending.clear()
-                signum = getattr(signal, reason, signal.SIGTERM) if reason.startswith("SIG") \
-                    else signal.SIGTERM
-                for r in running.values():
-                    _signal(r.process, signum)
-                forwarded_at = time.monotonic()
-                if running:
-                    log.warning("%s: stopping %d run(s) in flight, starting nothing new",
-                                reason, len(running))
+                forwarded_at = _forward_stop(reason, running)
             while pending and len(running) < workers:
                 i = pending.pop(0)
                 running[i] = _start(scenarios[i], i, outs[i], fmu_dir, results_dir, Path(tmp),
                                     progress and workers == 1, precision, server)
-            for i, r in list(running.items()):
-                if r.process.poll() is None:
-                    continue
-                del running[i]
-                results[i] = _collect(scenarios[i], outs[i] / scenarios[i].name, r)
-                _log_result(results[i], outs[i] / scenarios[i].name)
-            if forwarded_at is not None and time.monotonic() - forwarded_at > STOP_GRACE_S:
+            _collect_ended(scenarios, outs, running, results)
+            if forwarded_at is not None and time.monotonic() - forwarded_at > _STOP.grace_s:
                 kill_all(signal.SIGKILL)
             if running:
                 time.sleep(_POLL_S)
-    reason = stop_requested()
-    if reason is not None:
-        raise BatchInterrupted(reason, [r for r in results if r is not None],
-                               [scenarios[i].name for i in not_started])
-    return [r for r in results if r is not None]
+    return results, not_started
+
+
+def _forward_stop(reason: str, running: dict[int, _Running]) -> float:
+    """Give the runs in flight the stop request (its signal, SIGTERM if none); returns
+    when, for the grace period."""
+    signum = getattr(signal, reason, signal.SIGTERM) if reason.startswith("SIG") \
+        else signal.SIGTERM
+    for r in running.values():
+        _STOP.stop(r.process, signum)
+    forwarded_at = time.monotonic()
+    if running:
+        log.warning("%s: stopping %d run(s) in flight, starting nothing new",
+                    reason, len(running))
+    return forwarded_at
+
+
+def _collect_ended(scenarios: Sequence[Scenario], outs: list[Path],
+                   running: dict[int, _Running], results: list[RunResult | None]) -> None:
+    """Move the runs that ended from ``running`` into ``results``, logging each."""
+    for i, r in list(running.items()):
+        if r.process.poll() is None:
+            continue
+        del running[i]
+        results[i] = _collect(scenarios[i], outs[i] / scenarios[i].name, r)
+        _log_result(results[i], outs[i] / scenarios[i].name)
 
 
 def preflight_all(scenarios: Sequence[Scenario], fmu_dir: Path | None,
@@ -374,7 +411,7 @@ def _start(scenario: Scenario, index: int, out: Path, fmu_dir: Path | None,
     log.debug("%s: starting", scenario.name)
     # a session of its own: the terminal's Ctrl-C reaches the batch only, which forwards
     # it exactly once (a second one would be "stop now" inside the run)
-    process: subprocess.Popen[bytes] | _ForkedRun | None = None
+    process: Supervised | None = None
     if server is not None:
         try:
             process = server.spawn(job_file)
@@ -384,18 +421,9 @@ def _start(scenario: Scenario, index: int, out: Path, fmu_dir: Path | None,
             job.parent_pid = os.getpid()
             job_file.write_bytes(pickle.dumps(job))
     if process is None:
-        process = subprocess.Popen([sys.executable, "-m", "gyrodiag_harness.cosim.worker",
-                                    str(job_file)],
-                                   stdin=subprocess.DEVNULL, start_new_session=True)
+        process = start_in_session([sys.executable, "-m", "gyrodiag_harness.cosim.worker",
+                                    str(job_file)], stdin=subprocess.DEVNULL)
     return _Running(index, process, job_file, status_file, handover_file)
-
-
-def _signal(process: subprocess.Popen[bytes] | _ForkedRun, signum: int) -> None:
-    if process.poll() is None:
-        try:
-            process.send_signal(signum)
-        except ProcessLookupError:
-            pass
 
 
 def _collect(scenario: Scenario, target: Path, run: _Running) -> RunResult:

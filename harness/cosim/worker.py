@@ -28,19 +28,14 @@ import logging
 import os
 import pickle
 import sys
-import threading
-import time
 import traceback
 from dataclasses import dataclass
 from typing import Any
 
 from gyrodiag_harness.cosim.interrupt import RunInterrupted, request_stop, stop_on_signals
-from gyrodiag_harness.cosim.niceness import keep_niceness
+from gyrodiag_harness.cosim.supervision import ORPHAN_POLL_S, enter_run_process, exit_process
 
 log = logging.getLogger(__name__)
-
-#: How often the worker checks that the batch that started it is still there, s.
-ORPHAN_POLL_S = 0.5
 
 
 @dataclass
@@ -59,13 +54,10 @@ class Job:
     handover_file: str | None = None  # where to pickle the full-precision RunResult
 
 
-def _watch_parent(parent_pid: int) -> None:
-    # a batch killed with SIGKILL cannot forward anything: stop like on SIGTERM
-    while True:
-        time.sleep(ORPHAN_POLL_S)
-        if os.getppid() != parent_pid:
-            request_stop("the batch that started this run exited")
-            return
+def _stop_orphaned_run() -> None:
+    """Orphan action of a batch run: a batch killed with SIGKILL cannot forward anything,
+    so the run stops like on SIGTERM and keeps what it recorded."""
+    request_stop("the batch that started this run exited")
 
 
 def _write_status(path: str, status: str, message: str = "") -> None:
@@ -118,8 +110,8 @@ def main(argv: list[str]) -> int:
     with open(argv[0], "rb") as fh:
         job: Job = pickle.load(fh)  # written by this package's batch, never by a user
     logging.basicConfig(level=job.log_level, format="%(message)s", stream=sys.stderr)
-    keep_niceness()  # a session of its own is an autogroup of its own (see there)
-    threading.Thread(target=_watch_parent, args=(job.parent_pid,), daemon=True).start()
+    # first checked after one poll period: the batch is there when it starts a run
+    enter_run_process(job.parent_pid, _stop_orphaned_run, first_check_after_s=ORPHAN_POLL_S)
     with stop_on_signals():  # from here on a signal never interrupts mid-call
         run_job(job)
     return 0
@@ -130,6 +122,4 @@ if __name__ == "__main__":
         code = main(sys.argv[1:])
     except KeyboardInterrupt:  # a signal before the run started: nothing to keep
         code = 130
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)  # see harness/__main__.py: pythonfmu's exit-time destructors
+    exit_process(code)

@@ -14,7 +14,7 @@ not be loaded twice into a process, docs/methods.md §6.11), and it has no threa
 reaped by a SIGCHLD handler), so a fork copies a consistent process. It exits when the
 request pipe closes, i.e. when its batch is done or has died; children still running
 then see their parent change and stop as orphans of a killed batch do
-(:func:`gyrodiag_harness.cosim.worker._watch_parent`).
+(:func:`gyrodiag_harness.cosim.worker._stop_orphaned_run`).
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ import signal
 import sys
 
 from gyrodiag_harness.cosim import master, worker
+from gyrodiag_harness.cosim.supervision import exit_process
 
 # what a run process imports anyway, once here instead of once per run
 _PRELOADED = (master, worker)
@@ -59,9 +60,7 @@ def _run_child(job_file: str, request_fd: int) -> None:
     except KeyboardInterrupt:  # a signal before the run started: nothing to keep
         code = 130
     finally:
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(code)  # never return into the server's loop
+        exit_process(code)  # never return into the server's loop
 
 
 def serve(request_fd: int, reply_fd: int) -> None:
@@ -99,7 +98,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    code = main(sys.argv[1:])
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)
+    exit_process(main(sys.argv[1:]))

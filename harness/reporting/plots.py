@@ -1078,10 +1078,29 @@ def figures_for_result(result: RunResult, scenario: Any = None,
     """
     names = list(result.signals)
     sig = result.signals
+    used: set[str] = set()
+    figures = _channel_figures(result, scenario, verdict, used)
+    for witnesses, details, label in _witness_specs(scenario):
+        shown = [n for n in witnesses if n in result.signals]
+        if len(shown) >= 2:
+            extra = [n for n in details if n in result.signals]
+            figures.append((label, plot_witnesses(result, shown, extra, title=label)))
+
+    flags = [n for n in names if n not in used and _is_lane(n, sig[n])]
+    if flags:
+        figures.append(("fault injection and other flags", _flag_timeline(result, flags)))
+    return figures
+
+
+def _channel_figures(result: RunResult, scenario: Any, verdict: ScenarioVerdict | None,
+                     used: set[str]) -> list[tuple[str, Figure]]:
+    """One figure per Diagnoser channel that carries data (:func:`figures_for_result`);
+    adds the signals drawn to ``used``."""
+    names = list(result.signals)
+    sig = result.signals
     figures: list[tuple[str, Figure]] = []
     channels = list(dict.fromkeys((m["inst"], m["ch"]) for n in names
                                   if (m := _CHANNEL.match(n))))
-    used: set[str] = set()
     connections = scenario_connections(scenario)
     for inst, ch in channels:
         mine = [n for n in names if n.startswith(f"{inst}.{ch}.")]
@@ -1105,38 +1124,46 @@ def figures_for_result(result: RunResult, scenario: Any = None,
             except ValueError:
                 continue
         else:
-            measured = f"{inst}.grey.y" if f"{inst}.grey.y" in sig else next(
-                (src for src, dst in connections if dst == f"{inst}.grey.y" and src in sig),
-                None)
-            thr_name = f"{inst}.grey.threshold"
-            params = scenario_parameters(scenario, inst)
-            # a fixed threshold is the paper rule's (grey.decision = 0); the learned
-            # rules' (the default) is in grey.statistic
-            threshold = (float(np.nanmax(sig[thr_name])) if thr_name in sig
-                         else _number(params.get("grey.threshold"))
-                         if _number(params.get("grey.decision")) == 0 else None)
-            try:
-                fig = plot_grey_channel(result, inst, measured=measured, threshold=threshold,
-                                        title=title)
-            except ValueError:
+            grey = _grey_figure(result, scenario, inst, connections, title)
+            if grey is None:
                 continue
+            fig = grey
         figures.append((title, fig))
-
-    for witnesses, details, label in _witness_specs(scenario):
-        shown = [n for n in witnesses if n in result.signals]
-        if len(shown) >= 2:
-            extra = [n for n in details if n in result.signals]
-            figures.append((label, plot_witnesses(result, shown, extra, title=label)))
-
-    flags = [n for n in names if n not in used and _is_lane(n, sig[n])]
-    if flags:
-        # flags that switch tell the story; constant ones fill the remaining lanes
-        changing = [n for n in flags if not _is_constant(sig[n])]
-        constant = [n for n in flags if n not in changing]
-        lanes = (changing + constant)[:MAX_TIMELINE_LANES]
-        hidden = len(flags) - len(lanes)
-        title = "fault injection and other flags" + (
-            f" ({hidden} constant flags not shown)" if hidden else "")
-        figures.append(("fault injection and other flags",
-                        plot_alarm_timeline(result, lanes, title=title)))
     return figures
+
+
+def _grey_figure(result: RunResult, scenario: Any, inst: str,
+                 connections: Sequence[tuple[str, str]], title: str) -> Figure | None:
+    """A grey channel's figure: its measurement (``<inst>.grey.y`` or the recorded source
+    connected to it) and its threshold where the rule has a fixed one; None where
+    :func:`plot_grey_channel` finds nothing to draw (ValueError)."""
+    sig = result.signals
+    measured = f"{inst}.grey.y" if f"{inst}.grey.y" in sig else next(
+        (src for src, dst in connections if dst == f"{inst}.grey.y" and src in sig),
+        None)
+    thr_name = f"{inst}.grey.threshold"
+    params = scenario_parameters(scenario, inst)
+    # a fixed threshold is the paper rule's (grey.decision = 0); the learned
+    # rules' (the default) is in grey.statistic
+    threshold = (float(np.nanmax(sig[thr_name])) if thr_name in sig
+                 else _number(params.get("grey.threshold"))
+                 if _number(params.get("grey.decision")) == 0 else None)
+    try:
+        return plot_grey_channel(result, inst, measured=measured, threshold=threshold,
+                                 title=title)
+    except ValueError:
+        return None
+
+
+def _flag_timeline(result: RunResult, flags: list[str]) -> Figure:
+    """The timeline of flags of no channel: switching ones first, at most
+    :data:`MAX_TIMELINE_LANES` lanes."""
+    sig = result.signals
+    # flags that switch tell the story; constant ones fill the remaining lanes
+    changing = [n for n in flags if not _is_constant(sig[n])]
+    constant = [n for n in flags if n not in changing]
+    lanes = (changing + constant)[:MAX_TIMELINE_LANES]
+    hidden = len(flags) - len(lanes)
+    title = "fault injection and other flags" + (
+        f" ({hidden} constant flags not shown)" if hidden else "")
+    return plot_alarm_timeline(result, lanes, title=title)
