@@ -249,7 +249,7 @@ def resolve(scenario: Scenario | Path | str, fmu_dir: Path | str | None = None,
         duration_s=s.duration_s, decimation=s.record.decimation,
         precision=s.record.precision, coupling_kind=s.coupling, coupling=coupling,
         instances=instances, links=_links(s, coupling, models),
-        recorded=_recorded(s, models), events=_events(s, models),
+        recorded=recorded_signals(s, models), events=_events(s, models),
         timing_added=tuple(added), fault_windows=tuple(fault_windows(s)),
         manoeuvre_windows=tuple(manoeuvre_windows(s)),
         judged=None if s.training is not None else frozenset(_expected(s)))
@@ -350,7 +350,8 @@ def _expected(s: Scenario) -> list[str]:
     return names
 
 
-def _recorded(s: Scenario, models: Mapping[str, ModelInfo]) -> tuple[Recorded, ...]:
+def recorded_signals(s: Scenario, models: Mapping[str, ModelInfo]
+                     ) -> tuple[Recorded, ...]:
     """``record.variables`` (default: every non-String output) plus what the
     expectations read, which is always recorded."""
     if s.record.variables is None:
