@@ -149,8 +149,8 @@ class SignalWhenStepping(logging.Handler):
 logging.getLogger("gyrodiag_harness").addHandler(SignalWhenStepping())
 logging.getLogger("gyrodiag_harness").setLevel(logging.DEBUG)
 try:
-    harness.run_scenario({str(scenario)!r}, fmu_dir={str(fmu_dir)!r}, progress=False,
-                         out_dir={str(tmp_path / "api_out")!r})
+    gyrodiag_harness.run_scenario({str(scenario)!r}, fmu_dir={str(fmu_dir)!r}, progress=False,
+                                  out_dir={str(tmp_path / "api_out")!r})
 except RunInterrupted as exc:
     r = exc.result
     print("interrupted", exc.reason, r.interrupted, len(r.time), stop_requested())
