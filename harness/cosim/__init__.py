@@ -1,1 +1,2 @@
-"""Co-simulation: the scenario format, the fmpy master, run records, batches of runs."""
+"""Co-simulation: the scenario format, its run plan, the fmpy master and its FMI access,
+run records, batches of runs."""

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from gyrodiag_harness.cosim.plan import fault_windows, model_info, recorded_signals
 from gyrodiag_harness.cosim.results import RunResult
 from gyrodiag_harness.cosim.scenario import (
     ModelInfo,
@@ -39,7 +40,6 @@ from gyrodiag_harness.cosim.scenario import (
     ScenarioError,
     VariableInfo,
     check_against_models,
-    expected_signals,
     load_scenario,
     resolve_file_parameters,
     resolve_fmu_dir,
@@ -72,9 +72,8 @@ def _libcosim() -> Any:
 
 
 def _model_info(fmu: Path) -> ModelInfo:
+    """The model of an FMU file (read from the archive, not extracted)."""
     from fmpy import read_model_description
-
-    from gyrodiag_harness.cosim.master import model_info
 
     return model_info(read_model_description(str(fmu)))
 
@@ -197,44 +196,19 @@ def run_scenario_libcosim(scenario: Scenario | Path | str, fmu_dir: Path | str |
     """
     _, execution_cls, _, _, slave_cls = _libcosim()
     s = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
-    ratios = {n: i.step_ratio for n, i in s.fmus.items() if i.step_ratio != 1}
-    if ratios:
-        raise ScenarioError(s.source, [(f"fmus.{n}.step_ratio", f"{r}: libcosim runs every "
-                                        "FMU at the base step here") for n, r in ratios.items()])
+    _check_step_ratios(s)
     files = resolve_file_parameters(s, results_dir)
-    folder = resolve_fmu_dir(s, fmu_dir)
-    paths = {n: resolve_fmu_file(s, n, folder) for n in s.fmus}
-    for n, p in paths.items():
-        if not p.is_file():
-            raise FileNotFoundError(f"{s.source}: fmus.{n}.fmu: FMU file {p} not found")
-    info = {n: _model_info(p) for n, p in paths.items()}
-    check_against_models(s, info)
-
+    paths, info = _checked_models(s, fmu_dir)
     execution = execution_cls.CosimExecution.from_step_size(step_size=to_ns(s.step_s))
-    index = {}
-    for n, p in paths.items():
-        index[n] = execution.add_local_slave(
-            slave_cls.CosimLocalSlave(fmu_path=str(p.resolve()), instance_name=n))
-        if index[n] < 0:
-            raise ScenarioError(s.source, [(f"fmus.{n}.fmu", f"libcosim could not load {p}")])
-    slaves = _Slaves(index, info)
+    slaves = _Slaves(_add_slaves(execution, slave_cls, s, paths), info)
     values = _Values(execution)
-
-    params: dict[str, dict[str, Any]] = {n: dict(i.parameters) for n, i in s.fmus.items()}
-    for f in s.injector_faults:
-        params[f.injector].update(f.injector_parameters())
-    for n, p in files.items():
-        params[n].update(p)
-    # libcosim steps every FMU on the outputs of the step before (Jacobi): the
-    # Diagnoser's sample alignment of that plan, unless the scenario sets it
-    fill_timing_parameters(params, s, s.connections, {n: i.variables for n, i in info.items()})
-    for n, ps in params.items():
+    for n, ps in _start_values(s, files, info).items():
         for name, value in ps.items():
-            _initial_value(execution, index[n], info[n].variables[name], value)
+            _initial_value(execution, slaves.index[n], info[n].variables[name], value)
     for c in s.connections:
         _connect(execution, slaves.var(c.from_), slaves.var(c.to))
 
-    names = _recorded(s, info)
+    names = [r.name for r in recorded_signals(s, info)]
     events = sorted([(f.start_s, 0, i, f) for i, f in enumerate(s.physical_faults)]
                     + [(f.end_s, 1, i, f) for i, f in enumerate(s.physical_faults)
                        if not math.isinf(f.end_s)])
@@ -247,10 +221,55 @@ def run_scenario_libcosim(scenario: Scenario | Path | str, fmu_dir: Path | str |
             _, is_end, _, fault = events.pop(0)
             _apply_physical(values, slaves, fault, is_end, originals, execution, k)
 
-    from gyrodiag_harness.cosim.master import fault_windows
-
     return _simulate(execution, values, slaves, names, s.name, s.step_s, s.n_steps,
                      s.record.decimation, before_step, fault_windows(s))
+
+
+def _check_step_ratios(s: Scenario) -> None:
+    """libcosimpy exposes no decimation factor: every instance must step at the base step."""
+    ratios = {n: i.step_ratio for n, i in s.fmus.items() if i.step_ratio != 1}
+    if ratios:
+        raise ScenarioError(s.source, [(f"fmus.{n}.step_ratio", f"{r}: libcosim runs every "
+                                        "FMU at the base step here") for n, r in ratios.items()])
+
+
+def _checked_models(s: Scenario, fmu_dir: Path | str | None
+                    ) -> tuple[dict[str, Path], dict[str, ModelInfo]]:
+    """FMU file and model of every instance, the scenario checked against the models."""
+    folder = resolve_fmu_dir(s, fmu_dir)
+    paths = {n: resolve_fmu_file(s, n, folder) for n in s.fmus}
+    for n, p in paths.items():
+        if not p.is_file():
+            raise FileNotFoundError(f"{s.source}: fmus.{n}.fmu: FMU file {p} not found")
+    info = {n: _model_info(p) for n, p in paths.items()}
+    check_against_models(s, info)
+    return paths, info
+
+
+def _add_slaves(execution: Any, slave_cls: Any, s: Scenario,
+                paths: dict[str, Path]) -> dict[str, int]:
+    """Add one local slave per instance; its index by instance name."""
+    index = {}
+    for n, p in paths.items():
+        index[n] = execution.add_local_slave(
+            slave_cls.CosimLocalSlave(fmu_path=str(p.resolve()), instance_name=n))
+        if index[n] < 0:
+            raise ScenarioError(s.source, [(f"fmus.{n}.fmu", f"libcosim could not load {p}")])
+    return index
+
+
+def _start_values(s: Scenario, files: dict[str, dict[str, str]],
+                  info: dict[str, ModelInfo]) -> dict[str, dict[str, Any]]:
+    """Start values per instance: the scenario's, the injector faults', the files, and the
+    Diagnoser's sample alignment of a Jacobi plan unless the scenario sets it."""
+    params: dict[str, dict[str, Any]] = {n: dict(i.parameters) for n, i in s.fmus.items()}
+    for f in s.injector_faults:
+        params[f.injector].update(f.injector_parameters())
+    for n, p in files.items():
+        params[n].update(p)
+    # libcosim steps every FMU on the outputs of the step before (Jacobi)
+    fill_timing_parameters(params, s, s.connections, {n: i.variables for n, i in info.items()})
+    return params
 
 
 def _simulate(execution: Any, values: _Values, slaves: _Slaves, names: list[str],
@@ -371,17 +390,6 @@ def _apply_physical(values: _Values, slaves: _Slaves, fault: PhysicalFault, is_e
         return
     originals[fault.name] = values.read(i, [v])[0]
     values.override(i, v, fault.value)
-
-
-def _recorded(s: Scenario, info: dict[str, ModelInfo]) -> list[str]:
-    if s.record.variables is None:
-        names = [f"{n}.{v.name}" for n in s.fmus for v in info[n].variables.values()
-                 if v.causality == "output" and v.type != "String"]
-    else:
-        names = list(s.record.variables)
-    for e in s.expect:
-        names += [q for q in expected_signals(e) if q not in names]
-    return names
 
 
 def _last_error() -> str:

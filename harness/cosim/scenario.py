@@ -694,16 +694,31 @@ def _suggest(name: str, candidates: list[str], n: int = 3) -> str:
 
 
 def _cross_reference_problems(s: Scenario) -> list[tuple[str, str]]:
+    """Every reference between parts of the scenario that does not resolve (instances,
+    faults, manoeuvres), duplicate names and inconsistent steps, in file order."""
+    problems = _instance_problems(s) + _connection_problems(s)
+    fault_problems, fault_names = _fault_problems(s)
+    manoeuvre_problems, manoeuvre_names = _manoeuvre_problems(s, fault_names)
+    problems += fault_problems + manoeuvre_problems
+    for i, v in enumerate(s.record.variables or []):
+        problems += _unknown_instance(s, f"record.variables[{i}]", v)
+    return problems + _expect_problems(s, fault_names, manoeuvre_names)
+
+
+def _unknown_instance(s: Scenario, key: str, qualified: str) -> list[tuple[str, str]]:
+    """The problem of a qualified name whose instance the scenario does not declare."""
+    inst, _ = split_name(qualified)
+    if inst in s.fmus:
+        return []
+    instances = list(s.fmus)
+    return [(key, f"unknown instance {inst!r} in {qualified!r}{_suggest(inst, instances)} "
+                  f"(instances: {', '.join(instances)})")]
+
+
+def _instance_problems(s: Scenario) -> list[tuple[str, str]]:
+    """Instances: files also set as parameters, the training diagnoser, names, steps."""
     problems: list[tuple[str, str]] = []
     instances = list(s.fmus)
-
-    def check_instance(key: str, qualified: str) -> None:
-        inst, _ = split_name(qualified)
-        if inst not in s.fmus:
-            problems.append((key, f"unknown instance {inst!r} in {qualified!r}"
-                                  f"{_suggest(inst, instances)} (instances: "
-                                  f"{', '.join(instances)})"))
-
     for name, inst in s.fmus.items():
         for pname in inst.files:
             if pname in inst.parameters:
@@ -726,15 +741,28 @@ def _cross_reference_problems(s: Scenario) -> list[tuple[str, str]]:
                 problems.append((f"fmus.{name}.step_ratio",
                                  f"the run has {n} base steps, not a multiple of step_ratio "
                                  f"{inst.step_ratio}: the instance's last step would overshoot"))
+    return problems
+
+
+def _connection_problems(s: Scenario) -> list[tuple[str, str]]:
+    """Connections: unknown instances, an input connected twice."""
+    problems: list[tuple[str, str]] = []
     for i, c in enumerate(s.connections):
-        check_instance(f"connections[{i}].from", c.from_)
-        check_instance(f"connections[{i}].to", c.to)
+        problems += _unknown_instance(s, f"connections[{i}].from", c.from_)
+        problems += _unknown_instance(s, f"connections[{i}].to", c.to)
     seen: dict[str, int] = {}
     for i, c in enumerate(s.connections):
         if c.to in seen:
             problems.append((f"connections[{i}].to", f"input {c.to!r} is already connected "
                                                      f"by connections[{seen[c.to]}]"))
         seen.setdefault(c.to, i)
+    return problems
+
+
+def _fault_problems(s: Scenario) -> tuple[list[tuple[str, str]], dict[str, int]]:
+    """Faults: duplicate names, unknown instances, one fault per injector channel, a start
+    after the run; and the index of every fault name."""
+    problems: list[tuple[str, str]] = []
     fault_names: dict[str, int] = {}
     channels: dict[tuple[str, int], int] = {}
     for i, f in enumerate(s.faults):
@@ -745,7 +773,7 @@ def _cross_reference_problems(s: Scenario) -> list[tuple[str, str]]:
         if isinstance(f, InjectorFault):
             if f.injector not in s.fmus:
                 problems.append((f"faults[{i}].injector", f"unknown instance {f.injector!r}"
-                                                          f"{_suggest(f.injector, instances)}"))
+                                                          f"{_suggest(f.injector, list(s.fmus))}"))
             key = (f.injector, f.channel)
             if key in channels:
                 problems.append((f"faults[{i}].channel",
@@ -753,10 +781,19 @@ def _cross_reference_problems(s: Scenario) -> list[tuple[str, str]]:
                                  f"faults[{channels[key]}]: one fault per channel"))
             channels.setdefault(key, i)
         else:
-            check_instance(f"faults[{i}].set", f.set)
+            problems += _unknown_instance(s, f"faults[{i}].set", f.set)
         if f.start_s > s.duration_s:
             problems.append((f"faults[{i}].start_s", f"{f.start_s} s is after the end of the "
                                                      f"run ({s.duration_s} s)"))
+    return problems, fault_names
+
+
+def _manoeuvre_problems(s: Scenario, fault_names: Mapping[str, int]
+                        ) -> tuple[list[tuple[str, str]], dict[str, int]]:
+    """Manoeuvres: names shared with faults or manoeuvres, unknown instances, one command
+    manoeuvre per generator, a start after the run, parameters also set by the instance;
+    and the index of every manoeuvre name."""
+    problems: list[tuple[str, str]] = []
     manoeuvre_names: dict[str, int] = {}
     commanded: dict[str, int] = {}
     for i, m in enumerate(s.manoeuvres):
@@ -768,7 +805,7 @@ def _cross_reference_problems(s: Scenario) -> list[tuple[str, str]]:
         manoeuvre_names.setdefault(m.name, i)
         if m.instance not in s.fmus:
             problems.append((f"manoeuvres[{i}].instance", f"unknown instance {m.instance!r}"
-                                                          f"{_suggest(m.instance, instances)}"))
+                                                          f"{_suggest(m.instance, list(s.fmus))}"))
             continue
         if m.kind != "off_trim":
             if m.instance in commanded:
@@ -786,8 +823,14 @@ def _cross_reference_problems(s: Scenario) -> list[tuple[str, str]]:
             problems.append((f"fmus.{m.instance}.parameters.{clash[0]}",
                              f"also set by manoeuvre {m.name!r} (manoeuvres[{i}]): set it in "
                              "one place only"))
-    for i, v in enumerate(s.record.variables or []):
-        check_instance(f"record.variables[{i}]", v)
+    return problems, manoeuvre_names
+
+
+def _expect_problems(s: Scenario, fault_names: Mapping[str, int],
+                     manoeuvre_names: Mapping[str, int]) -> list[tuple[str, str]]:
+    """Expectations: their own schema, the signals they read, the fault or manoeuvre they
+    name."""
+    problems: list[tuple[str, str]] = []
     expectations = _expectations_module()
     for i, e in enumerate(s.expect):
         if expectations is not None:
@@ -799,7 +842,7 @@ def _cross_reference_problems(s: Scenario) -> list[tuple[str, str]]:
         for signal in expected_signals(e):
             key = f"expect[{i}].signal" if signal == e.signal else f"expect[{i}].args"
             if "." in signal:
-                check_instance(key, signal)
+                problems += _unknown_instance(s, key, signal)
             else:
                 problems.append((key, f"{signal!r} must be 'instance.variable'"))
         if e.fault is not None and e.fault not in fault_names:
@@ -1001,41 +1044,63 @@ def check_against_models(scenario: Scenario, models: Mapping[str, ModelInfo]) ->
         Listing every unknown name (with the closest existing names), wrong causality
         (e.g. a connection into an output) and type mismatch.
     """
-    problems: list[tuple[str, str]] = []
+    lookup = _Lookup(models)
+    _parameter_model_problems(scenario, lookup)
+    _connection_model_problems(scenario, lookup)
+    _fault_model_problems(scenario, lookup)
+    _manoeuvre_model_problems(scenario, lookup)
+    _signal_model_problems(scenario, lookup)
+    if lookup.problems:
+        raise ScenarioError(scenario.source, lookup.problems)
 
-    def lookup(key: str, qualified: str, causalities: tuple[str, ...] | None,
-               role: str) -> VariableInfo | None:
+
+class _Lookup:
+    """Qualified names looked up in the models; what does not fit lands in ``problems``."""
+
+    def __init__(self, models: Mapping[str, ModelInfo]) -> None:
+        self.models = models
+        self.problems: list[tuple[str, str]] = []
+
+    def __call__(self, key: str, qualified: str, causalities: tuple[str, ...] | None,
+                 role: str) -> VariableInfo | None:
+        """The variable, or None after noting an unknown name or a wrong causality."""
         inst, var = split_name(qualified)
-        model = models[inst]
+        model = self.models[inst]
         info = model.variables.get(var)
         if info is None:
             pool = [v.name for v in model.variables.values()
                     if causalities is None or v.causality in causalities]
-            problems.append((key, f"instance {inst!r} (FMU {model.fmu_name}) has no variable "
-                                  f"{var!r}{_suggest(var, pool)}"))
+            self.problems.append((key, f"instance {inst!r} (FMU {model.fmu_name}) has no "
+                                       f"variable {var!r}{_suggest(var, pool)}"))
             return None
         if causalities is not None and info.causality not in causalities:
-            problems.append((key, f"{qualified!r} is a{'n' if info.causality[0] in 'aeiou' else ''}"
-                                  f" {info.causality}, {role} must be "
-                                  f"{' or '.join(causalities)}"))
+            article = "an" if info.causality[0] in "aeiou" else "a"
+            self.problems.append((key, f"{qualified!r} is {article} {info.causality}, {role} "
+                                       f"must be {' or '.join(causalities)}"))
             return None
         return info
 
+
+def _parameter_model_problems(scenario: Scenario, lookup: _Lookup) -> None:
+    """Instance parameters (names, causality, value types) and ``files`` (String)."""
     for name, inst in scenario.fmus.items():
-        model = models[name]
         for pname, value in inst.parameters.items():
             key = f"fmus.{name}.parameters.{pname}"
             info = lookup(key, f"{name}.{pname}", ("parameter", "input"), "a parameter")
             if info is not None:
                 msg = _value_type_problem(info, value)
                 if msg:
-                    problems.append((key, msg))
+                    lookup.problems.append((key, msg))
         for pname in inst.files:
             key = f"fmus.{name}.files.{pname}"
             info = lookup(key, f"{name}.{pname}", ("parameter",), "a file parameter")
             if info is not None and info.type != "String":
-                problems.append((key, f"{pname} is {info.type}: only String parameters can "
-                                      "name a file"))
+                lookup.problems.append((key, f"{pname} is {info.type}: only String parameters "
+                                             "can name a file"))
+
+
+def _connection_model_problems(scenario: Scenario, lookup: _Lookup) -> None:
+    """Connections: an output or local into an input, of compatible types."""
     for i, c in enumerate(scenario.connections):
         src = lookup(f"connections[{i}].from", c.from_, ("output", "local"), "a source")
         dst = lookup(f"connections[{i}].to", c.to, ("input",), "a destination")
@@ -1043,53 +1108,66 @@ def check_against_models(scenario: Scenario, models: Mapping[str, ModelInfo]) ->
             ok = (src.type in _NUMERIC and dst.type == "Real") or src.type == dst.type or (
                 src.type == "Boolean" and dst.type == "Integer")
             if not ok:
-                problems.append((f"connections[{i}]", f"cannot connect {src.type} {c.from_!r} "
-                                                      f"to {dst.type} {c.to!r}"))
+                lookup.problems.append((f"connections[{i}]", f"cannot connect {src.type} "
+                                                             f"{c.from_!r} to {dst.type} "
+                                                             f"{c.to!r}"))
+
+
+def _fault_model_problems(scenario: Scenario, lookup: _Lookup) -> None:
+    """Injector faults: the injector has the channel's parameters, not also set by the
+    instance; physical faults: a tunable parameter of the value's type."""
     for i, f in enumerate(scenario.faults):
         if isinstance(f, InjectorFault):
-            model = models[f.injector]
+            model = lookup.models[f.injector]
             missing = [p for p in f.injector_parameters() if p not in model.variables]
             if missing:
-                problems.append((f"faults[{i}]", f"instance {f.injector!r} (FMU "
-                                                 f"{model.fmu_name}) has no parameter "
-                                                 f"{missing[0]!r}: not a FaultInjector, or it "
-                                                 f"has fewer than {f.channel} channels"))
+                lookup.problems.append((f"faults[{i}]", f"instance {f.injector!r} (FMU "
+                                                        f"{model.fmu_name}) has no parameter "
+                                                        f"{missing[0]!r}: not a FaultInjector, "
+                                                        f"or it has fewer than {f.channel} "
+                                                        "channels"))
             own = scenario.fmus[f.injector].parameters
             clash = [p for p in f.injector_parameters() if p in own]
             if clash:
-                problems.append((f"fmus.{f.injector}.parameters.{clash[0]}",
-                                 f"also set by fault {f.name!r} (faults[{i}]): set it in one "
-                                 "place only"))
-        else:
-            info = lookup(f"faults[{i}].set", f.set, ("parameter",), "a physical fault target")
-            if info is not None:
-                if info.variability != "tunable":
-                    problems.append((f"faults[{i}].set", f"{f.set!r} is {info.variability}, "
-                                                         "not tunable: it cannot change "
-                                                         "during the run"))
-                msg = _value_type_problem(info, f.value)
-                if msg:
-                    problems.append((f"faults[{i}].value", msg))
+                lookup.problems.append((f"fmus.{f.injector}.parameters.{clash[0]}",
+                                        f"also set by fault {f.name!r} (faults[{i}]): set it "
+                                        "in one place only"))
+            continue
+        info = lookup(f"faults[{i}].set", f.set, ("parameter",), "a physical fault target")
+        if info is not None:
+            if info.variability != "tunable":
+                lookup.problems.append((f"faults[{i}].set", f"{f.set!r} is "
+                                                            f"{info.variability}, not tunable: "
+                                                            "it cannot change during the run"))
+            msg = _value_type_problem(info, f.value)
+            if msg:
+                lookup.problems.append((f"faults[{i}].value", msg))
+
+
+def _manoeuvre_model_problems(scenario: Scenario, lookup: _Lookup) -> None:
+    """Manoeuvres: the instance has the parameters its kind sets."""
     for i, m in enumerate(scenario.manoeuvres):
-        model = models[m.instance]
+        model = lookup.models[m.instance]
         missing = [p for p in m.instance_parameters() if p not in model.variables]
         if missing:
             what = "an Aircraft" if m.kind == "off_trim" else "a PitchController"
-            problems.append((f"manoeuvres[{i}].instance",
-                             f"instance {m.instance!r} (FMU {model.fmu_name}) has no parameter "
-                             f"{missing[0]!r}: not {what}"))
+            lookup.problems.append((f"manoeuvres[{i}].instance",
+                                    f"instance {m.instance!r} (FMU {model.fmu_name}) has no "
+                                    f"parameter {missing[0]!r}: not {what}"))
+
+
+def _signal_model_problems(scenario: Scenario, lookup: _Lookup) -> None:
+    """Recorded signals (numbers only) and the signals the expectations read."""
     for i, v in enumerate(scenario.record.variables or []):
         info = lookup(f"record.variables[{i}]", v, None, "")
         if info is not None and info.type not in _NUMERIC:
-            problems.append((f"record.variables[{i}]", f"{v!r} is a {info.type}: only numbers "
-                                                       "can be recorded"))
+            lookup.problems.append((f"record.variables[{i}]", f"{v!r} is a {info.type}: only "
+                                                              "numbers can be recorded"))
     for i, e in enumerate(scenario.expect):
         for signal in expected_signals(e):
             if "." in signal:
                 key = f"expect[{i}].signal" if signal == e.signal else f"expect[{i}].args"
                 lookup(key, signal, None, "")
-    if problems:
-        raise ScenarioError(scenario.source, problems)
 
 
 def _value_type_problem(info: VariableInfo, value: ParameterValue) -> str | None:

@@ -44,6 +44,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from gyrodiag_harness.cosim.plan import fmu_path, model_info
 from gyrodiag_harness.cosim.scenario import (
     ModelInfo,
     Scenario,
@@ -53,7 +54,6 @@ from gyrodiag_harness.cosim.scenario import (
     load_scenario,
     resolve_file_parameters,
     resolve_fmu_dir,
-    resolve_fmu_file,
     split_name,
 )
 from gyrodiag_harness.cosim.timing import fill_timing_parameters
@@ -102,9 +102,8 @@ def _pyssp() -> Any:
 
 
 def _model_info(fmu: Path) -> ModelInfo:
+    """The model of an FMU file (read from the archive, not extracted)."""
     from fmpy import read_model_description
-
-    from gyrodiag_harness.cosim.master import model_info
 
     return model_info(read_model_description(str(fmu)))
 
@@ -195,35 +194,54 @@ def export_ssp(scenario: Scenario | Path | str, out: Path | str,
         pyssp-standard is not installed.
     """
     pyssp = _pyssp()
-    from pyssp_standard.common_content_ssc import Annotation
-    from pyssp_standard.ssd import (
-        Component,
-        Connection,
-        Connector,
-        DefaultExperiment,
-        ParameterBinding,
-        System,
-    )
-
     s = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     out = Path(out)
     if out.suffix != ".ssp":
         raise ScenarioError("export-ssp", [("--out", f"{out}: an SSP file ends in .ssp")])
     files = resolve_file_parameters(s, results_dir)
     folder = resolve_fmu_dir(s, fmu_dir)
-    paths = {n: resolve_fmu_file(s, n, folder) for n in s.fmus}
-    for n, p in paths.items():
-        if not p.is_file():
-            raise FileNotFoundError(f"{s.source}: fmus.{n}.fmu: FMU file {p} not found "
-                                    "(build it with 'python build_fmu.py' or pass --fmu-dir)")
+    paths = {n: fmu_path(s, n, folder) for n in s.fmus}
     info = {n: _model_info(p) for n, p in paths.items()}
     check_against_models(s, info)
-    units, unit_definitions = {}, {}
-    for n, p in paths.items():
-        units[n], definitions = _units(p)
-        unit_definitions.update(definitions)
+    values, packed = _parameter_values(s, files, info, paths)
+    not_carried = _not_carried(s)
+    fmu_names = _fmu_names(paths)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="gyrodiag-ssp-") as tmp:
+        staging = Path(tmp)
+        target = staging / out.name
+        with pyssp.SSP(target, mode="w") as ssp:
+            for p, name in fmu_names.items():
+                copy = staging / name
+                _copy_fmu(p, copy, packed.get(p, {}))
+                ssp.add_resource(copy)
+            n_parameters = _write_ssvs(pyssp, ssp, staging, values, info)
+            with ssp.system_structure as ssd:
+                _write_ssd(pyssp, ssd, s, _Parts(paths, info, values, fmu_names,
+                                                 not_carried))
+        _finish_ssd(target, s)
+        check_ssp(target)
+        shutil.move(str(target), out)
+    return SspExport(out, list(s.fmus), n_parameters, not_carried)
 
-    # parameter values per instance: the scenario's, the injector faults', packed files
+
+@dataclass
+class _Parts:
+    """What the system structure is written from: FMU files, models, parameter values,
+    FMU names inside the package, what cannot be carried."""
+
+    paths: dict[str, Path]
+    info: dict[str, ModelInfo]
+    values: dict[str, dict[str, Any]]
+    fmu_names: dict[Path, str]
+    not_carried: list[str]
+
+
+def _parameter_values(s: Scenario, files: dict[str, dict[str, str]],
+                      info: dict[str, ModelInfo], paths: dict[str, Path]
+                      ) -> tuple[dict[str, dict[str, Any]], dict[Path, dict[str, Path]]]:
+    """Parameter values per instance (the scenario's, the injector faults', the Jacobi
+    sample alignment, packed files) and the files to pack into each FMU copy."""
     values: dict[str, dict[str, Any]] = {n: dict(i.parameters) for n, i in s.fmus.items()}
     for f in s.injector_faults:
         values[f.injector].update(f.injector_parameters())
@@ -237,8 +255,11 @@ def export_ssp(scenario: Scenario | Path | str, out: Path | str,
             inside = f"{PACKED_FILES}/{inst}/{name}{Path(file_path).suffix}"
             packed.setdefault(paths[inst], {})[inside] = Path(file_path)
             values[inst][name] = inside
+    return values, packed
 
-    # connectors: every connected or parameterised variable of each instance
+
+def _connector_names(s: Scenario, values: dict[str, dict[str, Any]]) -> dict[str, list[str]]:
+    """Every connected or parameterised variable of each instance, in first-use order."""
     used: dict[str, list[str]] = {n: [] for n in s.fmus}
     for c in s.connections:
         for q in (c.from_, c.to):
@@ -247,8 +268,11 @@ def export_ssp(scenario: Scenario | Path | str, out: Path | str,
                 used[inst].append(var)
     for inst, params in values.items():
         used[inst] += [p for p in params if p not in used[inst]]
+    return used
 
-    not_carried = _not_carried(s)
+
+def _fmu_names(paths: dict[str, Path]) -> dict[Path, str]:
+    """A distinct file name inside the package for every distinct FMU file."""
     fmu_names: dict[Path, str] = {}
     for p in paths.values():
         if p not in fmu_names:
@@ -257,78 +281,86 @@ def export_ssp(scenario: Scenario | Path | str, out: Path | str,
                 k += 1
                 stem = f"{p.stem}_{k}"
             fmu_names[p] = f"{stem}.fmu"
+    return fmu_names
 
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix="gyrodiag-ssp-") as tmp:
-        staging = Path(tmp)
-        target = staging / out.name
-        n_parameters = 0
-        with pyssp.SSP(target, mode="w") as ssp:
-            for p, name in fmu_names.items():
-                copy = staging / name
-                _copy_fmu(p, copy, packed.get(p, {}))
-                ssp.add_resource(copy)
-            for inst, params in values.items():
-                if not params:
-                    continue
-                ssv_path = staging / f"{inst}.ssv"
-                with pyssp.SSV(ssv_path, mode="w") as ssv:
-                    ssv.ssv_elem.name = PARAMETER_SET
-                    for name, value in params.items():
-                        v = info[inst].variables[name]
-                        ssv.add_parameter(name, "Integer" if v.type == "Enumeration"
-                                          else v.type, value=_xml_value(v, value))
-                        # pyssp-standard 0.9 writes a Real's unit even when None
-                        typed = ssv.parameters[-1]["type_value"]
-                        typed.parameter = {k: x for k, x in typed.parameter.items()
-                                           if x is not None}
-                        n_parameters += 1
-                ssp.add_resource(ssv_path)
-            with ssp.system_structure as ssd:
-                ssd.name = s.name
-                ssd.version = "1.0"
-                system = System(name=s.name)
-                for inst in s.fmus:
-                    comp = Component()
-                    comp.name = inst
-                    comp.component_type = "application/x-fmu-sharedlibrary"
-                    comp.source = f"resources/{fmu_names[paths[inst]]}"
-                    for var in used[inst]:
-                        v = info[inst].variables[var]
-                        comp.connectors.append(Connector(
-                            name=var, kind=_kind(v),
-                            type_=_type(pyssp, v, units[inst].get(var))))
-                    if values[inst]:
-                        comp.parameter_bindings = [ParameterBinding(
-                            source=f"resources/{inst}.ssv")]
-                    system.elements.append(comp)
-                for c in s.connections:
-                    (si, sv), (di, dv) = split_name(c.from_), split_name(c.to)
-                    system.connections.append(Connection(
-                        start_element=si, start_connector=sv, end_element=di,
-                        end_connector=dv))
-                if not_carried:
-                    note = Annotation(NOT_CARRIED_ANNOTATION)
-                    note.add_text("Not carried by this SSP (gyrodiag export-ssp): "
-                                  + " | ".join(not_carried))
-                    system.annotations.add_annotation(note)
-                ssd.system = system
-                from pyssp_standard.unit import BaseUnit, Unit
 
-                used_units = sorted({units[i].get(var) for i in s.fmus for var in used[i]}
-                                    - {None})
-                for unit in used_units:
-                    ssd.units.add_unit(Unit(unit, base_unit=BaseUnit(
-                        unit_definitions.get(unit, {}))))
-                experiment = DefaultExperiment()
-                experiment.start_time = 0.0
-                experiment.stop_time = s.duration_s
-                experiment.annotations.add_annotation(_osp_algorithm(s.step_s))
-                ssd.default_experiment = experiment
-        _finish_ssd(target, s)
-        check_ssp(target)
-        shutil.move(str(target), out)
-    return SspExport(out, list(s.fmus), n_parameters, not_carried)
+def _write_ssvs(pyssp: Any, ssp: Any, staging: Path, values: dict[str, dict[str, Any]],
+                info: dict[str, ModelInfo]) -> int:
+    """One ``.ssv`` per instance with parameters (all in :data:`PARAMETER_SET`); how
+    many parameters were written."""
+    n_parameters = 0
+    for inst, params in values.items():
+        if not params:
+            continue
+        ssv_path = staging / f"{inst}.ssv"
+        with pyssp.SSV(ssv_path, mode="w") as ssv:
+            ssv.ssv_elem.name = PARAMETER_SET
+            for name, value in params.items():
+                v = info[inst].variables[name]
+                ssv.add_parameter(name, "Integer" if v.type == "Enumeration"
+                                  else v.type, value=_xml_value(v, value))
+                # pyssp-standard 0.9 writes a Real's unit even when None
+                typed = ssv.parameters[-1]["type_value"]
+                typed.parameter = {k: x for k, x in typed.parameter.items()
+                                   if x is not None}
+                n_parameters += 1
+        ssp.add_resource(ssv_path)
+    return n_parameters
+
+
+def _write_ssd(pyssp: Any, ssd: Any, s: Scenario, parts: _Parts) -> None:
+    """The system structure: components with connectors and bindings, connections, the
+    not-carried note, units, the default experiment."""
+    from pyssp_standard.common_content_ssc import Annotation
+    from pyssp_standard.ssd import Connection, DefaultExperiment, System
+    from pyssp_standard.unit import BaseUnit, Unit
+
+    units, unit_definitions = {}, {}
+    for n, p in parts.paths.items():
+        units[n], definitions = _units(p)
+        unit_definitions.update(definitions)
+    used = _connector_names(s, parts.values)
+    ssd.name = s.name
+    ssd.version = "1.0"
+    system = System(name=s.name)
+    for inst in s.fmus:
+        system.elements.append(_component(pyssp, inst, parts, used[inst], units[inst]))
+    for c in s.connections:
+        (si, sv), (di, dv) = split_name(c.from_), split_name(c.to)
+        system.connections.append(Connection(
+            start_element=si, start_connector=sv, end_element=di, end_connector=dv))
+    if parts.not_carried:
+        note = Annotation(NOT_CARRIED_ANNOTATION)
+        note.add_text("Not carried by this SSP (gyrodiag export-ssp): "
+                      + " | ".join(parts.not_carried))
+        system.annotations.add_annotation(note)
+    ssd.system = system
+    used_units = sorted({units[i].get(var) for i in s.fmus for var in used[i]} - {None})
+    for unit in used_units:
+        ssd.units.add_unit(Unit(unit, base_unit=BaseUnit(unit_definitions.get(unit, {}))))
+    experiment = DefaultExperiment()
+    experiment.start_time = 0.0
+    experiment.stop_time = s.duration_s
+    experiment.annotations.add_annotation(_osp_algorithm(s.step_s))
+    ssd.default_experiment = experiment
+
+
+def _component(pyssp: Any, inst: str, parts: _Parts, used: list[str],
+               units: dict[str, str]) -> Any:
+    """The SSD component of one instance: its FMU, connectors, parameter binding."""
+    from pyssp_standard.ssd import Component, Connector, ParameterBinding
+
+    comp = Component()
+    comp.name = inst
+    comp.component_type = "application/x-fmu-sharedlibrary"
+    comp.source = f"resources/{parts.fmu_names[parts.paths[inst]]}"
+    for var in used:
+        v = parts.info[inst].variables[var]
+        comp.connectors.append(Connector(name=var, kind=_kind(v),
+                                         type_=_type(pyssp, v, units.get(var))))
+    if parts.values[inst]:
+        comp.parameter_bindings = [ParameterBinding(source=f"resources/{inst}.ssv")]
+    return comp
 
 
 def _not_carried(s: Scenario) -> list[str]:

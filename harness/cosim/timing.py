@@ -49,7 +49,7 @@ def timing_parameters(scenario: Scenario, delayed: Iterable[Connection]
         The scenario (its connections and instances).
     delayed : iterable of Connection
         The connections whose destination reads the source's value of the step before
-        (:attr:`gyrodiag_harness.cosim.master.CouplingPlan.delayed`).
+        (:attr:`gyrodiag_harness.cosim.plan.CouplingPlan.delayed`).
 
     Returns
     -------
