@@ -23,10 +23,6 @@ KNOWN: dict[str, int] = {
     "fmu_src/gyrodiag/dtg/reference.py:ReferenceLearner.finish": 124,
     "fmu_src/gyrodiag/dtg/reference.py:ResidualMonitor": 404,
     "fmu_src/gyrodiag/grey/detector.py:GreyFaultDetector": 427,
-    "harness/cosim/libcosim.py:run_scenario_libcosim": 82,
-    "harness/cosim/scenario.py:_cross_reference_problems": 117,
-    "harness/cosim/scenario.py:check_against_models": 105,
-    "harness/cosim/ssp.py:export_ssp": 165,
 }
 
 
