@@ -34,6 +34,10 @@ presence
 sequential_diagnosis
     The sequential decision rule: detection, episodes and the sample history over
     the modules above (it re-exports the public names of generators and settings).
+scale_calibration
+    Widening of the sequential rule's residual channels on fault-free data.
+sequential_state
+    Saved state of the sequential rule's diagnoser: assembly and checked restore.
 gains
     Memo of observer designs, seeded by the table a build ships.
 channel_config
@@ -104,6 +108,9 @@ _EXPORTS = {
     "SequentialSettings": "sequential_diagnosis",
     "design_residual_generator": "sequential_diagnosis",
     "simulate_fault_free": "sequential_diagnosis",
+    "calibrate_scales": "scale_calibration",
+    "diagnoser_state": "sequential_state",
+    "restore_diagnoser_state": "sequential_state",
     "FaultTyper": "fault_typing",
     "PRESENCE_CONSTANT": "fault_typing",
     "PRESENCE_MODEL": "fault_typing",
