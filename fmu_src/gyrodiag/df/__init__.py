@@ -8,6 +8,8 @@ filter
     Beard–Jones detection filter design, residual evaluation and thresholds.
 isolation
     Observer banks and sensor fault isolation.
+isolation_state
+    Saved state of the sensor fault isolator: assembly and restore.
 isolability
     Isolability analysis: which sensor faults a model can detect and isolate.
 residual
@@ -90,6 +92,8 @@ _EXPORTS = {
     "design_observer_bank": "isolation",
     "isolability_analysis": "isolability",
     "place_observer_gain": "isolation",
+    "isolator_state": "isolation_state",
+    "restore_isolator_state": "isolation_state",
     "Disturbance": "residual",
     "GustModel": "gust",
     "seed_gust_input": "gust",
