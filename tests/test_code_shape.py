@@ -17,8 +17,6 @@ BOUND = {"class": 400, "function": 80}
 KNOWN: dict[str, int] = {
     "fmu_src/gyrodiag/df/filter.py:design_detection_filter": 122,
     "fmu_src/gyrodiag/df/isolability.py:isolability_analysis": 87,
-    "fmu_src/gyrodiag/df/isolation.py:SensorFaultIsolator": 478,
-    "fmu_src/gyrodiag/df/sequential_diagnosis.py:SequentialDiagnoser": 496,
     "fmu_src/gyrodiag/dtg/learning.py:learn_patterns": 218,
     "fmu_src/gyrodiag/dtg/reference.py:ReferenceLearner.finish": 124,
     "fmu_src/gyrodiag/dtg/reference.py:ResidualMonitor": 404,

@@ -8,6 +8,8 @@ filter
     Beard–Jones detection filter design, residual evaluation and thresholds.
 isolation
     Observer banks and sensor fault isolation.
+isolation_state
+    Saved state of the sensor fault isolator: assembly and restore.
 isolability
     Isolability analysis: which sensor faults a model can detect and isolate.
 residual
@@ -34,6 +36,10 @@ presence
 sequential_diagnosis
     The sequential decision rule: detection, episodes and the sample history over
     the modules above (it re-exports the public names of generators and settings).
+scale_calibration
+    Widening of the sequential rule's residual channels on fault-free data.
+sequential_state
+    Saved state of the sequential rule's diagnoser: assembly and checked restore.
 gains
     Memo of observer designs, seeded by the table a build ships.
 channel_config
@@ -86,6 +92,8 @@ _EXPORTS = {
     "design_observer_bank": "isolation",
     "isolability_analysis": "isolability",
     "place_observer_gain": "isolation",
+    "isolator_state": "isolation_state",
+    "restore_isolator_state": "isolation_state",
     "Disturbance": "residual",
     "GustModel": "gust",
     "seed_gust_input": "gust",
@@ -104,6 +112,9 @@ _EXPORTS = {
     "SequentialSettings": "sequential_diagnosis",
     "design_residual_generator": "sequential_diagnosis",
     "simulate_fault_free": "sequential_diagnosis",
+    "calibrate_scales": "scale_calibration",
+    "diagnoser_state": "sequential_state",
+    "restore_diagnoser_state": "sequential_state",
     "FaultTyper": "fault_typing",
     "PRESENCE_CONSTANT": "fault_typing",
     "PRESENCE_MODEL": "fault_typing",

@@ -44,10 +44,10 @@ from gyrodiag.df.filter import (
     DiscreteObserver,
     ResidualEvaluator,
     ResidualThresholds,
-    as_state_int,
     observable_subspace,
     zoh_discretise,
 )
+from gyrodiag.df.isolation_state import isolator_state, restore_isolator_state
 
 __all__ = [
     "BankObserver",
@@ -792,116 +792,57 @@ class SensorFaultIsolator:
             self._isolated = int(order[0])
 
     def _estimate_type(self, i: int) -> tuple[FaultType, float]:
+        """Type and size of sensor i's fault (:func:`_fit_fault_type`)."""
         assert self._noise_std is not None
-        n, sy, syy, sh, shh, syh = self._sums[i]
-        if n < self._type_min:
-            return FaultType.UNKNOWN, float("nan")
-        noise = max(float(self._noise_std[i]), np.finfo(float).tiny)
-        mean_dy, mean_dh = sy / n, sh / n
-        mean_y = self._ref[i, 0] + mean_dy
-        var_y = max(syy / n - mean_dy**2, 0.0)
-        if np.sqrt(var_y) < self._stuck_ratio * noise:
-            if abs(mean_y) <= 3.0 * noise:
-                return FaultType.FAILURE, 0.0
-            return FaultType.STUCK, float(mean_y)
-        if not self._bank[i].estimates_excluded:
-            return FaultType.UNKNOWN, float("nan")
-        var_h = max(shh / n - mean_dh**2, 0.0)
-        cov = syh / n - mean_dy * mean_dh
-        bias = mean_y - (self._ref[i, 1] + mean_dh)
-        if var_h > 0.0:
-            g = cov / var_h
-            resid_var = max(var_y - g * cov, 0.0)
-            se_g = np.sqrt(resid_var / (n * var_h))
-            # A gain must be significant and explain more of the deviation y − ŷ than
-            # the fit's offset does: in a closed loop a bias fault moves the fitted g by
-            # ~1.5 % (the controller answers the biased sensor).  The offset is the
-            # intercept y − g ŷ, not the mean deviation: a pure gain on a signal with a
-            # mean (θ flown at 0.15 rad) has mean deviation (g − 1)·mean(ŷ) and was typed
-            # a bias that way.
-            intercept = mean_y - g * (self._ref[i, 1] + mean_dh)
-            if (abs(g - 1.0) > max(self._gain_tol, 4.0 * se_g)
-                    and (g - 1.0) ** 2 * var_h > intercept**2):
-                return FaultType.GAIN, float(g)
-        return FaultType.BIAS, float(bias)
+        return _fit_fault_type(self._sums[i], self._ref[i], float(self._noise_std[i]),
+                               self._bank[i].estimates_excluded, self._type_min,
+                               self._stuck_ratio, self._gain_tol)
 
     # ------------------------------------------------------------------------ state
 
     def get_state(self) -> dict[str, Any]:
-        """Flat dict of numpy arrays / ints with every dynamic state (deep copies)."""
-        state: dict[str, Any] = {}
-        for key, val in self._main.get_state().items():
-            state[f"main.{key}"] = val
-        for j, b in enumerate(self._bank):
-            for key, val in b.observer.get_state().items():
-                state[f"bank{j}.{key}"] = val
-        if self._main_eval is not None and self._bank_eval is not None:
-            for key, val in self._main_eval.get_state().items():
-                state[f"main_eval.{key}"] = val
-            for j, ev in enumerate(self._bank_eval):
-                for key, val in ev.get_state().items():
-                    state[f"bank_eval{j}.{key}"] = val
-        state.update(
-            detected=int(self._detected),
-            isolated=int(self._isolated),
-            onset=int(self._onset),
-            candidate=int(self._candidate),
-            candidate_count=int(self._candidate_count),
-            sums=self._sums.copy(),
-            ref=self._ref.copy(),
-            energy=self._energy.copy(),
-            energy_n=int(self._energy_n),
-            energy_baseline=self._baseline.copy(),
-        )
-        return state
+        """Flat dict of numpy arrays / ints with every dynamic state (deep copies;
+        :mod:`~gyrodiag.df.isolation_state`)."""
+        return isolator_state(self)
 
     def set_state(self, state: dict[str, Any]) -> None:
         """Restore a state produced by :meth:`get_state` of an identically built object."""
-        if not isinstance(state, dict):
-            raise TypeError(f"state must be a dict, got {type(state).__name__}")
+        restore_isolator_state(self, state)
 
-        snapshot = self.get_state()
-        try:
-            self._apply_state(state)
-        except Exception:
-            # Leave the object as it was rather than half restored.
-            self._apply_state(snapshot)
-            raise
 
-    def _apply_state(self, state: dict[str, Any]) -> None:
-        def sub(prefix: str) -> dict[str, Any]:
-            return {k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)}
-
-        try:
-            self._main.set_state(sub("main."))
-            for j, b in enumerate(self._bank):
-                b.observer.set_state(sub(f"bank{j}."))
-            if self._main_eval is not None and self._bank_eval is not None:
-                self._main_eval.set_state(sub("main_eval."))
-                for j, ev in enumerate(self._bank_eval):
-                    ev.set_state(sub(f"bank_eval{j}."))
-            sums = check_finite_array("state['sums']", state["sums"], shape=(self._m, 6))
-            ref = check_finite_array("state['ref']", state["ref"], shape=(self._m, 2))
-            self._detected = bool(as_state_int("state['detected']", state["detected"]))
-            self._isolated = as_state_int("state['isolated']", state["isolated"], minimum=-2)
-            self._onset = as_state_int("state['onset']", state["onset"], minimum=-1)
-            self._candidate = as_state_int("state['candidate']", state["candidate"], minimum=-1)
-            self._candidate_count = as_state_int("state['candidate_count']",
-                                              state["candidate_count"])
-            if "energy" in state or "energy_n" in state:
-                energy = check_finite_array("state['energy']", state["energy"],
-                                            shape=(self._m,))
-                energy_n = as_state_int("state['energy_n']", state["energy_n"])
-            else:  # a state of a version before the energy isolation: nothing summed yet
-                energy, energy_n = np.zeros(self._m), 0
-            if "energy_baseline" in state:
-                baseline = check_finite_array("state['energy_baseline']",
-                                              state["energy_baseline"], shape=(self._m,))
-            else:  # a state of a version before the baseline: the calibration's
-                baseline = np.ones(self._m)
-        except KeyError as exc:
-            raise ValueError(f"state is missing key {exc}") from None
-        self._sums = sums.copy()
-        self._ref = ref.copy()
-        self._energy, self._energy_n = energy.copy(), energy_n
-        self._baseline = baseline.copy()
+def _fit_fault_type(sums: _FloatArray, ref: _FloatArray, noise_std: float,
+                    estimates_excluded: bool, type_min: int, stuck_ratio: float,
+                    gain_tol: float) -> tuple[FaultType, float]:
+    """Type and size of one sensor's fault from its running sums since detection and
+    their reference ``ref`` = (y, ŷ) (:class:`SensorFaultIsolator` notes)."""
+    n, sy, syy, sh, shh, syh = sums
+    if n < type_min:
+        return FaultType.UNKNOWN, float("nan")
+    noise = max(float(noise_std), np.finfo(float).tiny)
+    mean_dy, mean_dh = sy / n, sh / n
+    mean_y = ref[0] + mean_dy
+    var_y = max(syy / n - mean_dy**2, 0.0)
+    if np.sqrt(var_y) < stuck_ratio * noise:
+        if abs(mean_y) <= 3.0 * noise:
+            return FaultType.FAILURE, 0.0
+        return FaultType.STUCK, float(mean_y)
+    if not estimates_excluded:
+        return FaultType.UNKNOWN, float("nan")
+    var_h = max(shh / n - mean_dh**2, 0.0)
+    cov = syh / n - mean_dy * mean_dh
+    bias = mean_y - (ref[1] + mean_dh)
+    if var_h > 0.0:
+        g = cov / var_h
+        resid_var = max(var_y - g * cov, 0.0)
+        se_g = np.sqrt(resid_var / (n * var_h))
+        # A gain must be significant and explain more of the deviation y − ŷ than
+        # the fit's offset does: in a closed loop a bias fault moves the fitted g by
+        # ~1.5 % (the controller answers the biased sensor).  The offset is the
+        # intercept y − g ŷ, not the mean deviation: a pure gain on a signal with a
+        # mean (θ flown at 0.15 rad) has mean deviation (g − 1)·mean(ŷ) and was typed
+        # a bias that way.
+        intercept = mean_y - g * (ref[1] + mean_dh)
+        if (abs(g - 1.0) > max(gain_tol, 4.0 * se_g)
+                and (g - 1.0) ** 2 * var_h > intercept**2):
+            return FaultType.GAIN, float(g)
+    return FaultType.BIAS, float(bias)

@@ -63,7 +63,6 @@ from numpy.typing import ArrayLike, NDArray
 from ..common._distributions import chi2_ppf
 from ..common._validation import (
     check_finite_array,
-    check_in_range,
     check_int,
     check_positive,
 )
@@ -90,6 +89,8 @@ from .gust import GustModel
 from .hypotheses import HypothesisBank, hypotheses_of
 from .onset import refine_onset, walk_back
 from .presence import PresenceTest
+from .scale_calibration import calibrate_scales
+from .sequential_state import diagnoser_state, restore_diagnoser_state
 from .settings import (
     MULTIPLE,
     NOT_ISOLATED,
@@ -114,28 +115,12 @@ __all__ = [
 
 _FloatArray = NDArray[np.float64]
 
-#: Status codes kept in the saved state.
-_STATUS = ("none", "not isolated", "single", "pair", "multiple")
 #: With a gust model, no refit while the presence test's statistic is at this fraction
 #: of its threshold: a fault's whitened signature is short, and a refit (a ramp for a
 #: burst that ended) would explain away the misfit that ends the episode.
 PRESENCE_HOLD = 0.5
-#: Keys of the saved state, in the order :meth:`SequentialDiagnoser.get_state` has
-#: always given them (its parts own some of them).
-_STATE_KEYS = (
-    "main_x", "main_scale", "bank_x", "bank_scale", "main_cusum", "bank_cusum", "presence",
-    "count", "hist_w", "hist_x", "hist_z", "hist_d", "in_episode", "episodes", "wait_clear",
-    "bank_active", "last_end", "change", "record_episodes", "inconsistent", "sig", "gram_c",
-    "gz_c", "zz_c", "n_rec", "n_after", "g_last", "z_last", "y_prev", "status", "isolated",
-    "iso_gen", "model_cols", "theta", "previous_isolated", "previous_types",
-    "previous_mags", "presence_mode", "presence_zero", "presence_start", "hist_c", "types",
-    "mags", "mag_valid",
-)
 #: FaultKind.UNKNOWN as the int the typer's array holds.
 _UNKNOWN = int(FaultKind.UNKNOWN)
-#: Integer entries of the saved state the diagnoser itself owns.
-_INT_KEYS = ("count", "in_episode", "episodes", "bank_active", "last_end", "change",
-             "record_episodes", "wait_clear")
 
 
 class SequentialDiagnoser:
@@ -262,40 +247,9 @@ class SequentialDiagnoser:
 
     def calibrate_scales(self, w: ArrayLike, burn_in: int, confidence: float = 0.95,
                          x_start: ArrayLike | None = None) -> list[_FloatArray]:
-        """Check the whitened variance of every generator on fault-free data and widen
-        the channels where it is larger than the model's.
-
-        Runs the main and hypothesis generators from ``x0`` over ``w`` (N × (p + m)),
-        takes per channel the larger of the sample variance times its upper
-        ``confidence`` factor (χ², N − burn_in samples) and a Bartlett long-run variance
-        estimate, and divides z by its square root where it exceeds 1 (never narrows:
-        the model is the floor). Leaves the main filter at the end of the data (ready to
-        monitor) and returns the factors, main generator first. ``x_start``: the state
-        estimate every observer starts the data from (default ``x0``).
-        """
-        data = check_finite_array("w", w, shape=(None, self.p + self.m))
-        burn = check_int("burn_in", burn_in)
-        n_used = data.shape[0] - burn
-        if n_used < 10:
-            raise ValueError(f"w must have at least 10 samples after burn_in={burn}")
-        conf = check_in_range("confidence", confidence, 0.5, 1.0, high_open=True)
-        both = ObserverStack([self.main_generator, *self.bank_generators], self.p, self.m)
-        start = self.x0 if x_start is None else check_finite_array(
-            "x_start", x_start, shape=(self.n,))
-        for k in range(len(both.generators)):
-            both.set_observer_state(k, start)
-        zs = np.empty((data.shape[0], both.n_out))
-        for j in range(data.shape[0]):
-            zs[j] = both.update(data[j])[0]
-        z = zs[burn:]
-        var = z.var(axis=0, ddof=1)
-        lrv = _bartlett_long_run_variance(z)
-        upper = n_used / chi2_ppf(1.0 - conf, n_used)
-        factor = np.sqrt(np.maximum(1.0, np.maximum(var * upper, lrv)))
-        scales = [factor[sl] for sl in both.out_slices]
-        self.set_scales(scales)
-        self.main.x = both.x[both.state_slices[0]].copy()
-        return scales
+        """Widen the generators' channels to their whitened variance on fault-free data
+        (:func:`~gyrodiag.df.scale_calibration.calibrate_scales`); returns the factors."""
+        return calibrate_scales(self, w, burn_in, confidence, x_start)
 
     def set_scales(self, scales: list[_FloatArray]) -> None:
         """Install per-channel scale factors (main generator first) and reset."""
@@ -552,99 +506,13 @@ class SequentialDiagnoser:
     # ------------------------------------------------------------------------ state
 
     def get_state(self) -> dict[str, Any]:
-        """Every piece of dynamic state (deep copies)."""
-        own = {
-            "main_x": self.main.x.copy(),
-            "main_scale": [s.copy() for s in self.main.channel_scale],
-            "main_cusum": self.main_cusum.get_state(),
-            "count": int(self._count),
-            "hist_w": self._hist_w.copy(), "hist_x": self._hist_x.copy(),
-            "hist_z": self._hist_z.copy(), "hist_d": self._hist_d.copy(),
-            "in_episode": int(self._in_episode), "episodes": int(self._episodes),
-            "wait_clear": int(self._wait_clear),
-            "bank_active": int(self._bank_active), "last_end": int(self._last_end),
-            "change": int(self._change), "record_episodes": int(self._record_episodes),
-            "status": _STATUS.index(self._status), "isolated": list(self._isolated),
-            "iso_gen": int(self._iso_gen),
-            **self.hypothesis_bank.get_state(), **self.signatures.get_state(),
-            **self.typer.get_state(), **self.presence.get_state(),
-        }
-        return {key: own[key] for key in _STATE_KEYS}
+        """Every piece of dynamic state (deep copies; :mod:`~gyrodiag.df.sequential_state`)."""
+        return diagnoser_state(self)
 
     def set_state(self, state: dict[str, Any]) -> None:
         """Restore :meth:`get_state` output of an identically built diagnoser; checked
         first, so a bad state leaves this one untouched."""
-        try:
-            got = self._check_state(state)
-            parts = [(part, part.check_state(state)) for part in (
-                self.hypothesis_bank, self.typer, self.presence)]
-            signatures = self.signatures.check_state(state, self.main.n_state)
-        except KeyError as exc:
-            raise ValueError(f"state is missing key {exc}") from None
-        self.main.set_channel_scale(got["main_scale"])
-        self.main.x = got["main_x"]
-        self.main_cusum = got["main_cusum"]
-        for part, checked in parts:
-            part.set_state(checked)
-        self._install_signature_matrices()
-        self.signatures.set_state(signatures)
-        self._hist_w, self._hist_x, self._hist_z = got["hist_w"], got["hist_x"], got["hist_z"]
-        self._hist_d = got["hist_d"]
-        self._out_types = self.typer.types.copy()
-        self._out_mags = self.typer.mags.copy()
-        self._out_valid = self.typer.mag_valid.copy()
-        self._status, self._isolated = _STATUS[got["status"]], got["isolated"]
-        self._iso_gen = got["iso_gen"]
-        ints = got["ints"]
-        self._count = ints["count"]
-        self._in_episode = bool(ints["in_episode"])
-        self._wait_clear = bool(ints["wait_clear"])
-        self._episodes = ints["episodes"]
-        self._bank_active = bool(ints["bank_active"])
-        self._last_end, self._change = ints["last_end"], ints["change"]
-        self._record_episodes = ints["record_episodes"]
-
-    def _check_state(self, state: dict[str, Any]) -> dict[str, Any]:
-        """The diagnoser's own part of a saved state, checked (ValueError; KeyError for
-        a missing key)."""
-        n_gen = len(self.bank_generators)
-
-        def arr(key: str, shape: tuple[int, ...]) -> _FloatArray:
-            return check_finite_array(f"state[{key!r}]", state[key], shape=shape)
-
-        got: dict[str, Any] = {
-            "main_scale": [check_finite_array("state['main_scale']", s, shape=(g.n_channels,))
-                           for s, g in zip(state["main_scale"], self.main.generators,
-                                           strict=True)],
-            "main_x": arr("main_x", (self.main.n_state,)),
-            "hist_w": arr("hist_w", self._hist_w.shape),
-            "hist_x": arr("hist_x", self._hist_x.shape),
-            "hist_z": arr("hist_z", self._hist_z.shape),
-            "hist_d": (arr("hist_d", self._hist_d.shape) if "hist_d" in state
-                       else np.zeros(self._hist_d.shape)),
-        }
-        got["status"] = int(state["status"])
-        if not 0 <= got["status"] < len(_STATUS):
-            raise ValueError(f"state['status'] must be in [0, {len(_STATUS)})")
-        got["iso_gen"] = int(state["iso_gen"])
-        if not -1 <= got["iso_gen"] < n_gen:
-            raise ValueError(f"state['iso_gen'] must be in [-1, {n_gen})")
-        got["isolated"] = tuple(int(i) for i in state["isolated"])
-        got["main_cusum"] = self._new_cusum(self.m)
-        got["main_cusum"].set_state(state["main_cusum"])
-        got["ints"] = {key: int(state[key]) for key in _INT_KEYS}
-        return got
-
-
-def _bartlett_long_run_variance(z: _FloatArray) -> _FloatArray:
-    """Per column: long-run variance estimate with a Bartlett window of N^(1/3) lags."""
-    n = z.shape[0]
-    x = z - z.mean(axis=0)
-    lags = max(1, round(n ** (1.0 / 3.0)))
-    lrv = (x * x).sum(axis=0) / n
-    for j in range(1, min(lags, n - 1) + 1):
-        lrv += 2.0 * (1.0 - j / (lags + 1.0)) * (x[j:] * x[:-j]).sum(axis=0) / n
-    return lrv
+        restore_diagnoser_state(self, state)
 
 
 def simulate_fault_free(diagnoser: SequentialDiagnoser, hours: float, *,
