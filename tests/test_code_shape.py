@@ -20,7 +20,6 @@ KNOWN: dict[str, int] = {
     "fmu_src/gyrodiag/df/isolability.py:isolability_analysis": 87,
     "fmu_src/gyrodiag/df/isolation.py:SensorFaultIsolator": 478,
     "fmu_src/gyrodiag/df/sequential_diagnosis.py:SequentialDiagnoser": 496,
-    "fmu_src/gyrodiag/dtg/learning.py:learn_patterns": 218,
     "fmu_src/gyrodiag/dtg/reference.py:ReferenceLearner.finish": 124,
     "fmu_src/gyrodiag/dtg/reference.py:ResidualMonitor": 404,
     "fmu_src/gyrodiag/grey/detector.py:GreyFaultDetector": 427,
