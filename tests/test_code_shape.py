@@ -19,8 +19,6 @@ KNOWN: dict[str, int] = {
     "fmu_src/gyrodiag/df/isolability.py:isolability_analysis": 87,
     "fmu_src/gyrodiag/df/isolation.py:SensorFaultIsolator": 478,
     "fmu_src/gyrodiag/df/sequential_diagnosis.py:SequentialDiagnoser": 496,
-    "fmu_src/gyrodiag/dtg/reference.py:ReferenceLearner.finish": 124,
-    "fmu_src/gyrodiag/dtg/reference.py:ResidualMonitor": 404,
     "fmu_src/gyrodiag/grey/detector.py:GreyFaultDetector": 427,
     "harness/campaigns/campaign_report.py:_plots": 95,
     "harness/campaigns/campaign_report.py:_witness_summary": 81,
