@@ -17,7 +17,6 @@ BOUND = {"class": 400, "function": 80}
 KNOWN: dict[str, int] = {
     "fmu_src/gyrodiag/df/isolation.py:SensorFaultIsolator": 478,
     "fmu_src/gyrodiag/df/sequential_diagnosis.py:SequentialDiagnoser": 496,
-    "fmu_src/gyrodiag/grey/detector.py:GreyFaultDetector": 427,
     "harness/campaigns/campaign_report.py:_plots": 95,
     "harness/campaigns/campaign_report.py:_witness_summary": 81,
     "harness/campaigns/campaign_report.py:summarize": 101,
