@@ -138,6 +138,94 @@ def as_state_int(name: str, value: Any, minimum: int = 0) -> int:
 # ---------------------------------------------------------------------------- design
 
 
+def _design_inputs(A: ArrayLike, C: ArrayLike, fault_directions: ArrayLike,
+                   eigenvalues: ArrayLike, tol: float,
+                   ) -> tuple[_FloatArray, _FloatArray, _FloatArray, _FloatArray, float]:
+    """The design inputs as arrays, with their shapes and eigenvalues' type checked."""
+    a = check_finite_array("A", A, ndim=2)
+    n = a.shape[0]
+    if a.shape != (n, n):
+        raise ValueError(f"A must be square, got shape {a.shape}")
+    c = check_finite_array("C", C, shape=(None, n))
+    f = check_finite_array("fault_directions", fault_directions, ndim=2)
+    if f.shape[0] != n:
+        raise ValueError(
+            f"fault_directions must have shape ({n}, r) (one state-space direction per "
+            f"column), got {f.shape}"
+        )
+    r = f.shape[1]
+    lam_in = np.asarray(eigenvalues)
+    if np.iscomplexobj(lam_in) and np.any(np.imag(lam_in) != 0.0):
+        raise ValueError(
+            "eigenvalues must be real: complex pairs need a two-dimensional fault plane, "
+            "which this design does not support"
+        )
+    lam = check_finite_array("eigenvalues", np.real(lam_in), shape=(r,))
+    tol = check_positive("tol", tol)
+    return a, c, f, lam, tol
+
+
+def _check_design_conditions(a: _FloatArray, c: _FloatArray, f: _FloatArray,
+                             lam: _FloatArray) -> _FloatArray:
+    """The paper's conditions (1), (2), (4), stable eigenvalues and independent fault
+    directions, each with its own message; returns ``C F``."""
+    n = a.shape[0]
+    m = c.shape[0]
+    r = f.shape[1]
+    obs_rank = int(np.linalg.matrix_rank(observability_matrix(a, c)))
+    if obs_rank < n:
+        raise ValueError(
+            f"(A, C) must be observable (paper condition 1): rank obsv(A, C) = "
+            f"{obs_rank} < n = {n}"
+        )
+    if np.any(lam >= 0.0):
+        raise ValueError(
+            f"eigenvalues must all be stable (< 0), got unstable {lam[lam >= 0.0].tolist()}"
+        )
+    if np.unique(lam).size != r:
+        raise ValueError(
+            f"eigenvalues must be distinct (paper condition 4), got repeated values in "
+            f"{lam.tolist()}"
+        )
+    f_rank = int(np.linalg.matrix_rank(f))
+    if f_rank < r:
+        raise ValueError(
+            f"fault_directions must be linearly independent: rank(F) = {f_rank} < r = {r}"
+        )
+    cf = c @ f
+    cf_rank = int(np.linalg.matrix_rank(cf))
+    if cf_rank < r:
+        raise ValueError(
+            f"rank(C F) must equal the number of fault directions (paper condition 2, "
+            f"outputs must separate the faults): rank(C F) = {cf_rank} < r = {r}"
+            + (f" (r > m = {m} outputs)" if r > m else "")
+        )
+    return cf
+
+
+def _verify_gain(a: _FloatArray, c: _FloatArray, f: _FloatArray, lam: _FloatArray,
+                 gain: _FloatArray, tol: float) -> None:
+    """Condition (5) on the solved gain, and the stability of the modes it leaves free."""
+    n = a.shape[0]
+    r = f.shape[1]
+    closed = a - gain @ c
+    scale = np.linalg.norm(a @ f) + np.linalg.norm(f * lam) + 1.0
+    spec_error = np.linalg.norm(closed @ f - f * lam) / scale
+    if not spec_error <= tol:
+        raise ValueError(
+            f"eigenvector condition (A − K C) f_i = λ_i f_i not met by the solved K: "
+            f"relative residual {spec_error:.3g} > tol {tol:.3g}"
+        )
+    if r < n:
+        eig = np.linalg.eigvals(closed)
+        if np.any(eig.real >= 0.0):
+            raise ValueError(
+                f"the {n - r} modes left free by the specification are not stable with "
+                f"the minimum-norm K: eig(A − K C) = {np.round(eig, 6).tolist()}; "
+                f"add fault directions or assign them separately"
+            )
+
+
 def design_detection_filter(
     A: ArrayLike,
     C: ArrayLike,
@@ -189,76 +277,13 @@ def design_detection_filter(
         Naming the failed condition (shape, observability, eigenvalue, fault
         direction, rank(C F), verification).
     """
-    a = check_finite_array("A", A, ndim=2)
-    n = a.shape[0]
-    if a.shape != (n, n):
-        raise ValueError(f"A must be square, got shape {a.shape}")
-    c = check_finite_array("C", C, shape=(None, n))
-    m = c.shape[0]
-    f = check_finite_array("fault_directions", fault_directions, ndim=2)
-    if f.shape[0] != n:
-        raise ValueError(
-            f"fault_directions must have shape ({n}, r) (one state-space direction per "
-            f"column), got {f.shape}"
-        )
-    r = f.shape[1]
-    lam_in = np.asarray(eigenvalues)
-    if np.iscomplexobj(lam_in) and np.any(np.imag(lam_in) != 0.0):
-        raise ValueError(
-            "eigenvalues must be real: complex pairs need a two-dimensional fault plane, "
-            "which this design does not support"
-        )
-    lam = check_finite_array("eigenvalues", np.real(lam_in), shape=(r,))
-    tol = check_positive("tol", tol)
-
-    obs_rank = int(np.linalg.matrix_rank(observability_matrix(a, c)))
-    if obs_rank < n:
-        raise ValueError(
-            f"(A, C) must be observable (paper condition 1): rank obsv(A, C) = "
-            f"{obs_rank} < n = {n}"
-        )
-    if np.any(lam >= 0.0):
-        raise ValueError(
-            f"eigenvalues must all be stable (< 0), got unstable {lam[lam >= 0.0].tolist()}"
-        )
-    if np.unique(lam).size != r:
-        raise ValueError(
-            f"eigenvalues must be distinct (paper condition 4), got repeated values in "
-            f"{lam.tolist()}"
-        )
-    f_rank = int(np.linalg.matrix_rank(f))
-    if f_rank < r:
-        raise ValueError(
-            f"fault_directions must be linearly independent: rank(F) = {f_rank} < r = {r}"
-        )
-    cf = c @ f
-    cf_rank = int(np.linalg.matrix_rank(cf))
-    if cf_rank < r:
-        raise ValueError(
-            f"rank(C F) must equal the number of fault directions (paper condition 2, "
-            f"outputs must separate the faults): rank(C F) = {cf_rank} < r = {r}"
-            + (f" (r > m = {m} outputs)" if r > m else "")
-        )
+    a, c, f, lam, tol = _design_inputs(A, C, fault_directions, eigenvalues, tol)
+    cf = _check_design_conditions(a, c, f, lam)
 
     target = a @ f - f * lam  # A F − F Λ
     gain = target @ np.linalg.pinv(cf)
 
-    closed = a - gain @ c
-    scale = np.linalg.norm(a @ f) + np.linalg.norm(f * lam) + 1.0
-    spec_error = np.linalg.norm(closed @ f - f * lam) / scale
-    if not spec_error <= tol:
-        raise ValueError(
-            f"eigenvector condition (A − K C) f_i = λ_i f_i not met by the solved K: "
-            f"relative residual {spec_error:.3g} > tol {tol:.3g}"
-        )
-    if r < n:
-        eig = np.linalg.eigvals(closed)
-        if np.any(eig.real >= 0.0):
-            raise ValueError(
-                f"the {n - r} modes left free by the specification are not stable with "
-                f"the minimum-norm K: eig(A − K C) = {np.round(eig, 6).tolist()}; "
-                f"add fault directions or assign them separately"
-            )
+    _verify_gain(a, c, f, lam, gain, tol)
     return gain
 
 

@@ -226,6 +226,28 @@ def isolability_analysis(
     bank_resp = bank_sig > zero_tol * max(1.0, float(bank_sig.max()))
     taus = _transient_time_constants(a_cl, c, gain, zero_tol)
 
+    sensors = _sensors(names, a, c, sig=sig, nonzero=nonzero, cos=cos,
+                       collinear_cos=collinear_cos, as_states=as_states,
+                       bank_resp=bank_resp, taus=taus)
+    return IsolabilityReport(
+        sensor_names=names,
+        K=gain,
+        closed_loop_eigenvalues=closed_eig,
+        signatures=sig,
+        cosines=cos,
+        parity_relations=parity_space(c),
+        bank_signatures=bank_sig,
+        sensors=tuple(sensors),
+        collinear_cos=collinear_cos,
+    )
+
+
+def _sensors(names: tuple[str, ...], a: _FloatArray, c: _FloatArray, *, sig: _FloatArray,
+             nonzero: NDArray[np.bool_], cos: _FloatArray, collinear_cos: float,
+             as_states: list[bool], bank_resp: NDArray[np.bool_], taus: list[float],
+             ) -> list[SensorIsolability]:
+    """Each sensor's :class:`SensorIsolability` from the analyses of the whole set."""
+    m = c.shape[0]
     sensors = []
     for i in range(m):
         redundant = _redundant(a, c, i)
@@ -246,17 +268,7 @@ def isolability_analysis(
             direction_isolable_from=direction, bank_pattern=pattern,
             bank_isolable_from=bank_iso,
         ))
-    return IsolabilityReport(
-        sensor_names=names,
-        K=gain,
-        closed_loop_eigenvalues=closed_eig,
-        signatures=sig,
-        cosines=cos,
-        parity_relations=parity_space(c),
-        bank_signatures=bank_sig,
-        sensors=tuple(sensors),
-        collinear_cos=collinear_cos,
-    )
+    return sensors
 
 
 def _main_gain(a: _FloatArray, c: _FloatArray, K: ArrayLike | None,

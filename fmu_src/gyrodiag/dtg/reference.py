@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -692,21 +693,8 @@ class ReferenceLearner:
         model = self.model
         npar = model.n_par
         filt = np.vstack([self._history, *self._filtered])
-        # normal equations per block: z = [phi, y], both axes pooled (paper) or one
-        # block-diagonal system of the two axes' own θ (case rate: θ0 per axis)
-        phx, yx, phy, yy = model.rows(filt)
-        # case rate: per-block regressor moments, for the guard's allowance of the
-        # uncertainty of the segments-before fit (as the residual monitor's)
-        phi_blocks = ([_block_regressor_moments(ph, nblk, nb) for ph in (phx, phy)]
-                      if model.case_rate else None)
-        if model.case_rate:
-            zero = np.zeros_like(phx)
-            phx, phy = np.hstack([phx, zero]), np.hstack([zero, phy])
-        use = np.concatenate(self._valid).astype(float)[:, None]
-        zx = (np.column_stack([phx, yx]) * use).reshape(nblk, nb, npar + 1)
-        zy = (np.column_stack([phy, yy]) * use).reshape(nblk, nb, npar + 1)
+        M, phi_blocks = self._normal_equations(filt, nblk)
         valid_blocks = self._valid
-        M = np.einsum("bki,bkj->bij", zx, zx) + np.einsum("bki,bkj->bij", zy, zy)
         raw_mean = np.array(self._raw_mean)
         raw_var = np.array(self._raw_var)
         theta_blk = np.array(self._theta)                      # (nblk, 2, 5)
@@ -726,28 +714,7 @@ class ReferenceLearner:
             return (np.column_stack([raw_mean[blocks], em]),
                     np.column_stack([raw_var[blocks], ev]))
 
-        # sequential segment checks
-        change = -1
-        for j in range(1, len(segs)):
-            prev = slice(segs[0].start, segs[j - 1].stop)
-            th_prev, M_prev = fit(prev)
-            th_seg, M_seg = fit(segs[j])
-            if th_prev is None:
-                raise ValueError("the regression is singular over the first learning "
-                                 "segment(s): the signals do not excite all θ (no dither?)")
-            means, variances = channel_blocks(th_prev, slice(prev.start, segs[j].stop))
-            n_prev = prev.stop - prev.start
-            allow = err_var = None
-            if phi_blocks is not None:
-                start = _refinement_start(M[prev], th_prev)
-                err_var = start["error_variance"]
-                allow = _block_allowances(phi_blocks, segs[j], start["information"],
-                                          err_var)
-            if self._segment_fails(means[:n_prev], variances[:n_prev], means[n_prev:],
-                                   variances[n_prev:], th_prev, M_prev, th_seg, M_seg,
-                                   allow, err_var):
-                change = j
-                break
+        change = self._change_segment(segs, M, phi_blocks, fit, channel_blocks)
         used = slice(0, segs[change - 1].stop) if change > 0 else slice(0, nblk)
         th_ls, _ = fit(used)
         if th_ls is None:
@@ -777,6 +744,65 @@ class ReferenceLearner:
             change_segment=change,
             **(_refinement_start(M[used], ref_theta) if model.case_rate else {}),
         )
+        return self._checked(ref, prior)
+
+    def _normal_equations(self, filt: NDArray[np.float64], nblk: int
+                          ) -> tuple[NDArray[np.float64], list[Any] | None]:
+        """Per-block normal equations of the window, (nblk, n_par + 1, n_par + 1), and with
+        the case rate the per-block regressor moments (for the guard's allowance)."""
+        nb = self.block_samples
+        model = self.model
+        npar = model.n_par
+        # normal equations per block: z = [phi, y], both axes pooled (paper) or one
+        # block-diagonal system of the two axes' own θ (case rate: θ0 per axis)
+        phx, yx, phy, yy = model.rows(filt)
+        # case rate: per-block regressor moments, for the guard's allowance of the
+        # uncertainty of the segments-before fit (as the residual monitor's)
+        phi_blocks = ([_block_regressor_moments(ph, nblk, nb) for ph in (phx, phy)]
+                      if model.case_rate else None)
+        if model.case_rate:
+            zero = np.zeros_like(phx)
+            phx, phy = np.hstack([phx, zero]), np.hstack([zero, phy])
+        use = np.concatenate(self._valid).astype(float)[:, None]
+        zx = (np.column_stack([phx, yx]) * use).reshape(nblk, nb, npar + 1)
+        zy = (np.column_stack([phy, yy]) * use).reshape(nblk, nb, npar + 1)
+        M = np.einsum("bki,bkj->bij", zx, zx) + np.einsum("bki,bkj->bij", zy, zy)
+        return M, phi_blocks
+
+    def _change_segment(
+            self, segs: list[slice], M: NDArray[np.float64], phi_blocks: list[Any] | None,
+            fit: Callable[[slice], tuple[NDArray[np.float64] | None, NDArray[np.float64]]],
+            channel_blocks: Callable[[NDArray[np.float64], slice],
+                                     tuple[NDArray[np.float64], NDArray[np.float64]]],
+            ) -> int:
+        """The first segment that fails the checks against the segments before it, or −1."""
+        # sequential segment checks
+        change = -1
+        for j in range(1, len(segs)):
+            prev = slice(segs[0].start, segs[j - 1].stop)
+            th_prev, M_prev = fit(prev)
+            th_seg, M_seg = fit(segs[j])
+            if th_prev is None:
+                raise ValueError("the regression is singular over the first learning "
+                                 "segment(s): the signals do not excite all θ (no dither?)")
+            means, variances = channel_blocks(th_prev, slice(prev.start, segs[j].stop))
+            n_prev = prev.stop - prev.start
+            allow = err_var = None
+            if phi_blocks is not None:
+                start = _refinement_start(M[prev], th_prev)
+                err_var = start["error_variance"]
+                allow = _block_allowances(phi_blocks, segs[j], start["information"],
+                                          err_var)
+            if self._segment_fails(means[:n_prev], variances[:n_prev], means[n_prev:],
+                                   variances[n_prev:], th_prev, M_prev, th_seg, M_seg,
+                                   allow, err_var):
+                change = j
+                break
+        return change
+
+    def _checked(self, ref: NominalReference, prior: NominalPrior | None
+                 ) -> NominalReference:
+        """``ref`` checked for excitation, or the prior if ``ref`` lies outside it."""
         if np.any(ref.theta0_eta == 0.0):
             raise ValueError("the learned nominal θ has a zero entry (no excitation in the "
                              f"learning window?): {list(ref.theta0_eta)}")
@@ -971,6 +997,35 @@ def _accumulate(info: NDArray[np.float64], rhs: NDArray[np.float64],
     sol = _ls(info, rhs)
     if sol is not None:
         theta[:] = sol
+
+
+def _theta0_allowances(info: NDArray[np.float64], err_var: NDArray[np.float64],
+                       phis: tuple[NDArray[np.float64], NDArray[np.float64]],
+                       use: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """θ0-uncertainty variances of this block (V²): of its residual mean, φ̄ᵀPφ̄,
+    and of its residual about the block's line, tr(S·P), per axis; P the covariance
+    of the current θ0 (v·A⁻¹, :class:`NominalReference`, A grown by the accepted
+    blocks) and S the detrended scatter of the block's regressors (as
+    :func:`block_moments` detrends the residual)."""
+    out = np.zeros(4)
+    if np.count_nonzero(use) < 3:
+        return out
+    for a, ph in enumerate(phis):
+        ph = ph[use]
+        try:
+            Ai = np.linalg.inv(info[a])
+        except np.linalg.LinAlgError:
+            continue
+        P = err_var[a] * Ai
+        mean = ph.mean(axis=0)
+        dev = ph - mean
+        k = np.flatnonzero(use).astype(float)
+        k -= k.mean()
+        slope = (k @ dev) / float(k @ k)
+        dev = dev - np.outer(k, slope)
+        out[a] = max(float(mean @ P @ mean), 0.0)
+        out[2 + a] = max(float(np.einsum("ki,ij,kj->", dev, P, dev)) / ph.shape[0], 0.0)
+    return out
 
 
 class ResidualMonitor:
@@ -1178,30 +1233,8 @@ class ResidualMonitor:
 
     def _allowance(self, phis: tuple[NDArray[np.float64], NDArray[np.float64]],
                    use: NDArray[np.bool_]) -> NDArray[np.float64]:
-        """θ0-uncertainty variances of this block (V²): of its residual mean, φ̄ᵀPφ̄,
-        and of its residual about the block's line, tr(S·P), per axis; P the covariance
-        of the current θ0 (v·A⁻¹, :class:`NominalReference`, A grown by the accepted
-        blocks) and S the detrended scatter of the block's regressors (as
-        :func:`block_moments` detrends the residual)."""
-        out = np.zeros(4)
-        if np.count_nonzero(use) < 3:
-            return out
-        for a, ph in enumerate(phis):
-            ph = ph[use]
-            try:
-                Ai = np.linalg.inv(self._info[a])
-            except np.linalg.LinAlgError:
-                continue
-            P = self._err_var[a] * Ai
-            mean = ph.mean(axis=0)
-            dev = ph - mean
-            k = np.flatnonzero(use).astype(float)
-            k -= k.mean()
-            slope = (k @ dev) / float(k @ k)
-            dev = dev - np.outer(k, slope)
-            out[a] = max(float(mean @ P @ mean), 0.0)
-            out[2 + a] = max(float(np.einsum("ki,ij,kj->", dev, P, dev)) / ph.shape[0], 0.0)
-        return out
+        """:func:`_theta0_allowances` of the current θ0 information."""
+        return _theta0_allowances(self._info, self._err_var, phis, use)
 
     def _update_power(self, residual_means: NDArray[np.float64],
                       allowance: NDArray[np.float64] | None) -> None:

@@ -228,17 +228,7 @@ class GreyFaultDetector:
             else check_int("reseed_length", reseed_length, minimum=1)
         )
         self.envelope_margin = check_nonnegative("envelope_margin", envelope_margin)
-        self.lag_max = check_int("lag_max", lag_max)
-        if self.lag_max > LAG_MAX_LIMIT:
-            raise ValueError(f"lag_max must be in [0, {LAG_MAX_LIMIT}], got {lag_max!r}")
-        self.reference_order = check_int("reference_order", reference_order)
-        if self.reference_order > 3:
-            raise ValueError(f"reference_order must be in [0, 3], got {reference_order!r}")
-        self.reference_window = check_int("reference_window", reference_window,
-                                          minimum=self.reference_order + 3)
-        if self.reference_window > 400:
-            raise ValueError(f"reference_window must be in [{self.reference_order + 3}, 400], "
-                             f"got {reference_window!r}")
+        _set_lag_test_arguments(self, lag_max, reference_window, reference_order)
         #: shortest reference window the lagged test starts with (it grows to
         #: ``reference_window`` as measured samples come in)
         self.reference_min = min(self.reference_window, max(self.reference_order + 3, 20))
@@ -493,43 +483,65 @@ class GreyFaultDetector:
 
     def get_state(self) -> dict[str, Any]:
         """Full state as a flat plain dict (deep copy); predictor keys are prefixed."""
-        state = self._residual.get_state()
-        state.update(
-            in_alarm=int(self._in_alarm),
-            onset_time_s=float(self._onset),
-            n_accepted=int(self._n_accepted),
-            statistic=float(self._statistic),
-            settle=int(self._settle),
-        )
-        state.update(self._scale.get_state())
-        state.update(self.rule.get_state())
-        # every rule's state has the CUSUM slot (zeros without a CUSUM)
-        state.setdefault("cusum", np.zeros(2))
-        return _in_layout_order(state)
+        return _saved_state(self)
 
     def set_state(self, state: Mapping[str, Any]) -> None:
-        """Restore a state from :meth:`get_state` of an identically built detector.
+        """Restore a state from :meth:`get_state` of an identically built detector
+        (ValueError if a key is missing or the stored window does not fit)."""
+        _restore_state(self, state)
 
-        Raises
-        ------
-        ValueError
-            If a key is missing or the stored window does not fit.
-        """
-        missing = set(_STATE_LAYOUT) - set(state)
-        if missing:
-            raise ValueError(f"state is missing keys {sorted(missing)}")
-        clean = np.array(state["clean"], dtype=float).reshape(-1)
-        cusum = np.array(state["cusum"], dtype=float).reshape(-1)
-        if clean.size > self.trend_samples or cusum.shape != (2,):
-            raise ValueError("state['clean'] / state['cusum'] do not fit this detector")
-        self._residual.set_state(state)
-        self._in_alarm = bool(state["in_alarm"])
-        self._onset = float(state["onset_time_s"])
-        self._n_accepted = int(state["n_accepted"])
-        self._statistic = float(state["statistic"])
-        self._settle = int(state["settle"])
-        self._scale.set_state(state)
-        self.rule.set_state(state)
+
+def _set_lag_test_arguments(det: GreyFaultDetector, lag_max: int, reference_window: int,
+                            reference_order: int) -> None:
+    """Check the lagged step test's constructor arguments and set them on ``det``."""
+    det.lag_max = check_int("lag_max", lag_max)
+    if det.lag_max > LAG_MAX_LIMIT:
+        raise ValueError(f"lag_max must be in [0, {LAG_MAX_LIMIT}], got {lag_max!r}")
+    det.reference_order = check_int("reference_order", reference_order)
+    if det.reference_order > 3:
+        raise ValueError(f"reference_order must be in [0, 3], got {reference_order!r}")
+    det.reference_window = check_int("reference_window", reference_window,
+                                      minimum=det.reference_order + 3)
+    if det.reference_window > 400:
+        raise ValueError(f"reference_window must be in [{det.reference_order + 3}, 400], "
+                         f"got {reference_window!r}")
+
+
+def _saved_state(det: GreyFaultDetector) -> dict[str, Any]:
+    """:meth:`GreyFaultDetector.get_state`: the flat state in the saved layout."""
+    state = det._residual.get_state()
+    state.update(
+        in_alarm=int(det._in_alarm),
+        onset_time_s=float(det._onset),
+        n_accepted=int(det._n_accepted),
+        statistic=float(det._statistic),
+        settle=int(det._settle),
+    )
+    state.update(det._scale.get_state())
+    state.update(det.rule.get_state())
+    # every rule's state has the CUSUM slot (zeros without a CUSUM)
+    state.setdefault("cusum", np.zeros(2))
+    return _in_layout_order(state)
+
+
+def _restore_state(det: GreyFaultDetector, state: Mapping[str, Any]) -> None:
+    """:meth:`GreyFaultDetector.set_state`: check that ``state`` fits ``det``, then
+    load it."""
+    missing = set(_STATE_LAYOUT) - set(state)
+    if missing:
+        raise ValueError(f"state is missing keys {sorted(missing)}")
+    clean = np.array(state["clean"], dtype=float).reshape(-1)
+    cusum = np.array(state["cusum"], dtype=float).reshape(-1)
+    if clean.size > det.trend_samples or cusum.shape != (2,):
+        raise ValueError("state['clean'] / state['cusum'] do not fit this detector")
+    det._residual.set_state(state)
+    det._in_alarm = bool(state["in_alarm"])
+    det._onset = float(state["onset_time_s"])
+    det._n_accepted = int(state["n_accepted"])
+    det._statistic = float(state["statistic"])
+    det._settle = int(state["settle"])
+    det._scale.set_state(state)
+    det.rule.set_state(state)
 
 
 def _rule_for(det: GreyFaultDetector) -> DecisionRule:
