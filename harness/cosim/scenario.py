@@ -155,8 +155,8 @@ class FmuInstance(_Strict):
     resolves each path before the run and hands the FMU an absolute path: a path that
     starts with ``${out}/`` is taken in the results folder of the command (``--out``),
     or, if it is not there, in the folder above it (``results/`` when the command writes
-    into ``results/verify-<time>/``), so that a file produced at run time (``python -m
-    harness learn-signatures ... --out results/dtg_signatures.json``) can be named; any
+    into ``results/verify-<time>/``), so that a file produced at run time (``gyrodiag
+    learn-signatures ... --out results/dtg_signatures.json``) can be named; any
     other relative path is taken relative to the scenario file's folder.  The file must
     exist when the run starts (see :func:`resolve_file_parameters`).
     """
