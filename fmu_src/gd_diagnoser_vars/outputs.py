@@ -27,8 +27,7 @@ if TYPE_CHECKING:
     from gyrodiag.dtg.channel import DTGChannel, DTGChannelOutput
     from gyrodiag.grey import GreyFaultDetector
 
-# Variable names used at every step, formatted once (an f-string per variable per step
-# cost ~10 % of a step).
+# Variable names used at every step, formatted once, not per step (docs/notes.md, Speed).
 _DTG_THETA_KEYS = tuple(tuple(f"dtg.theta_{axis}[{i + 1}]" for i in range(N_THETA))
                         for axis in ("x", "y"))
 _DTG_ETA_KEYS = tuple(tuple(f"dtg.eta_{axis}[{i + 1}]" for i in range(N_THETA))

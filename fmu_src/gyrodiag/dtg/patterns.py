@@ -498,7 +498,7 @@ class PatternClassifier:
                 or not stats.raw_signals):
             return None
         # a single class whose whole χ² is under half the margin leaves no pair a chance
-        # (its level χ² bounds every one-signal fit's): skip the ten fits (≈ 2.5 ms)
+        # (its level χ² bounds every one-signal fit's): skip the ten fits (docs/notes.md)
         if single.fault_type > 0 and single.distance * 2 * N_CHANNELS < 0.5 * PAIR_MARGIN:
             return None
         lib = self.library
