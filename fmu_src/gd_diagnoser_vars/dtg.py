@@ -12,6 +12,7 @@ from typing import Any
 from gyrodiag.dtg.case_rate import CASE_RATE_SCHEMES
 from gyrodiag.dtg.channel import BAND_SIGMA
 from gyrodiag.dtg.model import N_THETA
+from gyrodiag.dtg.physical_test import PHYSICAL_SIGMA
 from gyrodiag.dtg.reference import ALLOWANCE_SIGMA, CHANNELS, POWER_THRESHOLD
 
 from .spec import AUTO, AUTO_INT, POSITIVE, Var, inp, out, par
@@ -90,6 +91,10 @@ PARAMETERS: tuple[Var, ...] = (
          "Case rate, pattern classifier: a ratio outside the band counts only where "
          "theta is also this many standard errors from theta0 (0: the band alone)",
          "1", 0.0, tunable=True),
+    _cfg("dtg.physical_sigma", "Real", PHYSICAL_SIGMA,
+         "Pattern classifier on a bench (no dtg.case_rate): threshold of the GLR test of a "
+         "spin or torquer scale change, standard errors; 0: off (the ratio band only)",
+         "1", 0.0),
     _cfg("dtg.latch", "Boolean", False, "Keep the alarm once raised", tunable=True),
     *_monitored(),
     par("dtg.n_signatures", "Integer", 0,

@@ -12,6 +12,8 @@ reference
     Learned nominal reference, residual monitors and classification statistics.
 patterns
     Response-pattern library and classifier of DTG faults.
+physical_test
+    GLR test of a spin or torquer scale change.
 learning
     Learning the pattern library from training runs (numpy only).
 decision
@@ -87,6 +89,11 @@ _EXPORTS = {
     "DEFAULT_LIBRARY_FILE": "patterns",
     "default_library": "patterns",
     "PatternRun": "learning",
+    "PHYSICAL_KINDS": "physical_test",
+    "PHYSICAL_SIGMA": "physical_test",
+    "PhysicalResult": "physical_test",
+    "PhysicalTest": "physical_test",
+    "physical_class": "patterns",
     "learn_patterns": "learning",
     "UNKNOWN_CODE": "decision",
     "Classification": "decision",

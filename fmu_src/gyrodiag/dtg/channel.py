@@ -63,6 +63,7 @@ from .pattern_rule import (  # noqa: F401  (re-exported)
     OMEGA_EXCITATION_Z,
     PatternRule,
 )
+from .physical_test import PhysicalTest
 from .reference import NominalPrior, NominalReference, ReferenceLearner, ResidualMonitor
 
 __all__ = ["DTGChannel"]
@@ -111,6 +112,10 @@ class DTGChannel:
         self._pairing = CaseRatePairing(config, self._gap_samples)
         self._blocks = ReferenceBlocks(self._nb, self._width, self._long_blocks)
         self._rule: ChannelClassifier = _RULES[config.classifier](self)
+        self.physical_test: PhysicalTest | None = (
+            PhysicalTest(self.T, config.cutoff_hz, config.learn_start_s, config.learn_end_s,
+                         config.physical_sigma)
+            if config.physical_test_on else None)
         self.reset()
 
     # -- construction helpers -------------------------------------------------
@@ -123,16 +128,7 @@ class DTGChannel:
         return ForgettingRLS(N_THETA, forgetting=c.forgetting, p0=c.p0)
 
     def _make_decisions(self, theta0: NDArray[np.float64]) -> list[ThresholdDecision]:
-        """One ratio decision per axis; θ0 (5,) for both or (2, 5) per axis."""
-        c = self.config
-        per_axis = theta0.reshape(-1, N_THETA)
-        return [
-            ThresholdDecision(
-                per_axis[min(i, per_axis.shape[0] - 1)], c.low, c.high, c.persistence_k,
-                c.persistence_n, c.latch, c.monitored
-            )
-            for i in range(2)
-        ]
+        return _ratio_decisions(self.config, theta0)
 
     def adopt_theta0(self, theta0: NDArray[np.float64]) -> None:
         """Take ``theta0`` (shape :attr:`theta0_shape`) as θ0 with fresh ratio
@@ -175,17 +171,14 @@ class DTGChannel:
         self._diagnosis = DTGDiagnosis()
         self._rule.reset()
         self._pairing.reset()
+        if self.physical_test is not None:
+            self.physical_test.reset()
         self._last = self._initial_output()
 
-    @property
-    def case_rate_delay(self) -> int:
-        """Delay of the case rate against the voltages in use, samples."""
-        return self._pairing.delay
-
-    @property
-    def case_rate_switches(self) -> int:
-        """How often the aligner has changed the delay."""
-        return self._pairing.switches
+    case_rate_delay = property(lambda self: self._pairing.delay,
+                               doc="Delay of the case rate against the voltages, samples.")
+    case_rate_switches = property(lambda self: self._pairing.switches,
+                                  doc="How often the aligner has changed the delay.")
 
     def _initial_output(self) -> DTGChannelOutput:
         return DTGChannelOutput(
@@ -264,9 +257,14 @@ class DTGChannel:
                 self._pairing.mark_gap()
             else:
                 self._blocks.gap = self._gap_samples
+            if self.physical_test is not None:
+                self.physical_test.gap()
             self._last = replace_output(self._last, valid=False)
             return self._last
         # raw was checked finite above; the stages downstream need not check again
+        if self.physical_test is not None:
+            mon = self.monitor
+            self.physical_test.update(raw, mon is not None and mon.alarm)
         signals = raw + w if self._case_rate else raw
         sample = (tuple(self._prefilter.step(signals)) if self._prefilter is not None
                   else signals)
@@ -417,6 +415,8 @@ class DTGChannel:
             "diagnosis": diagnosis_to_dict(self._diagnosis),
             "last": output_to_dict(self._last),
             "alignment": self._pairing.get_state(),
+            "physical_test": (None if self.physical_test is None
+                              else self.physical_test.get_state()),
         }, STATE_VERSION)
 
     def set_state(self, state: dict[str, Any]) -> None:
@@ -463,11 +463,33 @@ class DTGChannel:
         self._diagnosis = diagnosis_from_dict(state["diagnosis"])
         self._last = output_from_dict(state["last"], self._diagnosis)
         self._pairing.set_state(state["alignment"])
+        _restore_test(self.physical_test, state["physical_test"], self._n_samples)
 
     @property
     def last_output(self) -> DTGChannelOutput:
         """Outputs of the most recent update (initial outputs before any)."""
         return self._last
+
+
+def _ratio_decisions(c: DTGChannelConfig, theta0: NDArray[np.float64]
+                     ) -> list[ThresholdDecision]:
+    """One ratio decision per axis; θ0 (5,) for both or (2, 5) per axis."""
+    per_axis = theta0.reshape(-1, N_THETA)
+    return [ThresholdDecision(per_axis[min(i, per_axis.shape[0] - 1)], c.low, c.high,
+                              c.persistence_k, c.persistence_n, c.latch, c.monitored)
+            for i in range(2)]
+
+
+def _restore_test(test: PhysicalTest | None, saved: dict[str, Any] | None,
+                  samples: int) -> None:
+    """Restore the physical-parameter test; one saved without it (an older state) starts
+    afresh with its learning window past, i.e. quiet."""
+    if test is None:
+        return
+    if saved is None:
+        test.reset(samples)
+    else:
+        test.set_state(saved)
 
 
 def _ringing_samples(config: DTGChannelConfig, T: float) -> int:
@@ -499,8 +521,8 @@ def _physical(th_x: tuple[float, ...], th_y: tuple[float, ...],
 
 #: Version of :meth:`DTGChannel.get_state`'s format (1: tagged; case rate and alignment
 #: always present; 2: the classifier's part under "classifier"; 3: the diagnosis's
-#: signal mask and the pattern classifier's pair count).
-STATE_VERSION = 3
+#: signal mask and the pattern classifier's pair count; 4: the physical-parameter test).
+STATE_VERSION = 4
 #: Keys of a version-1 state that belong to a classifier (paper: the first three;
 #: pattern: the last three; a version-1 state holds all six).
 _CLASSIFIER_KEYS = ("features", "learn_sum", "learn_count", "monitor", "rollback",
@@ -535,4 +557,11 @@ def _from_version_2(state: dict[str, Any]) -> dict[str, Any]:
     return {**state, "diagnosis": diagnosis, "classifier": classifier}
 
 
-_MIGRATIONS = {0: _from_version_0, 1: _from_version_1, 2: _from_version_2}
+def _from_version_3(state: dict[str, Any]) -> dict[str, Any]:
+    """No physical-parameter test was saved: it starts afresh (and stays quiet, its
+    learning window being past)."""
+    return {**state, "physical_test": None}
+
+
+_MIGRATIONS = {0: _from_version_0, 1: _from_version_1, 2: _from_version_2,
+               3: _from_version_3}

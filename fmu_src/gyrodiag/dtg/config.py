@@ -22,6 +22,7 @@ from .case_rate import CASE_RATE_SCHEMES
 from .decision import SignatureClassifier, ThresholdDecision
 from .model import N_THETA
 from .patterns import PatternLibrary
+from .physical_test import PHYSICAL_SIGMA
 from .reference import (
     ALLOWANCE_SIGMA,
     POWER_THRESHOLD,
@@ -183,6 +184,10 @@ class DTGChannelConfig:
         noise only, and a choice made there can bias θ0). :class:`~gyrodiag.dtg.alignment.
         CaseRateAligner`, docs/dtg_case_rate.md §9: the first fast change of the case
         rate shows which pairing fits.
+    physical_sigma : float
+        Pattern classifier on a bench (no case rate): threshold of the GLR test of a
+        spin and a torquer scale change (:mod:`gyrodiag.dtg.physical_test`), standard
+        errors; 0: off (physical faults then only through the ratio band).
     case_rate_lookahead_s : float
         Case rate with ``case_rate_align_max`` > 0: the aligner runs this far ahead of
         the estimators and decisions, s, so that a new pairing applies before the edge
@@ -228,6 +233,7 @@ class DTGChannelConfig:
     case_rate_delay_samples: int = 0
     case_rate_align_max: int = 0
     case_rate_lookahead_s: float = 0.032
+    physical_sigma: float = PHYSICAL_SIGMA
 
     def __post_init__(self) -> None:
         """Settings left None take their automatic value (:data:`AUTO_SETTINGS`)."""
@@ -254,6 +260,13 @@ class DTGChannelConfig:
         if self.case_rate_align_max == 0:
             return max(0, -int(self.case_rate_delay_samples))
         return max(1, round(self.case_rate_lookahead_s / self.sample_period_s))
+
+    @property
+    def physical_test_on(self) -> bool:
+        """The physical-parameter test runs: pattern classifier, no case rate, a
+        threshold > 0."""
+        return (self.classifier == "pattern" and self.case_rate is None
+                and self.physical_sigma > 0.0)
 
     @property
     def regression(self) -> RegressionModel:
@@ -322,6 +335,7 @@ class DTGChannelConfig:
             self.latch, self.monitored,
         )
         check_nonnegative("band_sigma", self.band_sigma)
+        check_nonnegative("physical_sigma", self.physical_sigma)
         if self.signatures:
             SignatureClassifier(self.signatures, self.max_distance)
             for name, sig in self.signatures.items():

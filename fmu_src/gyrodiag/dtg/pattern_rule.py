@@ -25,7 +25,14 @@ from .classifier import ChannelClassifier, Confirm, names_class
 from .decision import UNKNOWN_CODE
 from .model import N_THETA
 from .outputs import NO_FEATURE, STATUS_FAILED, DTGDiagnosis
-from .patterns import FAULT_TYPES, SEVERAL_CODE, PatternClassifier, PatternResult
+from .patterns import (
+    FAULT_TYPES,
+    SEVERAL_CODE,
+    PatternClassifier,
+    PatternResult,
+    physical_class,
+)
+from .physical_test import PhysicalResult
 from .reference import (
     REFERENCE_STATUS,
     ClassificationStatistics,
@@ -216,16 +223,28 @@ class PatternRule(ChannelClassifier):
         ends and when the alarm changes."""
         mon = self.monitor
         residual_alarm = mon is not None and mon.alarm
-        alarm = band_alarm or residual_alarm
+        physical = self._physical_verdict()
+        alarm = band_alarm or residual_alarm or physical is not None
         d = self.host.diagnosis
         if block_done or (alarm and d.fault_type == 0) or (not alarm and d.fault_type != 0):
-            d = self._diagnose(band_alarm)
+            d = self._diagnose(band_alarm, physical)
         code = 0
         if alarm:
             code = (UNKNOWN_CODE if d.fault_type <= 0 else SEVERAL_CODE
                     if d.signal_mask and d.fault_signal == -1
                     else self._class_code(d.class_name))
         return alarm, code, NO_FEATURE, d
+
+    def _physical_verdict(self) -> PhysicalResult | None:
+        """The physical-parameter test's alarm, when it has one on a valid reference and
+        the residual tests are quiet (they hold it)."""
+        host = self.host
+        test = host.physical_test
+        if test is None or not test.result.alarm or host.reference is None:
+            return None
+        if host.reference.status != REFERENCE_STATUS["valid"]:
+            return None
+        return test.result
 
     def class_name(self, code: int) -> str:
         """Name of a ``fault_code`` in the pattern library (both names for a pair)."""
@@ -238,9 +257,11 @@ class PatternRule(ChannelClassifier):
         assert self.host.config.patterns is not None
         return self.host.config.patterns.names.index(name) + 1
 
-    def _classify(self, band_alarm: bool, stats: ClassificationStatistics | None
+    def _classify(self, band_alarm: bool, stats: ClassificationStatistics | None,
+                  physical: PhysicalResult | None = None
                   ) -> tuple[PatternResult | None, ClassificationStatistics | None]:
-        """Fit the library to a residual alarm's (or a band alarm's) statistics."""
+        """Fit the library to a residual alarm's statistics; name the physical test's
+        class, or fit a band alarm's statistics to the physical classes."""
         mon = self.monitor
         assert mon is not None
         result: PatternResult | None = None
@@ -268,6 +289,8 @@ class PatternRule(ChannelClassifier):
                 self._pair_streak = streak + 1 if pair is not None else 0
                 if pair is not None and self._pair_streak >= PAIR_CONFIRM:
                     result = pair
+        elif physical is not None:
+            result = physical_class(self.host.config.patterns, physical.kind, physical.ratio)
         elif band_alarm:
             stats = self._raw_signals_checked(
                 mon.window_statistics(self.host._long_blocks))
@@ -275,7 +298,8 @@ class PatternRule(ChannelClassifier):
                 result = self._pattern.classify_physical(stats)
         return result, stats
 
-    def _diagnose(self, band_alarm: bool) -> DTGDiagnosis:
+    def _diagnose(self, band_alarm: bool, physical: PhysicalResult | None = None
+                  ) -> DTGDiagnosis:
         """Classify the current state (at block ends, and when the alarm changes)."""
         mon = self.monitor
         ref = self.host.reference
@@ -286,7 +310,7 @@ class PatternRule(ChannelClassifier):
         stats = mon.classification_statistics() if mon.alarm else None
         if stats is not None:
             stats = self._raw_signals_checked(stats)
-        result, stats = self._classify(band_alarm, stats)
+        result, stats = self._classify(band_alarm, stats, physical)
         result = self._held_drift(result, stats)
         if stats is None:
             # pending classification: the blocks of the alarm so far (the test window
@@ -294,7 +318,7 @@ class PatternRule(ChannelClassifier):
             short = self.host._short_blocks
             k = mon.blocks_in_alarm if mon.alarm else short
             stats = mon.window_statistics(max(1, min(k, short)))
-        alarm = mon.alarm or band_alarm
+        alarm = mon.alarm or band_alarm or physical is not None
         if not alarm:
             kind = (0, 0, 0, "")
         elif result is None or result.fault_type < 0:

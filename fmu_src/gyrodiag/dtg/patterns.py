@@ -63,6 +63,7 @@ __all__ = [
     "PatternLibrary",
     "PatternResult",
     "default_library",
+    "physical_class",
 ]
 
 #: The shipped library: classes learned on the paper DTG bench at 1 kHz
@@ -391,6 +392,17 @@ def scored_response(lib: PatternLibrary, i: int) -> NDArray[np.float64]:
 
 
 UNKNOWN_RESULT = PatternResult(UNKNOWN_CODE, "unknown", -1, -1, -1, math.nan)
+
+
+def physical_class(library: PatternLibrary | None, kind: str, ratio: float) -> PatternResult:
+    """The library's class of physical fault type ``kind`` (e.g. "spin") with its
+    parameter ratio; unknown where the library has none."""
+    for i, c in enumerate(library.classes if library is not None else ()):
+        if c.type == kind:
+            return PatternResult(code=i + 1, name=c.name,
+                                 fault_type=FAULT_TYPES.index(kind) + 1, signal=0,
+                                 axis=c.axis, distance=0.0, ratio=ratio)
+    return UNKNOWN_RESULT
 
 
 class PatternClassifier:

@@ -1,0 +1,320 @@
+"""GLR test of the DTG's physical parameters: spin rate and torquer scale.
+
+A spin change scales θ3 and θ4 of both axes by the spin fraction, a torquer scale
+change θ5 (docs/methods.md §2). The test fits both fractions jointly, over windows of
+1 to 10 s ending now, against a θ0 of its own, and alarms on the χ² (2 degrees of
+freedom) of the fit. Its signals pass a narrow band-pass first (a fifth of the channel's
+cut-off, high-pass at a fiftieth): the rotor's response to the dither is there, while
+broadband noise and slow signal faults (offsets, drifts) are not. The score's spread
+is measured on the learning window's blocks and refined by quiet blocks later, so
+that coloured errors are judged by what they are, not by the textbook LS covariance.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..common.prefilter import ButterworthPrefilter
+from .model import N_THETA, DTGRegressor
+
+__all__ = ["PHYSICAL_KINDS", "PHYSICAL_SIGMA", "PhysicalResult", "PhysicalTest"]
+
+#: The two parameter directions fitted, in this order.
+PHYSICAL_KINDS = ("spin", "torquer")
+#: Default alarm threshold, standard errors (χ² against its square).
+PHYSICAL_SIGMA = 7.0
+#: Block length of the scores, s.
+BLOCK_S = 0.1
+#: Test windows ending at the newest block, s.
+WINDOWS_S = (1.0, 2.0, 5.0, 10.0)
+#: The exceedance must hold this long before the test alarms, s: a signal fault reaches
+#: the residual tests first, and those hold this test.
+CONFIRM_S = 0.5
+#: The band-pass corners as fractions of the channel's prefilter cut-off.
+LOWPASS_FRACTION = 0.2
+HIGHPASS_FRACTION = 0.02
+#: Direction masks on θ (θ3, θ4 for the spin; θ5 for the torquer).
+_MASKS = np.array([[0.0, 0.0, 1.0, 1.0, 0.0], [0.0, 0.0, 0.0, 0.0, 1.0]])
+
+
+@dataclass(frozen=True)
+class PhysicalResult:
+    """The test's verdict at a block end.
+
+    Attributes
+    ----------
+    alarm : bool
+        The χ² exceeded the threshold for the confirmation time.
+    kind : str
+        "spin" or "torquer" (the better-determined shift), "" without one.
+    ratio : float
+        Estimated parameter ratio of ``kind`` (1 + fitted fraction), NaN without one.
+    chi2 : float
+        Largest χ² of the windows, 0 before the test runs.
+    """
+
+    alarm: bool = False
+    kind: str = ""
+    ratio: float = math.nan
+    chi2: float = 0.0
+
+
+class PhysicalTest:
+    """Streaming GLR of a spin and a torquer scale change.
+
+    Parameters
+    ----------
+    sample_period_s : float
+        Sample period, s.
+    cutoff_hz : float
+        The channel's prefilter cut-off, Hz (the band-pass follows it).
+    learn_start_s, learn_end_s : float
+        The learning window, s from the first sample.
+    sigma : float
+        Alarm threshold, standard errors (> 0).
+    """
+
+    def __init__(self, sample_period_s: float, cutoff_hz: float, learn_start_s: float,
+                 learn_end_s: float, sigma: float = PHYSICAL_SIGMA) -> None:
+        T = float(sample_period_s)
+        self.T = T
+        self._lowpass = LOWPASS_FRACTION * cutoff_hz
+        self._highpass = HIGHPASS_FRACTION * cutoff_hz
+        self._nb = max(1, round(BLOCK_S / T))
+        block = self._nb * T
+        self._windows = sorted({max(1, round(w / block)) for w in WINDOWS_S})
+        self._confirm = max(1, round(CONFIRM_S / block))
+        self._n_start = math.ceil(learn_start_s / T - 1e-9)
+        self._n_end = max(math.ceil(learn_end_s / T - 1e-9), self._n_start + 1)
+        self._h2 = float(sigma) ** 2
+        self._settle = _settle_samples(self._filter())
+        self.reset()
+
+    def _filter(self) -> ButterworthPrefilter:
+        return ButterworthPrefilter(6, self._lowpass, 1.0 / self.T, 4,
+                                    highpass_hz=self._highpass)
+
+    def reset(self, samples: int = 0) -> None:
+        """Return to the state right after construction, or as if ``samples`` samples
+        had passed unseen (a learning window already past leaves the test quiet)."""
+        self._prefilter = self._filter()
+        self._regressor = DTGRegressor()
+        self._n = int(samples)
+        self._rows: list[tuple[float, ...]] = []
+        self._skip = 0  # rows still to leave out (after a gap or a hold)
+        self._learn: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
+        self._theta0: NDArray[np.float64] | None = None  # (2, 5)
+        self._dirs: NDArray[np.float64] | None = None  # (2 kinds, 2 axes, 5)
+        self._V: NDArray[np.float64] | None = None  # score covariance per block (2, 2)
+        self._nV = 0
+        self._ML: NDArray[np.float64] | None = None  # learning window's information
+        self._nL = 0
+        self._scores: deque[tuple[NDArray[np.float64], NDArray[np.float64]]] = deque(
+            maxlen=self._windows[-1])
+        self._streak = 0
+        self.result = PhysicalResult()
+
+    @property
+    def ready(self) -> bool:
+        """θ0 and the score spread are known."""
+        return self._V is not None
+
+    # -- streaming ------------------------------------------------------------
+    def gap(self) -> None:
+        """A skipped sample: the rows spanning it are left out."""
+        self._skip = max(self._skip, 2)
+
+    def update(self, raw: tuple[float, float, float, float], held: bool) -> None:
+        """Process one sample of finite voltages (Utx, Uty, Ux, Uy).
+
+        ``held``: another test is in alarm; the windows restart once it clears and the
+        band-pass has settled.
+        """
+        n = self._n
+        self._n += 1
+        rows = self._regressor.step(*self._prefilter.step(raw))
+        if held and n >= self._n_end:
+            self._hold()
+            return
+        if n == self._n_start or n == self._n_end:
+            self._rows = []
+        if rows is None or n < self._n_start:
+            return
+        if self._skip > 0:
+            self._skip -= 1
+            return
+        px, yx, py, yy = rows
+        self._rows.append((*px, yx, *py, yy))
+        if len(self._rows) == self._nb:
+            self._end_block(n)
+
+    def _hold(self) -> None:
+        self._rows = []
+        self._scores.clear()
+        self._streak = 0
+        self._skip = self._settle
+        self.result = PhysicalResult(chi2=0.0)
+
+    def _end_block(self, n: int) -> None:
+        a = np.array(self._rows)
+        self._rows = []
+        A = np.stack([a[:, 0:5].T @ a[:, 0:5], a[:, 6:11].T @ a[:, 6:11]])
+        r = np.stack([a[:, 0:5].T @ a[:, 5], a[:, 6:11].T @ a[:, 11]])
+        if n < self._n_end:
+            self._learn.append((A, r))
+            if n + self._nb >= self._n_end:
+                self._finish_learning()
+            return
+        if self._V is None:
+            return
+        self._push(*self._score(A, r))
+
+    def _score(self, A: NDArray[np.float64], r: NDArray[np.float64]
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Score (2,) and information (2, 2) of one block against θ0."""
+        assert self._theta0 is not None and self._dirs is not None
+        e = r - np.einsum("aij,aj->ai", A, self._theta0)
+        G = self._dirs
+        return (np.einsum("dai,ai->d", G, e), np.einsum("dai,aij,eaj->de", G, A, G))
+
+    def _finish_learning(self) -> None:
+        """θ0 per axis and the score spread from the learning blocks."""
+        blocks, self._learn = self._learn, []
+        if len(blocks) < 3:
+            return
+        A = sum(b[0] for b in blocks)
+        r = sum(b[1] for b in blocks)
+        try:
+            theta0 = np.array([np.linalg.solve(A[ax], r[ax]) for ax in range(2)])
+        except np.linalg.LinAlgError:
+            return
+        dirs = theta0[None, :, :] * _MASKS[:, None, :]
+        if not np.all(np.isfinite(theta0)) or np.any(np.abs(dirs).sum(axis=2) == 0.0):
+            return
+        self._theta0, self._dirs = theta0, dirs
+        scores = [self._score(*b) for b in blocks]
+        S = np.array([s for s, _ in scores])
+        ML = sum(i for _, i in scores)
+        V = S.T @ S / (len(blocks) - 1)
+        if not (_positive_definite(ML) and _positive_definite(V)):
+            self._theta0 = self._dirs = None
+            return
+        self._V, self._nV, self._ML, self._nL = V, len(blocks) - 1, ML, len(blocks)
+
+    def _push(self, S: NDArray[np.float64], info: NDArray[np.float64]) -> None:
+        """Add a block's score; test every full window; refine the spread with the block
+        that leaves the longest window while the test is quiet."""
+        assert self._V is not None and self._ML is not None
+        if len(self._scores) == self._scores.maxlen and self.result.chi2 < 0.25 * self._h2:
+            old = self._scores[0][0]
+            self._V = (self._V * self._nV + np.outer(old, old)) / (self._nV + 1)
+            self._nV += 1
+        self._scores.append((S, info))
+        best = (0.0, None, None)
+        ref = self._nL * _sandwich(np.linalg.inv(self._ML), self._V)
+        k = len(self._scores)
+        s_sum = np.zeros(2)
+        i_sum = np.zeros((2, 2))
+        w_index = 0
+        for j in range(1, k + 1):
+            s, info_j = self._scores[k - j]
+            s_sum = s_sum + s
+            i_sum = i_sum + info_j
+            if w_index < len(self._windows) and j == self._windows[w_index]:
+                w_index += 1
+                chi2, delta, cov = _fit(s_sum, i_sum, j * self._V, ref)
+                if chi2 > best[0]:
+                    best = (chi2, delta, cov)
+        chi2, delta, cov = best
+        self._streak = self._streak + 1 if chi2 > self._h2 else 0
+        if delta is None or cov is None:
+            self.result = PhysicalResult(chi2=chi2)
+            return
+        z = np.abs(delta) / np.sqrt(np.diag(cov))
+        kind = int(np.argmax(z))
+        self.result = PhysicalResult(alarm=self._streak >= self._confirm,
+                                     kind=PHYSICAL_KINDS[kind], ratio=1.0 + float(delta[kind]),
+                                     chi2=chi2)
+
+    # -- state ----------------------------------------------------------------
+    def get_state(self) -> dict[str, Any]:
+        """Internal state (filters, learning blocks, reference, windows, verdict)."""
+        return {
+            "prefilter": self._prefilter.get_state(),
+            "regressor": self._regressor.get_state(),
+            "n": self._n, "rows": [list(r) for r in self._rows], "skip": self._skip,
+            "learn": [(A.tolist(), r.tolist()) for A, r in self._learn],
+            "theta0": None if self._theta0 is None else self._theta0.tolist(),
+            "V": None if self._V is None else self._V.tolist(), "nV": self._nV,
+            "ML": None if self._ML is None else self._ML.tolist(), "nL": self._nL,
+            "scores": [(s.tolist(), i.tolist()) for s, i in self._scores],
+            "streak": self._streak,
+            "result": [self.result.alarm, self.result.kind, self.result.ratio,
+                       self.result.chi2],
+        }
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        """Restore a state of :meth:`get_state` (same configuration)."""
+        self._prefilter.set_state(state["prefilter"])
+        self._regressor.set_state(state["regressor"])
+        self._n = int(state["n"])
+        self._rows = [tuple(float(v) for v in r) for r in state["rows"]]
+        self._skip = int(state["skip"])
+        self._learn = [(np.array(A, dtype=float), np.array(r, dtype=float))
+                       for A, r in state["learn"]]
+        t0 = state["theta0"]
+        self._theta0 = None if t0 is None else np.array(t0, dtype=float).reshape(2, N_THETA)
+        self._dirs = (None if self._theta0 is None
+                      else self._theta0[None, :, :] * _MASKS[:, None, :])
+        self._V = None if state["V"] is None else np.array(state["V"], dtype=float)
+        self._nV = int(state["nV"])
+        self._ML = None if state["ML"] is None else np.array(state["ML"], dtype=float)
+        self._nL = int(state["nL"])
+        self._scores.clear()
+        for s, i in state["scores"]:
+            self._scores.append((np.array(s, dtype=float), np.array(i, dtype=float)))
+        self._streak = int(state["streak"])
+        alarm, kind, ratio, chi2 = state["result"]
+        self.result = PhysicalResult(bool(alarm), str(kind), float(ratio), float(chi2))
+
+
+def _sandwich(Mi: NDArray[np.float64], V: NDArray[np.float64]) -> NDArray[np.float64]:
+    return Mi @ V @ Mi
+
+
+def _fit(s: NDArray[np.float64], info: NDArray[np.float64], V: NDArray[np.float64],
+         ref: NDArray[np.float64]
+         ) -> tuple[float, NDArray[np.float64] | None, NDArray[np.float64] | None]:
+    """Joint fractions of a window, their covariance (window plus reference) and χ²."""
+    try:
+        Mi = np.linalg.inv(info)
+        delta = Mi @ s
+        cov = _sandwich(Mi, V) + ref
+        chi2 = float(delta @ np.linalg.solve(cov, delta))
+    except np.linalg.LinAlgError:
+        return 0.0, None, None
+    if not math.isfinite(chi2):
+        return 0.0, None, None
+    return chi2, delta, cov
+
+
+def _positive_definite(M: NDArray[np.float64]) -> bool:
+    try:
+        np.linalg.cholesky(M)
+    except np.linalg.LinAlgError:
+        return False
+    return bool(np.all(np.isfinite(M)))
+
+
+def _settle_samples(f: ButterworthPrefilter) -> int:
+    """Samples after which the band-pass's impulse response stays below 1e-3 of its
+    peak."""
+    h = np.abs([f.step((1.0 if k == 0 else 0.0, 0.0, 0.0, 0.0))[0] for k in range(20000)])
+    above = np.flatnonzero(h > 1e-3 * h.max())
+    return int(above[-1]) + 1 if above.size else 0
