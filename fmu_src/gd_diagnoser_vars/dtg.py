@@ -76,10 +76,12 @@ PARAMETERS: tuple[Var, ...] = (
          "End of the theta0 learning window; -1: auto, 5 s, with dtg.case_rate 10 s",
          "s", AUTO, to="auto"),
     _cfg("dtg.low", "Real", AUTO,
-         "Lower ratio threshold on eta; -1: auto, 0.5 (paper), with dtg.case_rate 0.93",
+         "Lower ratio threshold on eta; -1: auto, 0.5 (paper), with dtg.case_rate 0.93; "
+         "with dtg.low and dtg.high both auto and the physical test on, no band",
          "1", AUTO, 1.0 - POSITIVE, tunable=True, to="auto"),
     _cfg("dtg.high", "Real", AUTO,
-         "Upper ratio threshold on eta; -1: auto, 1.5 (paper), with dtg.case_rate 1.07",
+         "Upper ratio threshold on eta; -1: auto, 1.5 (paper), with dtg.case_rate 1.07 "
+         "(no band: see dtg.low)",
          "1", AUTO, tunable=True, to="auto"),
     _cfg("dtg.persistence_k", "Integer", AUTO_INT,
          "Alarm when k of the last n violate; -1: auto, 1, with dtg.case_rate 0.1 s",

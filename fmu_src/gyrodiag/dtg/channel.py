@@ -98,6 +98,7 @@ class DTGChannel:
                                  if config.prefilter_enabled else 0)
         self._model = config.regression
         self._case_rate = self._model.case_rate
+        self._band_on = bool(config.ratio_band)
         self._central = config.case_rate == "central"
         self._width = self._model.width
         self._given_theta0: NDArray[np.float64] | None = (
@@ -320,7 +321,7 @@ class DTGChannel:
         eta = np.array((eta_x, eta_y))
         physical = self._physical(th_x, th_y)
         alarm, code, feature, self._diagnosis = self._rule.decide(
-            t, (eta_x, eta_y), alarm_x or alarm_y, block_done)
+            t, (eta_x, eta_y), (alarm_x or alarm_y) and self._band_on, block_done)
         if alarm and math.isnan(self._first_alarm_time):
             self._first_alarm_time = t
         self._last = DTGChannelOutput(

@@ -188,6 +188,10 @@ class DTGChannelConfig:
         Pattern classifier on a bench (no case rate): threshold of the GLR test of a
         spin and a torquer scale change (:mod:`gyrodiag.dtg.physical_test`), standard
         errors; 0: off (physical faults then only through the ratio band).
+    ratio_band : bool or None
+        The ratio band alarms. None: automatic, off where the physical test runs and
+        ``low`` and ``high`` are left automatic (the test sees far smaller changes, and
+        the band's η of a fast estimate false-alarms on noisier benches), on otherwise.
     case_rate_lookahead_s : float
         Case rate with ``case_rate_align_max`` > 0: the aligner runs this far ahead of
         the estimators and decisions, s, so that a new pairing applies before the edge
@@ -234,11 +238,15 @@ class DTGChannelConfig:
     case_rate_align_max: int = 0
     case_rate_lookahead_s: float = 0.032
     physical_sigma: float = PHYSICAL_SIGMA
+    ratio_band: bool | None = None
 
     def __post_init__(self) -> None:
         """Settings left None take their automatic value (:data:`AUTO_SETTINGS`)."""
         auto = AUTO_SETTINGS["case_rate" if self.case_rate is not None else "bench"]
         end_auto = self.learn_end_s is None
+        if self.ratio_band is None:
+            self.ratio_band = not (self.low is None and self.high is None
+                                   and self.physical_test_on)
         T = self.sample_period_s  # an invalid one is left to validate() to name
         period_ok = isinstance(T, int | float) and math.isfinite(T) and T > 0
         for name, value in auto.items():

@@ -39,6 +39,10 @@ CONFIRM_S = 0.5
 #: The band-pass corners as fractions of the channel's prefilter cut-off.
 LOWPASS_FRACTION = 0.2
 HIGHPASS_FRACTION = 0.02
+#: The axes agree on a common shift while the χ² of their disagreement (2 degrees of
+#: freedom) stays below this, or below this share of the whole χ².
+AXES_AGREE_CHI2 = 16.0
+AXES_AGREE_SHARE = 0.2
 #: Direction masks on θ (θ3, θ4 for the spin; θ5 for the torquer).
 _MASKS = np.array([[0.0, 0.0, 1.0, 1.0, 0.0], [0.0, 0.0, 0.0, 0.0, 1.0]])
 
@@ -52,7 +56,9 @@ class PhysicalResult:
     alarm : bool
         The χ² exceeded the threshold for the confirmation time.
     kind : str
-        "spin" or "torquer" (the better-determined shift), "" without one.
+        "spin" or "torquer" (the better-determined shift common to both axes), ""
+        without one or where the axes disagree (not a change of the rotor's spin or of
+        the torquer scale: e.g. noise on one torquer read-out).
     ratio : float
         Estimated parameter ratio of ``kind`` (1 + fitted fraction), NaN without one.
     chi2 : float
@@ -125,6 +131,30 @@ class PhysicalTest:
         """θ0 and the score spread are known."""
         return self._V is not None
 
+    def standard_errors(self, window_s: float) -> NDArray[np.float64] | None:
+        """Predicted standard errors of the spin and torquer fractions common to both
+        axes over a window of ``window_s`` ending now (the reference's error included),
+        at the learning window's excitation; None before θ0 and the spread are known."""
+        if self._V is None or self._ML is None:
+            return None
+        w = max(1, round(window_s / (self._nb * self.T)))
+        Mi = np.linalg.inv(self._ML * (w / self._nL))
+        ref = self._nL * _sandwich(np.linalg.inv(self._ML), self._V)
+        F = _H.T @ np.linalg.inv(_sandwich(Mi, w * self._V) + ref) @ _H
+        return np.sqrt(np.diag(np.linalg.inv(F)))
+
+    def window_fit(self, window_s: float
+                   ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """The spin and torquer fractions common to both axes over the last
+        ``window_s`` of blocks, and their covariance; None before a full window."""
+        w = max(1, round(window_s / (self._nb * self.T)))
+        if self._V is None or self._ML is None or len(self._scores) < w:
+            return None
+        recent = list(self._scores)[-w:]
+        ref = self._nL * _sandwich(np.linalg.inv(self._ML), self._V)
+        fit = _fit(sum(s for s, _ in recent), sum(i for _, i in recent), w * self._V, ref)
+        return None if fit is None else (fit.delta, fit.cov)
+
     # -- streaming ------------------------------------------------------------
     def gap(self) -> None:
         """A skipped sample: the rows spanning it are left out."""
@@ -177,11 +207,17 @@ class PhysicalTest:
 
     def _score(self, A: NDArray[np.float64], r: NDArray[np.float64]
                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Score (2,) and information (2, 2) of one block against θ0."""
+        """Score (4,) and information (4, 4) of one block against θ0: both directions
+        on the x axis, then on the y axis (the information is block-diagonal)."""
         assert self._theta0 is not None and self._dirs is not None
         e = r - np.einsum("aij,aj->ai", A, self._theta0)
         G = self._dirs
-        return (np.einsum("dai,ai->d", G, e), np.einsum("dai,aij,eaj->de", G, A, G))
+        score = np.einsum("dai,ai->ad", G, e).ravel()
+        per_axis = np.einsum("dai,aij,eaj->ade", G, A, G)
+        info = np.zeros((4, 4))
+        info[:2, :2] = per_axis[0]
+        info[2:, 2:] = per_axis[1]
+        return score, info
 
     def _finish_learning(self) -> None:
         """θ0 per axis and the score spread from the learning blocks."""
@@ -209,18 +245,19 @@ class PhysicalTest:
 
     def _push(self, S: NDArray[np.float64], info: NDArray[np.float64]) -> None:
         """Add a block's score; test every full window; refine the spread with the block
-        that leaves the longest window while the test is quiet."""
+        that leaves the longest window unless the test exceeds its threshold."""
         assert self._V is not None and self._ML is not None
-        if len(self._scores) == self._scores.maxlen and self.result.chi2 < 0.25 * self._h2:
+        if (len(self._scores) == self._scores.maxlen and self.result.chi2 <= self._h2
+                and not self.result.alarm):
             old = self._scores[0][0]
             self._V = (self._V * self._nV + np.outer(old, old)) / (self._nV + 1)
             self._nV += 1
         self._scores.append((S, info))
-        best = (0.0, None, None)
+        best: _Fit | None = None
         ref = self._nL * _sandwich(np.linalg.inv(self._ML), self._V)
         k = len(self._scores)
-        s_sum = np.zeros(2)
-        i_sum = np.zeros((2, 2))
+        s_sum = np.zeros(4)
+        i_sum = np.zeros((4, 4))
         w_index = 0
         for j in range(1, k + 1):
             s, info_j = self._scores[k - j]
@@ -228,19 +265,22 @@ class PhysicalTest:
             i_sum = i_sum + info_j
             if w_index < len(self._windows) and j == self._windows[w_index]:
                 w_index += 1
-                chi2, delta, cov = _fit(s_sum, i_sum, j * self._V, ref)
-                if chi2 > best[0]:
-                    best = (chi2, delta, cov)
-        chi2, delta, cov = best
+                fit = _fit(s_sum, i_sum, j * self._V, ref)
+                if fit is not None and (best is None or fit.chi2 > best.chi2):
+                    best = fit
+        chi2 = 0.0 if best is None else best.chi2
         self._streak = self._streak + 1 if chi2 > self._h2 else 0
-        if delta is None or cov is None:
+        if best is None:
             self.result = PhysicalResult(chi2=chi2)
             return
-        z = np.abs(delta) / np.sqrt(np.diag(cov))
+        alarm = self._streak >= self._confirm
+        if not best.common:
+            self.result = PhysicalResult(alarm=alarm, chi2=chi2)
+            return
+        z = np.abs(best.delta) / np.sqrt(np.diag(best.cov))
         kind = int(np.argmax(z))
-        self.result = PhysicalResult(alarm=self._streak >= self._confirm,
-                                     kind=PHYSICAL_KINDS[kind], ratio=1.0 + float(delta[kind]),
-                                     chi2=chi2)
+        self.result = PhysicalResult(alarm=alarm, kind=PHYSICAL_KINDS[kind],
+                                     ratio=1.0 + float(best.delta[kind]), chi2=chi2)
 
     # -- state ----------------------------------------------------------------
     def get_state(self) -> dict[str, Any]:
@@ -288,20 +328,40 @@ def _sandwich(Mi: NDArray[np.float64], V: NDArray[np.float64]) -> NDArray[np.flo
     return Mi @ V @ Mi
 
 
+@dataclass(frozen=True)
+class _Fit:
+    """A window's fit: the χ² of both axes' shifts (4 degrees of freedom), the shift
+    common to both axes (spin, torquer) and its covariance, and whether the axes agree
+    on it (a spin or torquer scale change moves both alike)."""
+
+    chi2: float
+    delta: NDArray[np.float64]
+    cov: NDArray[np.float64]
+    common: bool
+
+
+#: The common shift seen from both axes' four components.
+_H = np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 0.0], [0.0, 1.0]])
+
+
 def _fit(s: NDArray[np.float64], info: NDArray[np.float64], V: NDArray[np.float64],
-         ref: NDArray[np.float64]
-         ) -> tuple[float, NDArray[np.float64] | None, NDArray[np.float64] | None]:
-    """Joint fractions of a window, their covariance (window plus reference) and χ²."""
+         ref: NDArray[np.float64]) -> _Fit | None:
+    """Both axes' fractions of a window (covariance: window plus reference), their χ²
+    and the generalised-LS shift common to both axes."""
     try:
         Mi = np.linalg.inv(info)
-        delta = Mi @ s
-        cov = _sandwich(Mi, V) + ref
-        chi2 = float(delta @ np.linalg.solve(cov, delta))
+        d4 = Mi @ s
+        Ci = np.linalg.inv(_sandwich(Mi, V) + ref)
+        F = _H.T @ Ci @ _H
+        cov = np.linalg.inv(F)
+        delta = cov @ (_H.T @ Ci @ d4)
     except np.linalg.LinAlgError:
-        return 0.0, None, None
-    if not math.isfinite(chi2):
-        return 0.0, None, None
-    return chi2, delta, cov
+        return None
+    chi2 = float(d4 @ Ci @ d4)
+    disagree = chi2 - float(delta @ F @ delta)
+    if not (math.isfinite(chi2) and math.isfinite(disagree)):
+        return None
+    return _Fit(chi2, delta, cov, disagree <= max(AXES_AGREE_CHI2, AXES_AGREE_SHARE * chi2))
 
 
 def _positive_definite(M: NDArray[np.float64]) -> bool:
