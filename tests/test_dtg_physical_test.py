@@ -178,3 +178,16 @@ def test_channel_names_the_library_class_and_drops_the_auto_band():
     assert out.alarm and ch.class_name(out.fault_code) == "spin"
     assert out.diagnosis.fault_axis == 3
     assert out.diagnosis.ratio == pytest.approx(0.95, abs=0.01)
+
+
+@pytest.mark.parametrize("nu", [10, 39, 100, 1000])
+@pytest.mark.parametrize("t2", [5.0, 49.0, 108.0])
+def test_t2_tail_is_the_f_distribution_tail(nu, t2):
+    """The closed-form tail the test judges by, against SciPy's F distribution."""
+    from scipy import stats
+
+    from gyrodiag.dtg.physical_test import _log_t2_tail
+
+    m = nu - 3
+    assert np.exp(_log_t2_tail(t2, nu)) == pytest.approx(
+        stats.f.sf(t2 * m / (4 * nu), 4, m), rel=1e-9)

@@ -115,19 +115,11 @@ class DTGChannel:
         self._rule: ChannelClassifier = _RULES[config.classifier](self)
         self.physical_test: PhysicalTest | None = (
             PhysicalTest(self.T, config.cutoff_hz, config.learn_start_s, config.learn_end_s,
-                         config.physical_sigma)
+                         config.physical_sigma, config.case_rate, config.pickoff_scale)
             if config.physical_test_on else None)
         self.reset()
 
     # -- construction helpers -------------------------------------------------
-    def _make_estimator(self) -> RLS | SlidingWindowLS:
-        c = self.config
-        if c.estimator == "batch":
-            return SlidingWindowLS(N_THETA, window=c.window)
-        if c.estimator == "rls":
-            return RLS(N_THETA, p0=c.p0)
-        return ForgettingRLS(N_THETA, forgetting=c.forgetting, p0=c.p0)
-
     def _make_decisions(self, theta0: NDArray[np.float64]) -> list[ThresholdDecision]:
         return _ratio_decisions(self.config, theta0)
 
@@ -156,7 +148,7 @@ class DTGChannel:
         self._regressor: DTGRegressor | CaseRateDTGRegressor = (
             CaseRateDTGRegressor(self.T, c.pickoff_scale, scheme=c.case_rate)  # type: ignore[arg-type]
             if c.case_rate is not None else DTGRegressor())
-        self._estimators = [self._make_estimator(), self._make_estimator()]
+        self._estimators = [_estimator(c), _estimator(c)]
         self._theta_now = tuple(tuple(e.theta.tolist()) for e in self._estimators)
         self._n_samples = 0
         # (5,) for both axes; (2, 5) per axis with the case rate
@@ -257,15 +249,10 @@ class DTGChannel:
             if self._pairing.shifting:
                 self._pairing.mark_gap()
             else:
-                self._blocks.gap = self._gap_samples
-            if self.physical_test is not None:
-                self.physical_test.gap()
+                self._mark_gap()
             self._last = replace_output(self._last, valid=False)
             return self._last
         # raw was checked finite above; the stages downstream need not check again
-        if self.physical_test is not None:
-            mon = self.monitor
-            self.physical_test.update(raw, mon is not None and mon.alarm)
         signals = raw + w if self._case_rate else raw
         sample = (tuple(self._prefilter.step(signals)) if self._prefilter is not None
                   else signals)
@@ -275,8 +262,16 @@ class DTGChannel:
                 return self._last
             raw, sample, gap = pair
             if gap:
-                self._blocks.gap = self._gap_samples
+                self._mark_gap()
+        if self.physical_test is not None:
+            self.physical_test.update(sample, self._rule.holds_physical_test())
         return self._identify(raw, sample)
+
+    def _mark_gap(self) -> None:
+        """Leave the rows and blocks spanning a skipped sample out."""
+        self._blocks.gap = self._gap_samples
+        if self.physical_test is not None:
+            self.physical_test.gap()
 
     def _identify(self, raw: tuple[float, ...], sample: tuple[float, ...]
                   ) -> DTGChannelOutput:
@@ -470,6 +465,15 @@ class DTGChannel:
     def last_output(self) -> DTGChannelOutput:
         """Outputs of the most recent update (initial outputs before any)."""
         return self._last
+
+
+def _estimator(c: DTGChannelConfig) -> RLS | SlidingWindowLS:
+    """A fresh θ estimator of the configured kind."""
+    if c.estimator == "batch":
+        return SlidingWindowLS(N_THETA, window=c.window)
+    if c.estimator == "rls":
+        return RLS(N_THETA, p0=c.p0)
+    return ForgettingRLS(N_THETA, forgetting=c.forgetting, p0=c.p0)
 
 
 def _ratio_decisions(c: DTGChannelConfig, theta0: NDArray[np.float64]

@@ -64,6 +64,11 @@ class ChannelClassifier(ABC):
     def reference_failed(self) -> bool:
         """True once learning has ended without a usable θ0."""
 
+    def holds_physical_test(self) -> bool:
+        """The physical-parameter test must pause (another test in alarm, a
+        manoeuvre); none by default."""
+        return False
+
     def confirm_hooks(self) -> tuple[Confirm, Confirm]:
         """The x and y ratio decisions' confirm hooks for this sample (None: the band
         alone)."""

@@ -185,9 +185,9 @@ class DTGChannelConfig:
         CaseRateAligner`, docs/dtg_case_rate.md §9: the first fast change of the case
         rate shows which pairing fits.
     physical_sigma : float
-        Pattern classifier on a bench (no case rate): threshold of the GLR test of a
-        spin and a torquer scale change (:mod:`gyrodiag.dtg.physical_test`), standard
-        errors; 0: off (physical faults then only through the ratio band).
+        Pattern classifier: threshold of the GLR test of a spin and a torquer scale
+        change (:mod:`gyrodiag.dtg.physical_test`), standard errors; 0: off (physical
+        faults then only through the ratio band).
     ratio_band : bool or None
         The ratio band alarms. None: automatic, off where the physical test runs and
         ``low`` and ``high`` are left automatic (the test sees far smaller changes, and
@@ -246,7 +246,7 @@ class DTGChannelConfig:
         end_auto = self.learn_end_s is None
         if self.ratio_band is None:
             self.ratio_band = not (self.low is None and self.high is None
-                                   and self.physical_test_on)
+                                   and self.physical_test_on and self.case_rate is None)
         T = self.sample_period_s  # an invalid one is left to validate() to name
         period_ok = isinstance(T, int | float) and math.isfinite(T) and T > 0
         for name, value in auto.items():
@@ -271,10 +271,8 @@ class DTGChannelConfig:
 
     @property
     def physical_test_on(self) -> bool:
-        """The physical-parameter test runs: pattern classifier, no case rate, a
-        threshold > 0."""
-        return (self.classifier == "pattern" and self.case_rate is None
-                and self.physical_sigma > 0.0)
+        """The physical-parameter test runs: pattern classifier, a threshold > 0."""
+        return self.classifier == "pattern" and self.physical_sigma > 0.0
 
     @property
     def regression(self) -> RegressionModel:

@@ -235,6 +235,14 @@ class PatternRule(ChannelClassifier):
                     else self._class_code(d.class_name))
         return alarm, code, NO_FEATURE, d
 
+    def holds_physical_test(self) -> bool:
+        """The residual tests alarm, or the case rate moved in the last block (a
+        manoeuvre shifts the fitted θ by more than a spin or torquer change would)."""
+        if self.monitor is not None and self.monitor.alarm:
+            return True
+        dev = self.host._blocks.omega_dev
+        return bool(dev) and dev[-1] > OMEGA_EXCITATION_Z
+
     def _physical_verdict(self) -> PhysicalResult | None:
         """The physical-parameter test's alarm, when it has one on a valid reference and
         the residual tests are quiet (they hold it)."""

@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..common.prefilter import ButterworthPrefilter
+from .case_rate import CaseRateDTGRegressor
 from .model import N_THETA, DTGRegressor
 
 __all__ = ["PHYSICAL_KINDS", "PHYSICAL_SIGMA", "PhysicalResult", "PhysicalTest"]
@@ -36,6 +37,9 @@ WINDOWS_S = (1.0, 2.0, 5.0, 10.0)
 #: The exceedance must hold this long before the test alarms, s: a signal fault reaches
 #: the residual tests first, and those hold this test.
 CONFIRM_S = 0.5
+#: An alarm holds while the χ² stays beyond this fraction of the threshold (in standard
+#: errors), so that the windows' fluctuation after an onset does not flicker it.
+HOLD_FRACTION = 2.0 / 3.0
 #: The band-pass corners as fractions of the channel's prefilter cut-off.
 LOWPASS_FRACTION = 0.2
 HIGHPASS_FRACTION = 0.02
@@ -84,12 +88,22 @@ class PhysicalTest:
         The learning window, s from the first sample.
     sigma : float
         Alarm threshold, standard errors (> 0).
+    case_rate : {"central", "paper"} or None
+        The case-rate regression's scheme (samples then carry ωx, ωy, rad/s, after the
+        voltages), None for the case at rest. Spin and torquer scale move the same θ
+        components in every scheme.
+    pickoff_scale : float
+        Nominal pick-off scale KT, rad/V (case rate only).
     """
 
     def __init__(self, sample_period_s: float, cutoff_hz: float, learn_start_s: float,
-                 learn_end_s: float, sigma: float = PHYSICAL_SIGMA) -> None:
+                 learn_end_s: float, sigma: float = PHYSICAL_SIGMA,
+                 case_rate: str | None = None, pickoff_scale: float = 1e-3) -> None:
         T = float(sample_period_s)
         self.T = T
+        self._case_rate = case_rate
+        self._pickoff_scale = pickoff_scale
+        self._width = 4 if case_rate is None else 6
         self._lowpass = LOWPASS_FRACTION * cutoff_hz
         self._highpass = HIGHPASS_FRACTION * cutoff_hz
         self._nb = max(1, round(BLOCK_S / T))
@@ -98,19 +112,30 @@ class PhysicalTest:
         self._confirm = max(1, round(CONFIRM_S / block))
         self._n_start = math.ceil(learn_start_s / T - 1e-9)
         self._n_end = max(math.ceil(learn_end_s / T - 1e-9), self._n_start + 1)
-        self._h2 = float(sigma) ** 2
+        # the χ² tail (4 degrees of freedom) beyond σ²: the false-alarm rate per window
+        h2 = float(sigma) ** 2
+        self._h2 = h2
+        self._log_alpha = -0.5 * h2 + math.log1p(0.5 * h2)
+        hold2 = (HOLD_FRACTION * float(sigma)) ** 2
+        self._log_alpha_hold = -0.5 * hold2 + math.log1p(0.5 * hold2)
         self._settle = _settle_samples(self._filter())
         self.reset()
 
     def _filter(self) -> ButterworthPrefilter:
-        return ButterworthPrefilter(6, self._lowpass, 1.0 / self.T, 4,
+        return ButterworthPrefilter(6, self._lowpass, 1.0 / self.T, self._width,
                                     highpass_hz=self._highpass)
+
+    def _make_regressor(self) -> DTGRegressor | CaseRateDTGRegressor:
+        if self._case_rate is None:
+            return DTGRegressor()
+        return CaseRateDTGRegressor(self.T, self._pickoff_scale,
+                                    scheme=self._case_rate)  # type: ignore[arg-type]
 
     def reset(self, samples: int = 0) -> None:
         """Return to the state right after construction, or as if ``samples`` samples
         had passed unseen (a learning window already past leaves the test quiet)."""
         self._prefilter = self._filter()
-        self._regressor = DTGRegressor()
+        self._regressor = self._make_regressor()
         self._n = int(samples)
         self._rows: list[tuple[float, ...]] = []
         self._skip = 0  # rows still to leave out (after a gap or a hold)
@@ -160,15 +185,21 @@ class PhysicalTest:
         """A skipped sample: the rows spanning it are left out."""
         self._skip = max(self._skip, 2)
 
-    def update(self, raw: tuple[float, float, float, float], held: bool) -> None:
-        """Process one sample of finite voltages (Utx, Uty, Ux, Uy).
+    def update(self, sample: tuple[float, ...], held: bool) -> None:
+        """Process one sample of finite values: (Utx, Uty, Ux, Uy) in V, then with the
+        case rate (ωx, ωy) in rad/s. Any LTI filter applied to all of them alike (the
+        channel's prefilter) keeps the regression.
 
         ``held``: another test is in alarm; the windows restart once it clears and the
         band-pass has settled.
         """
         n = self._n
         self._n += 1
-        rows = self._regressor.step(*self._prefilter.step(raw))
+        filtered = self._prefilter.step(sample)
+        if self._case_rate is None:
+            rows = self._regressor.step(*filtered)  # type: ignore[union-attr]
+        else:
+            rows = self._regressor.update(*filtered, validate=False)  # type: ignore[call-arg]
         if held and n >= self._n_end:
             self._hold()
             return
@@ -180,7 +211,7 @@ class PhysicalTest:
             self._skip -= 1
             return
         px, yx, py, yy = rows
-        self._rows.append((*px, yx, *py, yy))
+        self._rows.append((*px, yx, *py, yy))  # type: ignore[arg-type]
         if len(self._rows) == self._nb:
             self._end_block(n)
 
@@ -243,12 +274,19 @@ class PhysicalTest:
             return
         self._V, self._nV, self._ML, self._nL = V, len(blocks) - 1, ML, len(blocks)
 
+    def _exceeds(self, t2: float, hold: bool = False) -> bool:
+        """``t2`` lies beyond the threshold's (or the hold level's) tail probability,
+        judged as Hotelling's T² of a spread estimated with ``nV`` degrees of freedom
+        (χ² as nV grows)."""
+        level = self._log_alpha_hold if hold else self._log_alpha
+        return _log_t2_tail(t2, self._nV) < level
+
     def _push(self, S: NDArray[np.float64], info: NDArray[np.float64]) -> None:
         """Add a block's score; test every full window; refine the spread with the block
         that leaves the longest window unless the test exceeds its threshold."""
         assert self._V is not None and self._ML is not None
-        if (len(self._scores) == self._scores.maxlen and self.result.chi2 <= self._h2
-                and not self.result.alarm):
+        if (len(self._scores) == self._scores.maxlen and not self.result.alarm
+                and not self._exceeds(self.result.chi2)):
             old = self._scores[0][0]
             self._V = (self._V * self._nV + np.outer(old, old)) / (self._nV + 1)
             self._nV += 1
@@ -269,7 +307,10 @@ class PhysicalTest:
                 if fit is not None and (best is None or fit.chi2 > best.chi2):
                     best = fit
         chi2 = 0.0 if best is None else best.chi2
-        self._streak = self._streak + 1 if chi2 > self._h2 else 0
+        if self._exceeds(chi2):
+            self._streak += 1
+        elif not (self.result.alarm and self._exceeds(chi2, hold=True)):
+            self._streak = 0
         if best is None:
             self.result = PhysicalResult(chi2=chi2)
             return
@@ -364,6 +405,18 @@ def _fit(s: NDArray[np.float64], info: NDArray[np.float64], V: NDArray[np.float6
     return _Fit(chi2, delta, cov, disagree <= max(AXES_AGREE_CHI2, AXES_AGREE_SHARE * chi2))
 
 
+def _log_t2_tail(t2: float, nu: int, p: int = 4) -> float:
+    """log P(T² > t2) for Hotelling's T² of dimension 4 with a covariance estimated with
+    ``nu`` degrees of freedom: T²·m/(p·ν) is F(4, m), m = ν − 3, whose tail has the
+    closed form x^(m/2)·(1 + m/2·(1 − x)), x = m/(m + 4F)."""
+    m = nu - p + 1
+    if m < 1:
+        return 0.0
+    f = t2 * m / (p * nu)
+    x = m / (m + p * f)
+    return 0.5 * m * math.log(x) + math.log1p(0.5 * m * (1.0 - x))
+
+
 def _positive_definite(M: NDArray[np.float64]) -> bool:
     try:
         np.linalg.cholesky(M)
@@ -375,6 +428,7 @@ def _positive_definite(M: NDArray[np.float64]) -> bool:
 def _settle_samples(f: ButterworthPrefilter) -> int:
     """Samples after which the band-pass's impulse response stays below 1e-3 of its
     peak."""
-    h = np.abs([f.step((1.0 if k == 0 else 0.0, 0.0, 0.0, 0.0))[0] for k in range(20000)])
+    zeros = (0.0,) * (f.n_channels - 1)
+    h = np.abs([f.step((1.0 if k == 0 else 0.0, *zeros))[0] for k in range(20000)])
     above = np.flatnonzero(h > 1e-3 * h.max())
     return int(above[-1]) + 1 if above.size else 0
