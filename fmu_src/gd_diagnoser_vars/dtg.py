@@ -229,6 +229,12 @@ def _diagnosis() -> list[Var]:
             "data in the learning window: no alarm)"),
         out("dtg.residual_alarm", "Boolean", False,
             "Pattern classifier: residual tests against the frozen reference in alarm"),
+        out("dtg.physical_alarm", "Boolean", False,
+            "Pattern classifier: the GLR test of a spin or torquer scale change in alarm "
+            "(dtg.physical_sigma)"),
+        out("dtg.physical_statistic", "Real", 0.0,
+            "Pattern classifier: that test's T2 over its best window (4 degrees of "
+            "freedom; 0 while it waits for a reference or a full window)", "1"),
         out("dtg.fault_type", "Integer", 0,
             "0 none, 1 step, 2 noise, 3 loss, 4 drift, 5 spin slow-down, 6 torquer scale, "
             "-1 unknown"),

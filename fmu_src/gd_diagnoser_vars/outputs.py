@@ -196,6 +196,10 @@ class OutputWriter:
         v["dtg.reference_status"] = int(d.reference_status)
         v["dtg.reference_valid"] = d.reference_status == 1
         v["dtg.residual_alarm"] = bool(d.residual_alarm)
+        test = channel.physical_test
+        v["dtg.physical_alarm"] = test is not None and test.result.alarm
+        v["dtg.physical_statistic"] = 0.0 if test is None else _finite_or(test.result.chi2,
+                                                                            0.0)
         alarm = bool(out.alarm)
         v["dtg.fault_type"] = int(d.fault_type) if alarm else 0
         v["dtg.fault_signal"] = int(d.fault_signal) if alarm else 0
