@@ -23,8 +23,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 H = 1e-3
+# the paper's ratio band set (left automatic, a bench runs the physical test instead,
+# which would not alarm on these inputs within the run)
 PARAMS = {"sample_period_s": H, "df.calibrate_s": 0.5, "df.burn_in_s": 0.1,
-          "dtg.learn_start_s": 0.2, "dtg.learn_end_s": 0.8, "grey.window": 10}
+          "dtg.learn_start_s": 0.2, "dtg.learn_end_s": 0.8, "dtg.low": 0.5,
+          "dtg.high": 1.5, "grey.window": 10}
 
 
 def test_output_reads_and_guard() -> None:
