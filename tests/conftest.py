@@ -63,6 +63,7 @@ _SLOW_MODULES = frozenset(_LONG_MODULES) | {
     "test_dtg_case_rate_reference.py", "test_distributions.py", "test_gain_table.py",
     "test_harness_reference.py", "test_harness_layout.py", "test_dtg_fast_path.py",
     "test_harness_report.py", "test_ecos_ssp.py", "test_fmu_container.py", "test_df_gust.py",
+    "test_sequential_system_chain.py",
 }
 #: Single slow tests of otherwise fast modules (function names, parameters aside).
 _SLOW_TESTS = frozenset({

@@ -17,11 +17,17 @@ from .filter import DetectionFilter
 from .generators import _gust_disturbance
 from .gust import GustModel
 from .residual import ResidualModel, estimate_sensor_variances
+from .sensor_dynamics import SensorDynamics
 
-__all__ = ["CalibrationWindow", "DFDesign", "alignment_score", "initial_state",
-           "window_pairs"]
+__all__ = ["CalibrationWindow", "DFDesign", "alignment_score",
+           "equalised_noise_variances", "initial_state", "window_pairs"]
 
 _Array = NDArray[np.float64]
+
+#: White-noise variance the residual model gives an equalised sensor, per unit of the
+#: variance its noise G·v shows: the model's white noise must not undercut the data at
+#: high frequencies, where G·v has almost nothing and the whitening looks hardest.
+EQUALISED_NOISE_FACTOR = 10.0
 
 
 @dataclass(frozen=True)
@@ -68,12 +74,14 @@ class DFDesign:
 class CalibrationWindow:
     """The aligned fault-free window a decision rule is installed from: inputs ``u``,
     measurements ``y``, the rows ``burn`` to skip, and the configured burn-in
-    ``n_burn`` (samples; ``burn`` is it, shortened for a short window)."""
+    ``n_burn`` (samples; ``burn`` is it, shortened for a short window). ``raw``: the
+    sensors as read, before a read-out equaliser (None without one)."""
 
     u: _Array
     y: _Array
     burn: int
     n_burn: int
+    raw: _Array | None = None
 
 
 def window_pairs(u: _Array, y: _Array, d: int) -> tuple[_Array, _Array]:
@@ -147,3 +155,24 @@ def _innovation_score(design: DFDesign, res: _Array, gust: GustModel) -> float:
         total += float(eps @ s_inv @ eps)
         e = closed @ e + gain @ r
     return total / res.shape[0] + float(np.linalg.slogdet(w.S)[1])
+
+
+def equalised_noise_variances(window: CalibrationWindow, dynamics: SensorDynamics
+                              ) -> _Array | None:
+    """Sensor noise variances for the residual model with a read-out equaliser, from
+    the raw window; None without one.
+
+    The sensors the equaliser filters show G·v: smooth, hidden under a gust in the
+    residual, so the residual fit cannot see it; raw, their white v is the rough part
+    of a smooth signal: robust variance of the second differences over 6 (their
+    variance per unit white noise), times G's noise gain and EQUALISED_NOISE_FACTOR.
+    The dynamic sensor's own read-out noise is taken the same way, as is."""
+    raw = window.raw
+    if raw is None or raw.shape[0] - window.burn < 10:
+        return None
+    d2 = np.diff(raw[window.burn:], n=2, axis=0)
+    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
+    white = (1.482602218505602 * mad) ** 2 / 6.0
+    out = white * (dynamics.noise_gain * EQUALISED_NOISE_FACTOR)
+    out[dynamics.sensor] = white[dynamics.sensor]
+    return out

@@ -125,6 +125,8 @@ class DFChannel:
         self._y_line: list[NDArray[np.float64]] = []
         self._cal_u = np.zeros((self._n_cal, p))
         self._cal_y = np.zeros((self._n_cal, m))
+        # the sensors before the equaliser (the white noise of those it filters)
+        self._cal_raw = np.zeros(self._raw_shape())
         self._skew_line: deque[tuple[NDArray[np.float64], NDArray[np.float64]]] = deque(
             maxlen=self._skew_max + 1)
         self._rule.reset()
@@ -226,12 +228,15 @@ class DFChannel:
             # u and the on-time sensors from max(e) samples back, sensor j from e_j
             uu = line[0][0]
             yy = np.array([line[e][1][i] for i, e in enumerate(self._skew)])
+        raw = yy
         if self._equaliser is not None:
             uu, yy = self._equaliser.update(uu, yy, validate=False)
         k = self._n_samples
         self._n_samples = k + 1
         if not self._calibrated:
             self._cal_u[k], self._cal_y[k] = uu, yy
+            if self._cal_raw.shape[0]:
+                self._cal_raw[k] = raw
             res = self._monitor_step(uu, yy)
             if self._n_samples >= self._n_cal:
                 self._finish_calibration()
@@ -287,6 +292,10 @@ class DFChannel:
 
     # ------------------------------------------------------------------ calibration
 
+    def _raw_shape(self) -> tuple[int, int]:
+        """Shape of the raw window: kept only in front of an equaliser."""
+        return (self._n_cal if self._equaliser is not None else 0, self.m)
+
     def _pairs(self, d: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Aligned (u, y) rows of the stored window for alignment d."""
         return window_pairs(self._cal_u, self._cal_y, d)
@@ -295,7 +304,9 @@ class DFChannel:
         """The stored window at alignment d, its burn-in shortened for a short one."""
         u, y = self._pairs(d)
         burn = min(self._n_burn, max(u.shape[0] - 10, 0))
-        return CalibrationWindow(u, y, burn, self._n_burn)
+        raw = self._cal_raw
+        usable = raw.shape[0] > 0 and bool(np.all(np.isfinite(raw)))
+        return CalibrationWindow(u, y, burn, self._n_burn, raw if usable else None)
 
     def _choose_alignment(self) -> int:
         """The alignment d whose window residuals are the whitest (module notes)."""
@@ -327,6 +338,7 @@ class DFChannel:
         self._y_line = [row for row in self._cal_y[self._n_cal + d:]] if d < 0 else []
         self._cal_u = np.zeros((0, self.p))
         self._cal_y = np.zeros((0, self.m))
+        self._cal_raw = np.zeros((0, self.m))
         self._calibrated = True
 
     def _install(self, window: CalibrationWindow | None) -> None:
@@ -352,6 +364,7 @@ class DFChannel:
             "u_line": np.array(self._u_line).reshape(-1, self.p),
             "y_line": np.array(self._y_line).reshape(-1, self.m),
             "cal_u": self._cal_u.copy(), "cal_y": self._cal_y.copy(),
+            "cal_raw": self._cal_raw.copy(),
             "monitor": self._monitor.get_state(),
             # the rule's part: noise, gust note, noise variances, engine, thresholds
             **{key: parts[key] for key in RULE_STATE_KEYS},
@@ -405,6 +418,14 @@ class DFChannel:
             raise ValueError("state['cal_u'] / state['cal_y'] do not fit the calibration "
                              "window of this channel")
         self._cal_u, self._cal_y = cal_u.copy(), cal_y.copy()
+        raw = (np.full(self._raw_shape(), np.nan) if state["cal_raw"] is None
+               else np.asarray(state["cal_raw"], dtype=float))
+        if calibrated:
+            raw = np.zeros((0, self.m))
+        elif raw.shape != self._raw_shape():
+            raise ValueError("state['cal_raw'] does not fit the calibration window of "
+                             "this channel")
+        self._cal_raw = raw.copy()
         self._monitor.set_state(state["monitor"])
         self._last = output_from_state(state["last"])
         su = np.asarray(state["skew_u"], dtype=float)
@@ -420,8 +441,8 @@ class DFChannel:
 
 
 #: Version of :meth:`DFChannel.get_state`'s format (1: tagged; equaliser,
-#: sensor skew and threshold statistics always present).
-STATE_VERSION = 1
+#: sensor skew and threshold statistics always present; 2: the raw window).
+STATE_VERSION = 2
 
 
 def _from_version_0(state: dict[str, Any]) -> dict[str, Any]:
@@ -435,4 +456,9 @@ def _from_version_0(state: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-_MIGRATIONS = {0: _from_version_0}
+def _from_version_1(state: dict[str, Any]) -> dict[str, Any]:
+    """Version 1 kept no raw window (the noise is then fitted to the residual alone)."""
+    return {**state, "cal_raw": None}
+
+
+_MIGRATIONS = {0: _from_version_0, 1: _from_version_1}

@@ -245,7 +245,8 @@ class ResidualModel:
                          scale=np.sqrt(np.diag(s)))
 
 
-def estimate_sensor_variances(residuals: ArrayLike, model: ResidualModel) -> _FloatArray:
+def estimate_sensor_variances(residuals: ArrayLike, model: ResidualModel,
+                              known: ArrayLike | None = None) -> _FloatArray:
     """Sensor noise variances that explain the variances of fault-free residuals.
 
     The residual variances are linear in the sensor variances (``model.variance_map()``)
@@ -259,6 +260,9 @@ def estimate_sensor_variances(residuals: ArrayLike, model: ResidualModel) -> _Fl
         Fault-free residual samples (after the observer's start-up transient).
     model : ResidualModel
         The observer's residual model.
+    known : array_like, shape (m,), optional
+        Variances already known (sensor units squared; NaN where unknown): kept, and
+        only the others (and the disturbance) fitted.
 
     Returns
     -------
@@ -279,10 +283,18 @@ def estimate_sensor_variances(residuals: ArrayLike, model: ResidualModel) -> _Fl
     # a Diagnoser's start-up
     from scipy.optimize import nnls
 
+    given = np.full(model.m, np.nan) if known is None else np.asarray(known, dtype=float)
+    if given.shape != (model.m,) or np.any(np.isinf(given)) or np.any(given < 0.0):
+        raise ValueError(f"known must be {model.m} variances >= 0 or NaN, got {known!r}")
+    free = np.isnan(given)
+    fixed = np.where(free, 0.0, given)
     m = model.variance_map()
     if model.disturbance is None:
-        sol, _ = nnls(m * weight[:, None], var * weight)
-        return sol
+        out = fixed.copy()
+        if np.any(free):
+            rhs = (var - m @ fixed) * weight
+            out[free], _ = nnls(m[:, free] * weight[:, None], rhs)
+        return out
     # The disturbance's intensity is unknown too. Lag-0 variances cannot tell it from
     # sensor noise (each sensor's noise alone explains its channel); its colour can:
     # fit the autocovariances at lags 0 … DISTURBANCE_LAGS as well.
@@ -297,14 +309,17 @@ def estimate_sensor_variances(residuals: ArrayLike, model: ResidualModel) -> _Fl
         back = g[lag - 1].T if lag == 1 else g[lag - 1]
         return 2.0 * g[lag] - g[lag + 1] - back
 
-    rows, target = [], []
+    rows, target, offset = [], [], []
     for lag in (0, 1):
-        cols = [model_cov(eye[j], 0.0, lag).ravel() for j in range(model.m)]
+        cols = [model_cov(eye[j], 0.0, lag).ravel() for j in np.flatnonzero(free)]
         cols.append(model_cov(np.zeros(model.m), 1.0, lag).ravel())
         rows.append(np.column_stack(cols))
         target.append((diff[lag:].T @ diff[:n - lag]).ravel() / n)
-    a, b = np.vstack(rows), np.concatenate(target)
+        offset.append(model_cov(fixed, 0.0, lag).ravel())
+    a, b = np.vstack(rows), np.concatenate(target) - np.concatenate(offset)
     dw = 1.0 / np.sqrt(np.maximum(np.diag(target[0].reshape(model.m, model.m)), 1e-300))
     pair = np.tile(np.outer(dw, dw).ravel(), 2)
     sol, _ = nnls(a * pair[:, None], b * pair)
-    return sol[:model.m]
+    out = fixed.copy()
+    out[free] = sol[:-1]
+    return out

@@ -96,6 +96,12 @@ class SensorDynamics:
         n = self.order
         return float(self.C @ np.linalg.solve(np.eye(n) - self.A, self.B) + self.D)
 
+    @property
+    def noise_gain(self) -> float:
+        """Variance of G·v per unit variance of white v (squared H2 norm)."""
+        p = scipy.linalg.solve_discrete_lyapunov(self.A, np.outer(self.B, self.B))
+        return float(self.C @ p @ self.C + self.D**2)
+
     def frequency_response(self, frequency_hz: ArrayLike) -> NDArray[np.complex128]:
         """G(e^{jωT}) at the given frequencies (Hz)."""
         f = np.atleast_1d(np.asarray(frequency_hz, dtype=float))

@@ -13,7 +13,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
-from .calibration import CalibrationWindow, initial_state
+from .calibration import CalibrationWindow, equalised_noise_variances, initial_state
 from .channel_output import MULTIPLE, NONE_DETECTED, NOT_ISOLATED, DFChannelOutput
 from .decision import DFDecision
 from .generators import _gust_disturbance
@@ -106,7 +106,9 @@ class SequentialRule(DFDecision):
         model = ResidualModel(f.closed_loop_matrix, f.discrete_gain, d.C,
                               _gust_disturbance(gust, d.A, d.T, np.eye(d.n)))
         res = d.residuals(window.u, window.y, x_start)[window.burn:]
-        variances = estimate_sensor_variances(res, model)
+        known = (None if gust is None or c.sensor_dynamics is None
+                 else equalised_noise_variances(window, c.sensor_dynamics))
+        variances = estimate_sensor_variances(res, model, known)
         # A noise-free sensor would make rounding look like faults: floor at 1e−7 of the
         # signal's RMS (plus 1e−12 absolute).
         rms = np.sqrt(np.mean(window.y**2, axis=0))
