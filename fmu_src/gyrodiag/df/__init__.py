@@ -139,6 +139,7 @@ _EXPORTS = {
     "CalibrationWindow": "calibration",
     "DFDesign": "calibration",
     "alignment_score": "calibration",
+    "equalised_noise_variances": "calibration",
     "initial_state": "calibration",
     "window_pairs": "calibration",
     "DFDecision": "decision",
