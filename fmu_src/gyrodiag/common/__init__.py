@@ -34,6 +34,7 @@ from ._lazy import lazy_exports
 _EXPORTS = {
     "ButterworthPrefilter": "prefilter",
     "butterworth_sos": "prefilter",
+    "ringing_samples": "prefilter",
     "RLS": "estimators",
     "ForgettingRLS": "estimators",
     "SlidingWindowLS": "estimators",

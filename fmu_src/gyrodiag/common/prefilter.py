@@ -19,7 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 from . import _accel
 from ._validation import check_finite_array, check_int, check_positive
 
-__all__ = ["ButterworthPrefilter", "butterworth_sos"]
+__all__ = ["ButterworthPrefilter", "butterworth_sos", "ringing_samples"]
 
 
 def butterworth_sos(order: int, corner_hz: float, sample_rate_hz: float,
@@ -294,3 +294,13 @@ class ButterworthPrefilter:
         zi = check_finite_array(
             "state['zi']", state["zi"], shape=(self._n_sections, 2, self.n_channels))
         self._kernel.set_state(zi.ravel().tolist())
+
+
+def ringing_samples(f: ButterworthPrefilter, horizon: int) -> int:
+    """Samples after which the impulse response of ``f``'s first channel stays below 1e-3
+    of its peak (looked at over ``horizon`` samples, run sample by sample: the record
+    path needs SciPy, which a lean host may not have). ``f`` is left rung."""
+    zeros = (0.0,) * (f.n_channels - 1)
+    h = np.abs([f.step((1.0 if k == 0 else 0.0, *zeros))[0] for k in range(horizon)])
+    above = np.flatnonzero(h > 1e-3 * h.max())
+    return int(above[-1]) + 1 if above.size else 0

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..common.estimators import RLS, ForgettingRLS, SlidingWindowLS
-from ..common.prefilter import ButterworthPrefilter
+from ..common.prefilter import ButterworthPrefilter, ringing_samples
 from ..common.state import migrate, stamp
 from .blocks import OMEGA_SPREAD_FLOOR, ReferenceBlocks  # noqa: F401  (re-exported)
 from .case_rate import CaseRateDTGRegressor, physical_from_theta_central
@@ -500,12 +500,9 @@ def _restore_test(test: PhysicalTest | None, saved: dict[str, Any] | None,
 def _ringing_samples(config: DTGChannelConfig, T: float) -> int:
     """Samples after which the prefilter's impulse response stays below 1e-3 of its
     peak."""
-    f = ButterworthPrefilter(config.prefilter_order, config.cutoff_hz, 1.0 / T,
-                             highpass_hz=config.prefilter_highpass_hz)
-    # sample by sample (the record path needs SciPy, which a lean host may not have)
-    h = np.abs([f.step((1.0 if k == 0 else 0.0,))[0] for k in range(4096)])
-    above = np.flatnonzero(h > 1e-3 * h.max())
-    return int(above[-1]) + 1 if above.size else 0
+    return ringing_samples(ButterworthPrefilter(
+        config.prefilter_order, config.cutoff_hz, 1.0 / T,
+        highpass_hz=config.prefilter_highpass_hz), 4096)
 
 
 def _physical(th_x: tuple[float, ...], th_y: tuple[float, ...],

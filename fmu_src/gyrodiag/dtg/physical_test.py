@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..common.prefilter import ButterworthPrefilter
+from ..common.prefilter import ButterworthPrefilter, ringing_samples
 from .case_rate import CaseRateDTGRegressor
 from .model import N_THETA, DTGRegressor
 
@@ -118,7 +118,7 @@ class PhysicalTest:
         self._log_alpha = -0.5 * h2 + math.log1p(0.5 * h2)
         hold2 = (HOLD_FRACTION * float(sigma)) ** 2
         self._log_alpha_hold = -0.5 * hold2 + math.log1p(0.5 * hold2)
-        self._settle = _settle_samples(self._filter())
+        self._settle = ringing_samples(self._filter(), 20000)
         self.reset()
 
     def _filter(self) -> ButterworthPrefilter:
@@ -423,12 +423,3 @@ def _positive_definite(M: NDArray[np.float64]) -> bool:
     except np.linalg.LinAlgError:
         return False
     return bool(np.all(np.isfinite(M)))
-
-
-def _settle_samples(f: ButterworthPrefilter) -> int:
-    """Samples after which the band-pass's impulse response stays below 1e-3 of its
-    peak."""
-    zeros = (0.0,) * (f.n_channels - 1)
-    h = np.abs([f.step((1.0 if k == 0 else 0.0, *zeros))[0] for k in range(20000)])
-    above = np.flatnonzero(h > 1e-3 * h.max())
-    return int(above[-1]) + 1 if above.size else 0
