@@ -87,6 +87,22 @@ def test_ramp_is_typed_with_its_rate(diagnoser):
     assert last.magnitude[Q] == pytest.approx(2e-3, rel=0.05)
 
 
+@pytest.mark.parametrize("seed", [0, 2])
+def test_ramp_first_typed_as_a_bias_stays_one_episode(seed):
+    """DFChannel defaults (gust model, 10 s calibration), onset at the window's end: in
+    these seeds the first fit is a bias whose presence test alarms as the ramp outgrows
+    it; the refit must make it a ramp (before: the episode ended, type unknown)."""
+    from gyrodiag.df.channel import DFChannel, DFChannelConfig
+
+    _, u, y = simulate(20.0, seed, (F(Q, "ramp", 2e-3, start_s=10.0),))
+    ch = DFChannel(DFChannelConfig(sample_period_s=DT))
+    outs = [ch.update(u[k], y[k]) for k in range(len(u))]
+    assert any(o.fault_type == FaultKind.BIAS for o in outs)  # the case this covers
+    last = outs[-1]
+    assert (last.episodes, last.isolated_sensor, last.fault_type) == (1, Q + 1, FaultKind.RAMP)
+    assert last.sensor_magnitude[Q] == pytest.approx(2e-3, rel=0.05)
+
+
 @pytest.mark.parametrize(("sensor", "added", "ratio"), [(Q, 2.83e-3, 3.0),
                                                         (ALPHA, 9.95e-3, 10.0)])
 def test_noise_increase_is_typed_with_its_ratio(diagnoser, sensor, added, ratio):

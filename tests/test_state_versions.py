@@ -108,7 +108,7 @@ def test_df_channel_state_is_versioned_and_an_unversioned_one_still_restores() -
     for k in range(920):
         ch.update(u[k], y[k])
     saved = ch.get_state()
-    assert saved[STATE_VERSION_KEY] == df_channel.STATE_VERSION == 2
+    assert saved[STATE_VERSION_KEY] == df_channel.STATE_VERSION == 3
     old = {k: v for k, v in saved.items()
            if k not in (STATE_VERSION_KEY, "equaliser", "skew_u", "skew_y", "cal_raw")}
     ref = [ch.update(u[k], y[k]) for k in range(920, len(u))]
@@ -121,3 +121,27 @@ def test_df_channel_state_is_versioned_and_an_unversioned_one_still_restores() -
     assert ref[-1].detected
     with pytest.raises(ValueError, match="detection-filter channel state version 7"):
         DFChannel(config).set_state({**saved, STATE_VERSION_KEY: 7})
+
+
+def test_df_channel_version_2_state_restores_without_the_presence_growth_record() -> None:
+    config = DFChannelConfig(sample_period_s=DT, calibrate_s=8.0, burn_in_s=2.0)
+    _, u, y = simulate_loop(12.0, seed=24, faults=(F(2, "bias", 0.01, start_s=9.0),))
+    ch = DFChannel(config)
+    for k in range(1000):
+        ch.update(u[k], y[k])
+    saved = ch.get_state()
+    engine = {k: v for k, v in saved["engine"].items() if k not in ("hist_p", "presence_grew")}
+    v2 = stamp({**{k: v for k, v in saved.items() if k != STATE_VERSION_KEY},
+                "engine": engine}, 2)
+    migrated = migrate(v2, df_channel.STATE_VERSION, df_channel._MIGRATIONS,
+                       "detection-filter channel")
+    assert migrated["engine"]["hist_p"].shape == saved["engine"]["hist_p"].shape
+    ref = [ch.update(u[k], y[k]) for k in range(1000, len(u))]
+    restored = DFChannel(config)
+    restored.set_state(v2)
+    again = [restored.update(u[k], y[k]) for k in range(1000, len(u))]
+    for a, b in zip(ref, again, strict=True):
+        np.testing.assert_array_equal(a.residual, b.residual)
+        assert (a.detected, a.isolated_sensor, a.fault_type) == (
+            b.detected, b.isolated_sensor, b.fault_type)
+    assert ref[-1].isolated_sensor == 3

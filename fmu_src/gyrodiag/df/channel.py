@@ -441,8 +441,9 @@ class DFChannel:
 
 
 #: Version of :meth:`DFChannel.get_state`'s format (1: tagged; equaliser,
-#: sensor skew and threshold statistics always present; 2: the raw window).
-STATE_VERSION = 2
+#: sensor skew and threshold statistics always present; 2: the raw window; 3: the
+#: presence test's growth record).
+STATE_VERSION = 3
 
 
 def _from_version_0(state: dict[str, Any]) -> dict[str, Any]:
@@ -461,4 +462,13 @@ def _from_version_1(state: dict[str, Any]) -> dict[str, Any]:
     return {**state, "cal_raw": None}
 
 
-_MIGRATIONS = {0: _from_version_0, 1: _from_version_1}
+def _from_version_2(state: dict[str, Any]) -> dict[str, Any]:
+    """Version 2's sequential engine kept no record of the presence misfit's sign."""
+    engine = state.get("engine")
+    if not isinstance(engine, dict) or "hist_c" not in engine:
+        return state
+    n_hist = np.asarray(engine["hist_c"]).shape[0]
+    return {**state, "engine": {**engine, "hist_p": np.zeros(n_hist), "presence_grew": 0}}
+
+
+_MIGRATIONS = {0: _from_version_0, 1: _from_version_1, 2: _from_version_2}

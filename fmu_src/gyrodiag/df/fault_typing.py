@@ -38,6 +38,10 @@ _FloatArray = NDArray[np.float64]
 PRESENCE_NONE, PRESENCE_MODEL, PRESENCE_VARIANCE, PRESENCE_CONSTANT = range(4)
 
 
+_BIASES = (int(FaultKind.BIAS), int(FaultKind.INTERMITTENT))
+_RICHER = (int(FaultKind.RAMP), int(FaultKind.GAIN))
+
+
 class FaultTyper:
     """The fault types and sizes of the isolated sensors (module notes).
 
@@ -77,8 +81,9 @@ class FaultTyper:
         self.mags = np.zeros(m)
         self.mag_valid = np.zeros(m, dtype=bool)
 
-    def model_misfit(self) -> _FloatArray:
-        """z of the last sample less the fitted fault model's signature in it."""
+    def model_misfit(self) -> tuple[_FloatArray, _FloatArray]:
+        """(z of the last sample less the fitted fault model's signature in it, that
+        signature)."""
         return self.signatures.misfit(self._model_cols, self._theta)
 
     def fault_trace(self, gone: int) -> _FloatArray | None:
@@ -133,6 +138,20 @@ class FaultTyper:
                 self.presence_mode = PRESENCE_MODEL
             return same
         return self._type_now(k, isolated, record_episodes, constant_output)
+
+    def refit_richer(self, k: int, isolated: tuple[int, ...], record_episodes: int,
+                     constant_output: Callable[[int, int], float | None]) -> bool:
+        """Refit a fault that outgrew its fitted mean model; keep the refit only if it
+        turns a sensor's bias into a ramp or a gain (True), else the model as it was."""
+        saved = (self.types.copy(), self.mags.copy(), self.mag_valid.copy(),
+                 self._model_cols.copy(), self._theta.copy(), self.presence_mode)
+        self._type_now(k, isolated, record_episodes, constant_output)
+        richer = self.presence_mode == PRESENCE_MODEL and any(
+            int(saved[0][i]) in _BIASES and int(self.types[i]) in _RICHER for i in isolated)
+        if not richer:
+            (self.types, self.mags, self.mag_valid, self._model_cols, self._theta,
+             self.presence_mode) = saved
+        return richer
 
     def _type_now(self, k: int, isolated: tuple[int, ...], record_episodes: int,
                   constant_output: Callable[[int, int], float | None]) -> bool:

@@ -42,6 +42,9 @@ class PresenceTest:
     zero : int
         The sample after the test's statistic was last zero before it cleared: where
         the fault ended.
+    grew : bool
+        At the last alarm of a mean model's test: the misfit since ``zero`` points the
+        way of the fitted signature (the fault outgrew its model rather than ended).
     """
 
     def __init__(self, n_sensors: int, n_hist: int, new_cusum: Callable[[int], CusumBank],
@@ -54,8 +57,10 @@ class PresenceTest:
         """No test running, no inputs kept."""
         self.test: CusumBank | None = None
         self.zero = 0
+        self.grew = False
         self._start = 0
         self._hist_c = np.zeros((self._n_hist, self.m))
+        self._hist_p = np.zeros(self._n_hist)
 
     def stop(self) -> None:
         """No test running (the next sample starts one)."""
@@ -75,15 +80,18 @@ class PresenceTest:
                 self.test.start_in_alarm()
         return self.test
 
-    def follow_model(self, k: int, misfit: _FloatArray) -> bool:
-        """Test sample k's model misfit (z less the fitted fault's signature); True
+    def follow_model(self, k: int, misfit: _FloatArray, signature: _FloatArray) -> bool:
+        """Test sample k's model misfit (z less the fitted fault's ``signature``); True
         when the test alarms: the model no longer fits, the fault is gone (``zero``
-        dates its end)."""
+        dates its end) or outgrew it (``grew``)."""
         test = self._ensure(k, False)
-        self._hist_c[k % self._n_hist] = misfit
+        n = self._n_hist
+        self._hist_c[k % n] = misfit
+        self._hist_p[k % n] = float(misfit @ signature)
         if test.update(misfit):
-            oldest = max(self._start, k - self._n_hist + 1)
+            oldest = max(self._start, k - n + 1)
             self.zero = walk_back(test, self._hist_c, k, oldest, self._tol)
+            self.grew = float(self._hist_p[np.arange(self.zero, k + 1) % n].sum()) > 0.0
             return True
         return False
 
@@ -99,7 +107,8 @@ class PresenceTest:
         return {
             "presence": None if self.test is None else self.test.get_state(),
             "presence_zero": int(self.zero), "presence_start": int(self._start),
-            "hist_c": self._hist_c.copy(),
+            "hist_c": self._hist_c.copy(), "hist_p": self._hist_p.copy(),
+            "presence_grew": int(self.grew),
         }
 
     def check_state(self, state: dict[str, Any]) -> dict[str, Any]:
@@ -108,6 +117,9 @@ class PresenceTest:
         got: dict[str, Any] = {
             "hist_c": check_finite_array("state['hist_c']", state["hist_c"],
                                          shape=self._hist_c.shape),
+            "hist_p": check_finite_array("state['hist_p']", state["hist_p"],
+                                         shape=self._hist_p.shape),
+            "presence_grew": bool(state["presence_grew"]),
             "presence_zero": int(state["presence_zero"]),
             "presence_start": int(state["presence_start"]),
             "presence": None,
@@ -121,4 +133,5 @@ class PresenceTest:
         """Install a state :meth:`check_state` returned."""
         self.test = got["presence"]
         self.zero, self._start = got["presence_zero"], got["presence_start"]
-        self._hist_c = got["hist_c"]
+        self._hist_c, self._hist_p = got["hist_c"], got["hist_p"]
+        self.grew = got["presence_grew"]

@@ -497,7 +497,12 @@ class SequentialDiagnoser:
                 self._end_episode(k, "none")
             return
         if mode == PRESENCE_MODEL:
-            gone = self.presence.follow_model(k, self.typer.model_misfit())
+            gone = self.presence.follow_model(k, *self.typer.model_misfit())
+            if gone and self.presence.grew and self.typer.refit_richer(
+                    k, self._isolated, self._record_episodes, self._constant_output):
+                # a ramp or gain first typed as a bias: the same episode, a new test
+                self.presence.stop()
+                return
         else:  # a noise increase
             gone = self.presence.follow_variance(k, self.signatures.z_last)
         if gone:

@@ -28,8 +28,8 @@ _STATE_KEYS = (
     "bank_active", "last_end", "change", "record_episodes", "inconsistent", "sig", "gram_c",
     "gz_c", "zz_c", "n_rec", "n_after", "g_last", "z_last", "y_prev", "status", "isolated",
     "iso_gen", "model_cols", "theta", "previous_isolated", "previous_types",
-    "previous_mags", "presence_mode", "presence_zero", "presence_start", "hist_c", "types",
-    "mags", "mag_valid",
+    "previous_mags", "presence_mode", "presence_zero", "presence_start", "hist_c", "hist_p",
+    "presence_grew", "types", "mags", "mag_valid",
 )
 #: Integer entries of the saved state the diagnoser itself owns.
 _INT_KEYS = ("count", "in_episode", "episodes", "bank_active", "last_end", "change",

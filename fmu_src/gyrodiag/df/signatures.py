@@ -249,9 +249,11 @@ class FaultSignatures:
         extra = float(excess @ power / max(float(power @ power), 1e-300))
         return math.sqrt(1.0 + max(extra, 0.0) / self.sensor_variances[sensor])
 
-    def misfit(self, cols: _FloatArray, theta: _FloatArray) -> _FloatArray:
-        """z of the last sample less the signature of the model (``cols``, θ) in it."""
-        return self.z_last - self._g_last[:, cols] @ theta
+    def misfit(self, cols: _FloatArray, theta: _FloatArray) -> tuple[_FloatArray, _FloatArray]:
+        """(z of the last sample less the signature of the model (``cols``, θ) in it,
+        that signature)."""
+        part = self._g_last[:, cols] @ theta
+        return self.z_last - part, part
 
     def trace(self, cols: _FloatArray, theta: _FloatArray, gone: int) -> _FloatArray:
         """The trace of the model (``cols``, θ) in the main filter's state (its state is
