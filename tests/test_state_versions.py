@@ -73,15 +73,15 @@ def test_dtg_channel_state_is_versioned_and_an_unversioned_one_still_restores() 
     for row in rec[:800]:
         ch.update(*row)
     saved = ch.get_state()
-    assert saved[STATE_VERSION_KEY] == dtg_channel.STATE_VERSION == 4
+    assert saved[STATE_VERSION_KEY] == dtg_channel.STATE_VERSION == 5
     # what a state saved before versioning looked like: no tag, no case-rate part, no
     # alignment queue (this channel has neither in use)
     old = {k: v for k, v in _dtg_as_version_1(saved, cfg).items()
            if k not in (STATE_VERSION_KEY, "omega", "alignment")}
     ref = [ch.update(*row) for row in rec[800:]]
     _dtg_continue_equally(cfg, old, rec[800:], ref)
-    with pytest.raises(ValueError, match="DTG channel state version 5"):
-        DTGChannel(cfg).set_state({**saved, STATE_VERSION_KEY: 5})
+    with pytest.raises(ValueError, match="DTG channel state version 7"):
+        DTGChannel(cfg).set_state({**saved, STATE_VERSION_KEY: 7})
 
 
 @pytest.mark.parametrize("classifier", ["pattern", "paper"])

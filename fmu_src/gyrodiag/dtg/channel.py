@@ -523,8 +523,9 @@ def _physical(th_x: tuple[float, ...], th_y: tuple[float, ...],
 
 #: Version of :meth:`DTGChannel.get_state`'s format (1: tagged; case rate and alignment
 #: always present; 2: the classifier's part under "classifier"; 3: the diagnosis's
-#: signal mask and the pattern classifier's pair count; 4: the physical-parameter test).
-STATE_VERSION = 4
+#: signal mask and the pattern classifier's pair count; 4: the physical-parameter test;
+#: 5: the residual level's growth since the alarm).
+STATE_VERSION = 5
 #: Keys of a version-1 state that belong to a classifier (paper: the first three;
 #: pattern: the last three; a version-1 state holds all six).
 _CLASSIFIER_KEYS = ("features", "learn_sum", "learn_count", "monitor", "rollback",
@@ -565,5 +566,13 @@ def _from_version_3(state: dict[str, Any]) -> dict[str, Any]:
     return {**state, "physical_test": None}
 
 
+def _from_version_4(state: dict[str, Any]) -> dict[str, Any]:
+    """No growth record was saved: the level's span since the alarm starts afresh."""
+    classifier = dict(state["classifier"])
+    if isinstance(classifier.get("monitor"), dict):
+        classifier["monitor"] = {**classifier["monitor"], "growth": [0.0] * 19}
+    return {**state, "classifier": classifier}
+
+
 _MIGRATIONS = {0: _from_version_0, 1: _from_version_1, 2: _from_version_2,
-               3: _from_version_3}
+               3: _from_version_3, 4: _from_version_4}

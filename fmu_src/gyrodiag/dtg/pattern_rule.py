@@ -61,6 +61,11 @@ MASKED_SIGNAL_FIT = 1.0
 #: errors of the window's slope: the learned growth threshold reads the window's
 #: relative growth, which falls once the window no longer starts at the onset.
 DRIFT_HOLD_T = 4.0
+#: Slope of the residual level over every block since the alarm, in standard errors:
+#: above the first a step class is read as its signal's drift, and a drift stays one
+#: while above the second (a step's stays under about 2 on the bench; a drift's grows
+#: as the 1.5th power of its age, so the decision has hysteresis and never flips back).
+DRIFT_SPAN_T, DRIFT_SPAN_HOLD_T = 5.0, 2.5
 #: Two faults are named once the pair fit has won this many classifications in a row
 #: (0.5 s of 25 ms blocks): in manoeuvres it wins alone for up to 0.3 s.
 PAIR_CONFIRM = 20
@@ -346,14 +351,19 @@ class PatternRule(ChannelClassifier):
 
     def _held_drift(self, result: PatternResult | None,
                     stats: ClassificationStatistics | None) -> PatternResult | None:
-        """A drift whose level still grows is not renamed a step."""
-        prev = self.host.diagnosis
+        """A step whose level has grown steadily since the alarm is a drift, and a drift
+        whose level still grows is not renamed a step."""
         if (result is None or stats is None or self._pattern is None
                 or not stats.raw_signals  # in a manoeuvre the level's slope is not a drift's
-                or prev.fault_type != DRIFT_TYPE or result.fault_type != STEP_TYPE
-                or result.signal != prev.fault_signal or stats.growth_t < DRIFT_HOLD_T):
+                or result.fault_type != STEP_TYPE):
             return result
-        return self._pattern.as_drift(result, stats) or result
+        prev = self.host.diagnosis
+        held = (prev.fault_type == DRIFT_TYPE and result.signal == prev.fault_signal
+                and (stats.growth_t >= DRIFT_HOLD_T
+                     or stats.span_growth_t >= DRIFT_SPAN_HOLD_T))
+        if held or stats.span_growth_t >= DRIFT_SPAN_T:
+            return self._pattern.as_drift(result, stats) or result
+        return result
 
     def _raw_signals_checked(self, stats: ClassificationStatistics
                              ) -> ClassificationStatistics:

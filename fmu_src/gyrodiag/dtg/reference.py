@@ -53,7 +53,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -61,6 +61,7 @@ from numpy.typing import NDArray
 
 from ..common._validation import check_finite_array, check_int, check_positive
 from .case_rate import CASE_RATE_SCHEMES, dtg_case_rate_regression
+from .growth import LevelGrowth
 from .model import N_THETA
 
 __all__ = [
@@ -965,6 +966,8 @@ class ClassificationStatistics:
         The same fit's slope over its standard error (scatter about the line), signed so
         that > 0 is a growing |level|: a drift keeps it large for as long as it grows,
         where ``growth`` falls once the window no longer starts at the onset.
+    span_growth_t : float
+        The same over every block since the alarm began (:class:`LevelGrowth`).
     log_eta : ndarray, shape (10,)
         log10(|mean θ|/|θ0_eta|) over the window, x then y axis.
     window_blocks : int
@@ -986,6 +989,7 @@ class ClassificationStatistics:
     window_s: float
     raw_signals: bool = True
     growth_t: float = 0.0
+    span_growth_t: float = 0.0
 
 
 def _accumulate(info: NDArray[np.float64], rhs: NDArray[np.float64],
@@ -1092,6 +1096,7 @@ class ResidualMonitor:
         self._last_hold_block = -1
         self._power = np.zeros(2)  # low-frequency power CUSUM of ex, ey
         self._other_seen = False   # a test other than the power CUSUM held this alarm
+        self._growth = LevelGrowth()  # residual level since the alarm (classification)
         # z_x, z_y, v_x, v_y, vL_x, vL_y, P_x, P_y (P: power CUSUM / its threshold)
         self.statistics = np.zeros(N_TESTS)
         # θ0-uncertainty allowances per block (V²): block mean x, y; within-block x, y
@@ -1217,6 +1222,10 @@ class ResidualMonitor:
         if fresh:  # a repeated block is no new evidence
             self._update_power(res[0], None if allow is None else allow[:2])
         alarm = self._test()
+        if not alarm:
+            self._growth.reset()
+        elif fresh and self.blocks_in_alarm > self.SKIP_BLOCKS:
+            self._growth.update((m - self.reference.mean) / self.reference.block_std)
         if self._refine and not alarm:
             # a block the tests accept as fault-free refines θ0 (no forgetting: the rotor
             # is constant; in alarm the block is left out, so a fault is not learned)
@@ -1326,7 +1335,11 @@ class ResidualMonitor:
         k = min(self.blocks_in_alarm - self.SKIP_BLOCKS, self.long_blocks)
         if k < self.short_blocks:
             return None
-        return self.window_statistics(k)
+        stats = self.window_statistics(k)
+        growth = self._growth
+        if growth.blocks > k:  # a drift's rate: the slopes over the whole span
+            stats = replace(stats, slope=growth.slopes() / self.block_s)
+        return replace(stats, span_growth_t=growth.t_statistic())
 
     def window_statistics(self, k: int) -> ClassificationStatistics:
         """:class:`ClassificationStatistics` of the newest k blocks (k ≥ 1)."""
@@ -1367,7 +1380,7 @@ class ResidualMonitor:
                 "block_index": self._block_index, "alarm": self.alarm,
                 "alarm_block": self._alarm_block, "last_hold_block": self._last_hold_block,
                 "power": self._power.copy(), "other_seen": self._other_seen,
-                "statistics": self.statistics.copy(),
+                "statistics": self.statistics.copy(), "growth": self._growth.get_state(),
                 "refinement": None if not self._refine else {
                     "allow": self._allow.copy(), "info": self._info.copy(),
                     "rhs": self._rhs.copy(), "theta_ref": self._theta_ref.copy(),
@@ -1392,6 +1405,7 @@ class ResidualMonitor:
         self._power = check_finite_array("state['power']", s["power"], shape=(2,)).copy()
         self._other_seen = bool(s["other_seen"])
         self.statistics = np.asarray(s["statistics"], dtype=float).reshape(N_TESTS).copy()
+        self._growth.set_state(s["growth"])
         ref = s.get("refinement")
         if (ref is None) != (not self._refine):
             raise ValueError("state['refinement'] does not match this monitor (the case "
