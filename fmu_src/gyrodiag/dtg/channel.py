@@ -524,7 +524,7 @@ def _physical(th_x: tuple[float, ...], th_y: tuple[float, ...],
 #: Version of :meth:`DTGChannel.get_state`'s format (1: tagged; case rate and alignment
 #: always present; 2: the classifier's part under "classifier"; 3: the diagnosis's
 #: signal mask and the pattern classifier's pair count; 4: the physical-parameter test;
-#: 5: the residual level's growth since the alarm).
+#: 5: the residual level's growth since the alarm, the held physical verdict).
 STATE_VERSION = 5
 #: Keys of a version-1 state that belong to a classifier (paper: the first three;
 #: pattern: the last three; a version-1 state holds all six).
@@ -567,10 +567,13 @@ def _from_version_3(state: dict[str, Any]) -> dict[str, Any]:
 
 
 def _from_version_4(state: dict[str, Any]) -> dict[str, Any]:
-    """No growth record was saved: the level's span since the alarm starts afresh."""
+    """No growth record was saved: the level's span since the alarm starts afresh; no
+    physical verdict is held."""
     classifier = dict(state["classifier"])
     if isinstance(classifier.get("monitor"), dict):
         classifier["monitor"] = {**classifier["monitor"], "growth": [0.0] * 19}
+    if "pair_streak" in classifier:
+        classifier["held_physical"] = None
     return {**state, "classifier": classifier}
 
 

@@ -46,6 +46,10 @@ if TYPE_CHECKING:
 
 STEP_TYPE = FAULT_TYPES.index("step") + 1
 DRIFT_TYPE = FAULT_TYPES.index("drift") + 1
+NOISE_TYPE = FAULT_TYPES.index("noise") + 1
+#: With a spin or torquer change named, a noise class must raise its own signal's
+#: variance by this many standard errors: the change alone raises the residuals'.
+HELD_NOISE_Z = 3.0
 
 __all__ = ["MASKED_SIGNAL_FIT", "OMEGA_EXCITATION_Z", "PatternRule"]
 
@@ -116,6 +120,8 @@ class PatternRule(ChannelClassifier):
         self._snapshots: deque[tuple[Any, ...]] = deque(
             maxlen=self.host._short_blocks + 1)
         self._pair_streak = 0  # classifications in a row won by a pair of faults
+        # the physical test's last verdict, kept while the residual tests hold the test
+        self._held_physical: PhysicalResult | None = None
 
     def reference_failed(self) -> bool:
         """True once learning has ended without any usable reference."""
@@ -229,6 +235,10 @@ class PatternRule(ChannelClassifier):
         mon = self.monitor
         residual_alarm = mon is not None and mon.alarm
         physical = self._physical_verdict()
+        if physical is not None and physical.kind:
+            self._held_physical = physical
+        elif physical is None and not residual_alarm:
+            self._held_physical = None
         alarm = band_alarm or residual_alarm or physical is not None
         d = self.host.diagnosis
         if block_done or (alarm and d.fault_type == 0) or (not alarm and d.fault_type != 0):
@@ -302,6 +312,9 @@ class PatternRule(ChannelClassifier):
                 self._pair_streak = streak + 1 if pair is not None else 0
                 if pair is not None and self._pair_streak >= PAIR_CONFIRM:
                     result = pair
+            held = self._held_physical
+            if held is not None and self._explained_by_change(result, stats):
+                result = physical_class(self.host.config.patterns, held.kind, held.ratio)
         elif physical is not None:
             result = physical_class(self.host.config.patterns, physical.kind, physical.ratio)
         elif band_alarm:
@@ -310,6 +323,22 @@ class PatternRule(ChannelClassifier):
             if self._pattern is not None:
                 result = self._pattern.classify_physical(stats)
         return result, stats
+
+    def _explained_by_change(self, result: PatternResult | None,
+                             stats: ClassificationStatistics | None) -> bool:
+        """A residual alarm after the physical test named a spin or torquer change is
+        that change's (the residuals still compare with θ0): slow residual power alone,
+        no class, or a noise class whose own signal's variance has not risen."""
+        mon = self.monitor
+        assert mon is not None
+        if mon.power_only or result is None or result.fault_type < 0:
+            return True
+        if result.fault_type != NOISE_TYPE or stats is None or self._pattern is None:
+            return False
+        noise = self._pattern.library.noise
+        i = result.signal - 1
+        std = noise.log_variance_std[i] * noise.scale(stats.window_blocks)
+        return bool(stats.log_variance[i] < HELD_NOISE_Z * std)
 
     def _diagnose(self, band_alarm: bool, physical: PhysicalResult | None = None
                   ) -> DTGDiagnosis:
@@ -387,6 +416,9 @@ class PatternRule(ChannelClassifier):
             "rollback": None if self._rollback is None else list(self._rollback),
             "snapshots": [list(snap) for snap in self._snapshots],
             "pair_streak": self._pair_streak,
+            "held_physical": (None if self._held_physical is None else
+                              [self._held_physical.kind, self._held_physical.ratio,
+                               self._held_physical.chi2]),
         }
 
     def set_state(self, state: dict[str, Any],
@@ -400,6 +432,9 @@ class PatternRule(ChannelClassifier):
         self._rollback = None if state["rollback"] is None else snapshot(state["rollback"])
         self._snapshots.clear()
         self._pair_streak = int(state["pair_streak"])
+        held = state["held_physical"]
+        self._held_physical = (None if held is None else PhysicalResult(
+            alarm=True, kind=str(held[0]), ratio=float(held[1]), chi2=float(held[2])))
         for raw_snap in state["snapshots"]:
             self._snapshots.append(snapshot(raw_snap))
         if state["monitor"] is None:
