@@ -1,5 +1,5 @@
-"""A drift on a DTG signal is typed drift for its course, with its rate; a step stays a
-step (gyrodiag.dtg.growth, the pattern rule's drift decision; issue 34 item 2)."""
+"""DTG classes over a fault's course: a drift typed drift with its rate, a step a
+step, a pair kept a pair (gyrodiag.dtg.growth, the pattern rule; issue 34 items 2, 3)."""
 
 from __future__ import annotations
 
@@ -86,3 +86,19 @@ def test_slow_pickoff_drift_stays_a_drift_and_a_step_a_step(signal, kind, value)
         assert rate == pytest.approx(value, rel=0.3)
     else:
         assert not any(n.endswith("_drift") for n in names)
+
+
+def test_a_pair_is_not_replaced_by_a_physical_class_that_beats_one_of_its_faults() -> None:
+    """0.83 V on Ux and −0.10 V on Uty at once (bench seed 1108): the pair fits to a
+    distance of about 0.05, each single class to about 5.5. Before, the physical
+    classes were compared with the single class first, and spin won from 4.8 s after
+    onset (a pair was never tried on a physical result)."""
+    rec = _bench(1108, 18.0)
+    t = (np.arange(rec.shape[0]) + 1) * T
+    rec[t > 6.46, 2] += 0.831
+    rec[t > 6.46, 1] -= 0.104
+    ch = DTGChannel(DTGChannelConfig(patterns=default_library()))
+    names = [ch.update(*row).diagnosis.class_name for row in rec]
+    first = names.index("ux_step+uty_step")
+    assert first * T < 8.0
+    assert set(names[first:]) == {"ux_step+uty_step"}

@@ -292,11 +292,16 @@ class PatternRule(ChannelClassifier):
         if mon.alarm:
             if stats is not None and self._pattern is not None:
                 result = self._pattern.classify_signal_fault(stats)
+                pair = (self._pattern.classify_pair(stats, result)
+                        if result.signal != 0 else None)  # a level class or unknown
+                self._pair_streak = streak + 1 if pair is not None else 0
+                if pair is not None and self._pair_streak >= PAIR_CONFIRM:
+                    result = pair
                 if self._pattern.has_physical:
                     # a large physical fault (e.g. torquer scale 0.6) also raises the
-                    # residual variance, inside the ratio band: the family that
-                    # explains more wins (a signal fault corrupts one axis' estimates,
-                    # which no physical class explains)
+                    # residual variance: the family that explains more wins (a signal
+                    # fault, or a pair, corrupts one axis' estimates, which no physical
+                    # class explains)
                     physical = self._pattern.classify_physical(
                         mon.window_statistics(self.host._long_blocks))
                     # the ratio band out and only the slow residual power up: a θ change
@@ -307,11 +312,6 @@ class PatternRule(ChannelClassifier):
                             or (band_alarm and not stats.raw_signals
                                 and result.distance > MASKED_SIGNAL_FIT)):
                         result = physical
-                pair = (self._pattern.classify_pair(stats, result)
-                        if result.signal != 0 else None)  # a level class or unknown
-                self._pair_streak = streak + 1 if pair is not None else 0
-                if pair is not None and self._pair_streak >= PAIR_CONFIRM:
-                    result = pair
             held = self._held_physical
             if held is not None and self._explained_by_change(result, stats):
                 result = physical_class(self.host.config.patterns, held.kind, held.ratio)
