@@ -101,35 +101,43 @@ def test_dtg_channel_version_1_state_restores_and_migrates_to_the_saved_one(
     _dtg_continue_equally(cfg, v1, rec[900:], ref)
 
 
-def test_df_channel_state_is_versioned_and_an_unversioned_one_still_restores() -> None:
+def _df_saved(k0: int) -> tuple[DFChannelConfig, np.ndarray, np.ndarray, DFChannel, dict]:
+    """A DF channel in a q-bias episode after k0 samples, and its saved state."""
     config = DFChannelConfig(sample_period_s=DT, calibrate_s=8.0, burn_in_s=2.0)
     _, u, y = simulate_loop(12.0, seed=24, faults=(F(2, "bias", 0.01, start_s=9.0),))
     ch = DFChannel(config)
-    for k in range(920):
+    for k in range(k0):
         ch.update(u[k], y[k])
-    saved = ch.get_state()
+    return config, u, y, ch, ch.get_state()
+
+
+def _df_continue_equally(config: DFChannelConfig, state: dict, u: np.ndarray,
+                         y: np.ndarray, k0: int, ref: list,
+                         fields: tuple[str, ...] = ("detected", "isolated_sensor")) -> None:
+    """A channel restored from ``state`` continues as ``ref`` (residuals bit for bit,
+    and the outputs ``fields``)."""
+    restored = DFChannel(config)
+    restored.set_state(state)
+    again = [restored.update(u[k], y[k]) for k in range(k0, len(u))]
+    for a, b in zip(ref, again, strict=True):
+        np.testing.assert_array_equal(a.residual, b.residual)
+        assert [getattr(a, f) for f in fields] == [getattr(b, f) for f in fields]
+
+
+def test_df_channel_state_is_versioned_and_an_unversioned_one_still_restores() -> None:
+    config, u, y, ch, saved = _df_saved(920)
     assert saved[STATE_VERSION_KEY] == df_channel.STATE_VERSION == 3
     old = {k: v for k, v in saved.items()
            if k not in (STATE_VERSION_KEY, "equaliser", "skew_u", "skew_y", "cal_raw")}
     ref = [ch.update(u[k], y[k]) for k in range(920, len(u))]
-    restored = DFChannel(config)
-    restored.set_state(old)
-    again = [restored.update(u[k], y[k]) for k in range(920, len(u))]
-    for a, b in zip(ref, again, strict=True):
-        np.testing.assert_array_equal(a.residual, b.residual)
-        assert (a.detected, a.isolated_sensor) == (b.detected, b.isolated_sensor)
+    _df_continue_equally(config, old, u, y, 920, ref)
     assert ref[-1].detected
     with pytest.raises(ValueError, match="detection-filter channel state version 7"):
         DFChannel(config).set_state({**saved, STATE_VERSION_KEY: 7})
 
 
 def test_df_channel_version_2_state_restores_without_the_presence_growth_record() -> None:
-    config = DFChannelConfig(sample_period_s=DT, calibrate_s=8.0, burn_in_s=2.0)
-    _, u, y = simulate_loop(12.0, seed=24, faults=(F(2, "bias", 0.01, start_s=9.0),))
-    ch = DFChannel(config)
-    for k in range(1000):
-        ch.update(u[k], y[k])
-    saved = ch.get_state()
+    config, u, y, ch, saved = _df_saved(1000)
     engine = {k: v for k, v in saved["engine"].items() if k not in ("hist_p", "presence_grew")}
     v2 = stamp({**{k: v for k, v in saved.items() if k != STATE_VERSION_KEY},
                 "engine": engine}, 2)
@@ -137,11 +145,6 @@ def test_df_channel_version_2_state_restores_without_the_presence_growth_record(
                        "detection-filter channel")
     assert migrated["engine"]["hist_p"].shape == saved["engine"]["hist_p"].shape
     ref = [ch.update(u[k], y[k]) for k in range(1000, len(u))]
-    restored = DFChannel(config)
-    restored.set_state(v2)
-    again = [restored.update(u[k], y[k]) for k in range(1000, len(u))]
-    for a, b in zip(ref, again, strict=True):
-        np.testing.assert_array_equal(a.residual, b.residual)
-        assert (a.detected, a.isolated_sensor, a.fault_type) == (
-            b.detected, b.isolated_sensor, b.fault_type)
+    _df_continue_equally(config, v2, u, y, 1000, ref,
+                         ("detected", "isolated_sensor", "fault_type"))
     assert ref[-1].isolated_sensor == 3

@@ -129,13 +129,10 @@ class FaultTyper:
         if self.presence_mode == PRESENCE_MODEL:
             if hold:
                 return True
-            saved = (self.types.copy(), self.mags.copy(), self.mag_valid.copy(),
-                     self._model_cols.copy(), self._theta.copy())
+            saved = self._snapshot()
             same = self._type_now(k, isolated, record_episodes, constant_output)
             if self.presence_mode == PRESENCE_NONE:
-                (self.types, self.mags, self.mag_valid, self._model_cols,
-                 self._theta) = saved
-                self.presence_mode = PRESENCE_MODEL
+                self._restore(saved)
             return same
         return self._type_now(k, isolated, record_episodes, constant_output)
 
@@ -143,15 +140,22 @@ class FaultTyper:
                      constant_output: Callable[[int, int], float | None]) -> bool:
         """Refit a fault that outgrew its fitted mean model; keep the refit only if it
         turns a sensor's bias into a ramp or a gain (True), else the model as it was."""
-        saved = (self.types.copy(), self.mags.copy(), self.mag_valid.copy(),
-                 self._model_cols.copy(), self._theta.copy(), self.presence_mode)
+        saved = self._snapshot()
         self._type_now(k, isolated, record_episodes, constant_output)
         richer = self.presence_mode == PRESENCE_MODEL and any(
             int(saved[0][i]) in _BIASES and int(self.types[i]) in _RICHER for i in isolated)
         if not richer:
-            (self.types, self.mags, self.mag_valid, self._model_cols, self._theta,
-             self.presence_mode) = saved
+            self._restore(saved)
         return richer
+
+    def _snapshot(self) -> tuple[Any, ...]:
+        """The diagnosis and fitted model (copies), for :meth:`_restore`."""
+        return (self.types.copy(), self.mags.copy(), self.mag_valid.copy(),
+                self._model_cols.copy(), self._theta.copy(), self.presence_mode)
+
+    def _restore(self, saved: tuple[Any, ...]) -> None:
+        (self.types, self.mags, self.mag_valid, self._model_cols, self._theta,
+         self.presence_mode) = saved
 
     def _type_now(self, k: int, isolated: tuple[int, ...], record_episodes: int,
                   constant_output: Callable[[int, int], float | None]) -> bool:

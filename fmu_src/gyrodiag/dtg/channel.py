@@ -44,6 +44,7 @@ from .config import (  # noqa: F401  (re-exported: importable from here as befor
     EstimatorKind,
 )
 from .decision import ThresholdDecision
+from .growth import LevelGrowth
 from .model import N_THETA, DTGRegressor
 from .outputs import (  # noqa: F401  (re-exported)
     STATUS_FAILED,
@@ -571,7 +572,8 @@ def _from_version_4(state: dict[str, Any]) -> dict[str, Any]:
     physical verdict is held."""
     classifier = dict(state["classifier"])
     if isinstance(classifier.get("monitor"), dict):
-        classifier["monitor"] = {**classifier["monitor"], "growth": [0.0] * 19}
+        classifier["monitor"] = {**classifier["monitor"],
+                                 "growth": LevelGrowth().get_state()}
     if "pair_streak" in classifier:
         classifier["held_physical"] = None
     return {**state, "classifier": classifier}

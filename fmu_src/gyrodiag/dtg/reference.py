@@ -1096,7 +1096,7 @@ class ResidualMonitor:
         self._last_hold_block = -1
         self._power = np.zeros(2)  # low-frequency power CUSUM of ex, ey
         self._other_seen = False   # a test other than the power CUSUM held this alarm
-        self._growth = LevelGrowth()  # residual level since the alarm (classification)
+        self._growth = LevelGrowth()  # block levels since the alarm (classification)
         # z_x, z_y, v_x, v_y, vL_x, vL_y, P_x, P_y (P: power CUSUM / its threshold)
         self.statistics = np.zeros(N_TESTS)
         # θ0-uncertainty allowances per block (V²): block mean x, y; within-block x, y
