@@ -184,6 +184,10 @@ class GuardedSlave(Fmi2Slave):
     #: a watched variable may have changed since the subclass last cleared this
     watched_changed: bool = True
 
+    def register_variable(self, var: Any, nested: bool = True) -> None:
+        super().register_variable(var, nested)
+        self.__dict__.pop("_accessor_cache", None)
+
     def _mark_inputs_changed(self, vrs: list[int] | None = None) -> None:
         if vrs is not None and self.watched_vrs and not self.watched_vrs.isdisjoint(vrs):
             self.watched_changed = True
@@ -199,6 +203,8 @@ class GuardedSlave(Fmi2Slave):
     _GATHER_CACHE_SIZE = 256
 
     def _fast_get(self, kind: str, vrs: list[int], convert: Callable[[Any], Any]) -> Any:
+        if getattr(self, "_vr_names", None) is None:
+            return self._accessor_get(kind, vrs, convert)
         try:
             v = self.values
             if len(vrs) == 1:
@@ -214,16 +220,49 @@ class GuardedSlave(Fmi2Slave):
                 gathers[key] = gather
             return [] if gather is None else list(map(convert, gather(v)))
         except (KeyError, AttributeError):
-            return None
+            return self._accessor_get(kind, vrs, convert)
 
     def _fast_set(self, kind: str, vrs: list[int], values: list[Any]) -> bool:
-        try:
-            names = self._vr_names[kind]
-            targets = [names[vr] for vr in vrs]
-        except (KeyError, AttributeError):
+        if getattr(self, "_vr_names", None) is not None:
+            try:
+                names = self._vr_names[kind]
+                targets = [names[vr] for vr in vrs]
+            except KeyError:
+                pass
+            else:
+                self.values.update(zip(targets, values, strict=False))
+                return True
+        setters = self._accessors(kind, vrs, "setter")
+        if setters is None:
             return False
-        self.values.update(zip(targets, values, strict=False))
+        for setter, value in zip(setters, values, strict=False):
+            setter(value)
         return True
+
+    def _accessors(self, kind: str, vrs: list[int], which: str) -> tuple[Any, ...] | None:
+        """The getters or setters of ``vrs`` (kept per set), None unless every one is a
+        registered variable of ``kind`` with that accessor (then the slow path reports)."""
+        cache = self.__dict__.get("_accessor_cache")
+        if cache is None:
+            cache = self.__dict__["_accessor_cache"] = {}
+        key = (kind, which, tuple(vrs))
+        found = cache.get(key)
+        if found is None:
+            cls, found_list = _KINDS[kind], []
+            for vr in vrs:
+                var = self.vars.get(vr)
+                accessor = getattr(var, which, None)
+                if type(var) is not cls or accessor is None:
+                    return None
+                found_list.append(accessor)
+            if len(cache) >= self._GATHER_CACHE_SIZE:
+                cache.clear()
+            found = cache[key] = tuple(found_list)
+        return found
+
+    def _accessor_get(self, kind: str, vrs: list[int], convert: Callable[[Any], Any]) -> Any:
+        getters = self._accessors(kind, vrs, "getter")
+        return None if getters is None else [convert(g()) for g in getters]
 
     def _sync_outputs(self) -> None:
         """Bring outputs computed lazily up to date before they are read or saved

@@ -134,6 +134,10 @@ class Aircraft(GuardedSlave):
                 getter=(lambda j=j: float(self._gust_out[j])),
                 setter=(lambda v, j=j: self._gust_out.__setitem__(j, v))))
 
+        # the tunables are validated again only after one of them was set
+        self.watched_vrs = frozenset(
+            vr for vr, var in self.vars.items() if var.variability == V.tunable)
+
     def _gust(self, t: float, tol: float = 0.0) -> DrydenGust:
         # an onset within tol of t (half a step) counts as at t: events on the grid
         on = self.turbulence_start_s <= t + tol and t + tol < self.turbulence_stop_s
@@ -153,6 +157,7 @@ class Aircraft(GuardedSlave):
                                  f"turbulence_start_s ({self.turbulence_start_s})")
             self.model.gust = self._gust(self._t0)
             self.model.check()
+            self.watched_changed = False
             self.model.reset()
             self._publish()
         except Exception:
@@ -165,7 +170,9 @@ class Aircraft(GuardedSlave):
             gust = self._gust(current_time, 0.5 * step_size)
             if gust.sigma_w != self.model.gust.sigma_w:
                 self.model.set_gust(gust)
-            self.model.check()
+            if self.watched_changed:
+                self.model.check()
+                self.watched_changed = False
             self.model.step(step_size, self._u)
             self._publish()
         except Exception:
@@ -195,3 +202,4 @@ class Aircraft(GuardedSlave):
         model_state = state.pop("__model__")
         super()._apply_state_payload(state)
         self.model.set_state(model_state)
+        self.watched_changed = True

@@ -148,11 +148,21 @@ class PitchController(GuardedSlave):
                           ("k_int", "LQR gain on the pitch-error integral (rad per rad s)")]:
             self.register_variable(Real(name, causality=P.calculatedParameter,
                                         variability=V.fixed, description=doc))
+        self._shape_kept: PitchCommand | None = None
+        self.watched_vrs = frozenset(
+            vr for vr, var in self.vars.items() if var.variability == V.tunable)
 
     def _publish_gains(self) -> None:
         self.k_alpha, self.k_q, self.k_theta, self.k_int = (float(v) for v in self.law.design.k)
 
     def _shape(self) -> PitchCommand:
+        # rebuilt (and validated) only after a tunable was set
+        if self.watched_changed or self._shape_kept is None:
+            self._shape_kept = self._new_shape()
+            self.watched_changed = False
+        return self._shape_kept
+
+    def _new_shape(self) -> PitchCommand:
         if self.command_source not in KIND_NAMES:
             kinds = ", ".join(f"{k} {v}" for k, v in KIND_NAMES.items())
             raise ValueError(f"command_source must be 0..{COMMAND_SINE_SWEEP} ({kinds}), "
@@ -220,6 +230,7 @@ class PitchController(GuardedSlave):
         state = dict(state)
         law_state = state.pop("__law__")
         super()._apply_state_payload(state)
+        self._shape_kept = None
         # gains are calculated parameters of fixed weights: rebuild, then restore ξ
         self.law = PitchLaw(design_pitch_controller(
             self.q_alpha, self.q_q, self.q_theta, self.q_int, self.r))
