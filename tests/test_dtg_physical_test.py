@@ -8,6 +8,7 @@ the plant, not in the signals.
 from __future__ import annotations
 
 import sys
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -139,6 +140,23 @@ def test_noise_on_one_torquer_read_out_is_not_named_a_physical_change():
     first = _first_alarm(test, rec)
     assert first is not None and ONSET_S < first < ONSET_S + 10.0
     assert test.result.kind == ""
+
+
+def test_channel_never_names_torquer_read_out_noise_a_physical_change():
+    """0.15 V of noise on Uy: the attenuated y-axis θ makes the GLR alarm before the
+    residual tests; with the axes' disagreement at 13-56 % of its χ² (a spin or torquer
+    change: under 6 % once settled) the GLR names neither. Before, the 20 % share let
+    "torquer" through and held it for 87 % of the run; what is left is a 75 ms flash of
+    the library's residual-based spin class at the alarm's start."""
+    rec = _bench(11, 20.0)
+    k0 = round(ONSET_S / T)
+    rec[k0:, 3] += 0.15 * np.random.default_rng(12).standard_normal(len(rec) - k0)
+    ch = DTGChannel(DTGChannelConfig(patterns=default_library()))
+    names = [ch.update(*row).diagnosis.class_name for row in rec]
+    assert not any(names[:k0])
+    counts = Counter(n for n in names[k0:] if n)
+    assert counts.most_common(1)[0][0] == "uy_noise", counts
+    assert counts["spin"] + counts["torquer"] < 0.02 * sum(counts.values()), counts
 
 
 def test_a_hold_restarts_the_windows_after_the_band_pass_settles():

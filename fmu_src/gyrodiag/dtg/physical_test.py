@@ -45,8 +45,8 @@ LOWPASS_FRACTION = 0.2
 HIGHPASS_FRACTION = 0.02
 #: The axes agree on a common shift while the χ² of their disagreement (2 degrees of
 #: freedom) stays below this, or below this share of the whole χ².
-AXES_AGREE_CHI2 = 16.0
-AXES_AGREE_SHARE = 0.2
+AXES_AGREE_CHI2 = 9.21
+AXES_AGREE_SHARE = 0.1
 #: Direction masks on θ (θ3, θ4 for the spin; θ5 for the torquer).
 _MASKS = np.array([[0.0, 0.0, 1.0, 1.0, 0.0], [0.0, 0.0, 0.0, 0.0, 1.0]])
 
