@@ -9,13 +9,16 @@ from __future__ import annotations
 
 import sys
 from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from gyrodiag.dtg import DTGChannel, DTGChannelConfig, default_library
+from gyrodiag.dtg.patterns import PatternResult, signal_bit
 from gyrodiag.dtg.physical_test import PHYSICAL_SIGMA, PhysicalTest
+from gyrodiag.dtg.readout_noise import AXIS_Z, OTHER_AXIS_SHARE, renamed_noise
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT / "models" / "dtg") not in sys.path:
@@ -227,3 +230,49 @@ def test_a_named_change_keeps_its_class_when_the_residual_tests_alarm_later(
     assert set(names[first:]) == {kind}
     ratio = next(iter(fault.values()))
     assert ch.diagnosis.ratio == pytest.approx(ratio, abs=0.02)  # frozen at the pause
+
+
+@pytest.mark.parametrize(("column", "size", "axis", "share"), [
+    (2, 0.1, 0, OTHER_AXIS_SHARE), (3, 0.1, 1, OTHER_AXIS_SHARE), (0, 0.02, 1, 0.5),
+    (1, 0.02, 0, 0.5),
+])
+def test_fit_over_a_hold_shows_the_axis_a_read_out_noise_attenuates(column, size, axis,
+                                                                      share):
+    """Noise on a regressor attenuates its axis's θ: Ux and Uty the x axis, Uy and Utx
+    the y axis (the torquers act across the axes). Held by another test from the onset,
+    the physical test still fits the hold, and one axis stands out: clearly enough to
+    rename for a torquer read-out, less so for a pick-off (whose noise also enters the
+    other axis through the loop)."""
+    rec = _bench(45, ONSET_S + 4.0)
+    k0 = round(ONSET_S / T)
+    rec[k0:, column] += size * np.random.default_rng(column).standard_normal(len(rec) - k0)
+    test = _test()
+    for k, row in enumerate(rec):
+        test.update(tuple(row), k >= k0)
+        if k == k0 + 500:
+            assert test.axis_evidence() is None  # under a second of the hold
+    z = test.axis_evidence()
+    assert z is not None
+    assert z[axis] > AXIS_Z and z[1 - axis] < share * z[axis], z
+    assert not test.result.alarm
+
+
+def test_renamed_noise_takes_the_partner_of_the_attenuated_axis():
+    lib = default_library()
+    by_name = {c.name: i for i, c in enumerate(lib.classes)}
+
+    def noise(name: str) -> PatternResult:
+        c = lib.classes[by_name[name]]
+        return PatternResult(by_name[name] + 1, name, 2, 1 + ["Utx", "Uty", "Ux", "Uy"].index(
+            c.signal), c.axis, 0.3, size=0.1, signal_mask=signal_bit(c.signal))
+
+    assert renamed_noise(lib, noise("utx_noise"), (20.0, 1.0)).name == "ux_noise"
+    assert renamed_noise(lib, noise("ux_noise"), (20.0, 1.0)).name == "ux_noise"
+    assert renamed_noise(lib, noise("ux_noise"), (1.0, 20.0)).name == "utx_noise"
+    assert renamed_noise(lib, noise("uy_noise"), (20.0, 1.0)).name == "uty_noise"
+    renamed = renamed_noise(lib, noise("uty_noise"), (0.0, 9.0))
+    assert (renamed.name, renamed.signal, renamed.signal_mask) == ("uy_noise", 4, 8)
+    for ambiguous in [(20.0, 6.0), (4.0, 0.0), None]:
+        assert renamed_noise(lib, noise("uty_noise"), ambiguous).name == "uty_noise"
+    step = replace(noise("ux_noise"), fault_type=1, name="ux_step")
+    assert renamed_noise(lib, step, (1.0, 20.0)) is step

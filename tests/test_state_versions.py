@@ -16,6 +16,7 @@ from gyrodiag.common.state import STATE_VERSION_KEY, migrate, stamp
 from gyrodiag.df import channel as df_channel
 from gyrodiag.df.channel import DFChannel, DFChannelConfig
 from gyrodiag.dtg import channel as dtg_channel
+from gyrodiag.dtg import default_library
 from gyrodiag.dtg.channel import DTGChannel, DTGChannelConfig
 from gyrodiag.dtg.model import theta_from_physical
 
@@ -73,7 +74,7 @@ def test_dtg_channel_state_is_versioned_and_an_unversioned_one_still_restores() 
     for row in rec[:800]:
         ch.update(*row)
     saved = ch.get_state()
-    assert saved[STATE_VERSION_KEY] == dtg_channel.STATE_VERSION == 5
+    assert saved[STATE_VERSION_KEY] == dtg_channel.STATE_VERSION == 6
     # what a state saved before versioning looked like: no tag, no case-rate part, no
     # alignment queue (this channel has neither in use)
     old = {k: v for k, v in _dtg_as_version_1(saved, cfg).items()
@@ -148,3 +149,40 @@ def test_df_channel_version_2_state_restores_without_the_presence_growth_record(
     _df_continue_equally(config, v2, u, y, 1000, ref,
                          ("detected", "isolated_sensor", "fault_type"))
     assert ref[-1].isolated_sensor == 3
+
+
+@pytest.mark.slow
+def test_dtg_channel_version_5_state_restores_without_the_fit_over_a_hold() -> None:
+    """Version 6 adds the physical test's fit over a hold (the axis a read-out's noise
+    attenuates). A version-5 state restores: outside a hold the channel continues
+    exactly; inside one the fit starts with the next hold, so the read-out naming waits
+    for it instead of using a fit it never saw."""
+    from test_dtg_physical_test import ONSET_S, _bench
+
+    cfg = DTGChannelConfig(patterns=default_library())
+    rec = _bench(11, 14.0)
+    k0 = round(ONSET_S / T)
+    rec[k0:, 3] += 0.15 * np.random.default_rng(12).standard_normal(len(rec) - k0)
+    ch = DTGChannel(cfg)
+    for row in rec[:7000]:
+        ch.update(*row)
+    saved = ch.get_state()
+    assert saved["physical_test"]["held"]["holding"] is False
+    v5 = {**saved, STATE_VERSION_KEY: 5,
+          "physical_test": {k: v for k, v in saved["physical_test"].items() if k != "held"}}
+    ref = [ch.update(*row) for row in rec[7000:]]
+    assert ch.physical_test is not None and ch.physical_test.axis_evidence() is not None
+    restored = DTGChannel(cfg)
+    restored.set_state(v5)
+    again = [restored.update(*row) for row in rec[7000:]]
+    assert [o.diagnosis.class_name for o in again] == [o.diagnosis.class_name for o in ref]
+    # saved in the hold: the fit restarts, and nothing fails
+    held = ch.get_state()
+    assert held["physical_test"]["held"]["holding"] is True
+    v5 = {**held, STATE_VERSION_KEY: 5,
+          "physical_test": {k: v for k, v in held["physical_test"].items() if k != "held"}}
+    restored = DTGChannel(cfg)
+    restored.set_state(v5)
+    assert restored.physical_test is not None
+    assert restored.physical_test.axis_evidence() is None
+    restored.update(*rec[-1])

@@ -525,8 +525,9 @@ def _physical(th_x: tuple[float, ...], th_y: tuple[float, ...],
 #: Version of :meth:`DTGChannel.get_state`'s format (1: tagged; case rate and alignment
 #: always present; 2: the classifier's part under "classifier"; 3: the diagnosis's
 #: signal mask and the pattern classifier's pair count; 4: the physical-parameter test;
-#: 5: the residual level's growth since the alarm, the held physical verdict).
-STATE_VERSION = 5
+#: 5: the residual level's growth since the alarm, the held physical verdict; 6: the
+#: physical test's fit over a hold).
+STATE_VERSION = 6
 #: Keys of a version-1 state that belong to a classifier (paper: the first three;
 #: pattern: the last three; a version-1 state holds all six).
 _CLASSIFIER_KEYS = ("features", "learn_sum", "learn_count", "monitor", "rollback",
@@ -579,5 +580,11 @@ def _from_version_4(state: dict[str, Any]) -> dict[str, Any]:
     return {**state, "classifier": classifier}
 
 
+def _from_version_5(state: dict[str, Any]) -> dict[str, Any]:
+    """No fit over a hold was saved: it starts with the next hold."""
+    test = state["physical_test"]
+    return {**state, "physical_test": None if test is None else {**test, "held": None}}
+
+
 _MIGRATIONS = {0: _from_version_0, 1: _from_version_1, 2: _from_version_2,
-               3: _from_version_3, 4: _from_version_4}
+               3: _from_version_3, 4: _from_version_4, 5: _from_version_5}

@@ -33,6 +33,7 @@ from .patterns import (
     physical_class,
 )
 from .physical_test import PhysicalResult
+from .readout_noise import renamed_noise
 from .reference import (
     REFERENCE_STATUS,
     ClassificationStatistics,
@@ -354,6 +355,9 @@ class PatternRule(ChannelClassifier):
             stats = self._raw_signals_checked(stats)
         result, stats = self._classify(band_alarm, stats, physical)
         result = self._held_drift(result, stats)
+        test = self.host.physical_test
+        if mon.alarm and test is not None:
+            result = renamed_noise(self.host.config.patterns, result, test.axis_evidence())
         if stats is None:
             # pending classification: the blocks of the alarm so far (the test window
             # without alarm), so that the outputs never mix in data from before the alarm

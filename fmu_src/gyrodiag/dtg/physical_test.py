@@ -47,6 +47,8 @@ HIGHPASS_FRACTION = 0.02
 #: freedom) stays below this, or below this share of the whole χ².
 AXES_AGREE_CHI2 = 9.21
 AXES_AGREE_SHARE = 0.1
+#: Blocks of a hold before :meth:`PhysicalTest.axis_evidence` answers (1 s).
+HELD_MIN_BLOCKS = 10
 #: Direction masks on θ (θ3, θ4 for the spin; θ5 for the torquer).
 _MASKS = np.array([[0.0, 0.0, 1.0, 1.0, 0.0], [0.0, 0.0, 0.0, 0.0, 1.0]])
 
@@ -150,6 +152,15 @@ class PhysicalTest:
             maxlen=self._windows[-1])
         self._streak = 0
         self.result = PhysicalResult()
+        self._clear_held()
+        self._holding = False
+
+    def _clear_held(self) -> None:
+        self._held_rows: list[tuple[float, ...]] = []
+        self._held_skip = self._settle
+        self._held_S = np.zeros(4)
+        self._held_info = np.zeros((4, 4))
+        self._held_n = 0
 
     @property
     def ready(self) -> bool:
@@ -201,8 +212,13 @@ class PhysicalTest:
         else:
             rows = self._regressor.update(*filtered, validate=False)  # type: ignore[call-arg]
         if held and n >= self._n_end:
+            if not self._holding:
+                self._clear_held()
             self._hold()
+            self._holding = True
+            self._held_row(rows)
             return
+        self._holding = False
         if n == self._n_start or n == self._n_end:
             self._rows = []
         if rows is None or n < self._n_start:
@@ -215,6 +231,39 @@ class PhysicalTest:
         if len(self._rows) == self._nb:
             self._end_block(n)
 
+    def _held_row(self, rows: Any) -> None:
+        """Accumulate the hold's own fit (no alarm from it): which axis's θ moved."""
+        if rows is None or self._theta0 is None or self._V is None:
+            return
+        if self._held_skip > 0:
+            self._held_skip -= 1
+            return
+        px, yx, py, yy = rows
+        self._held_rows.append((*px, yx, *py, yy))
+        if len(self._held_rows) == self._nb:
+            S, info = self._score(*_block_sums(self._held_rows))
+            self._held_rows = []
+            self._held_S = self._held_S + S
+            self._held_info = self._held_info + info
+            self._held_n += 1
+
+    def axis_evidence(self) -> tuple[float, float] | None:
+        """Largest |z| of the spin and torquer fractions on the x axis and on the y axis,
+        fitted over the current hold (another test in alarm); None before a second of
+        it. Noise on one read-out attenuates one axis's θ (Ux: x; Utx: y)."""
+        if self._held_n < HELD_MIN_BLOCKS or self._V is None or self._ML is None:
+            return None
+        try:
+            Mi = np.linalg.inv(self._held_info)
+            ref = self._nL * _sandwich(np.linalg.inv(self._ML), self._V)
+            var = np.diag(_sandwich(Mi, self._held_n * self._V) + ref)
+        except np.linalg.LinAlgError:
+            return None
+        z = np.abs(Mi @ self._held_S) / np.sqrt(var)
+        if not np.all(np.isfinite(z)):
+            return None
+        return float(max(z[0], z[1])), float(max(z[2], z[3]))
+
     def _hold(self) -> None:
         self._rows = []
         self._scores.clear()
@@ -223,10 +272,8 @@ class PhysicalTest:
         self.result = PhysicalResult(chi2=0.0)
 
     def _end_block(self, n: int) -> None:
-        a = np.array(self._rows)
+        A, r = _block_sums(self._rows)
         self._rows = []
-        A = np.stack([a[:, 0:5].T @ a[:, 0:5], a[:, 6:11].T @ a[:, 6:11]])
-        r = np.stack([a[:, 0:5].T @ a[:, 5], a[:, 6:11].T @ a[:, 11]])
         if n < self._n_end:
             self._learn.append((A, r))
             if n + self._nb >= self._n_end:
@@ -338,6 +385,9 @@ class PhysicalTest:
             "streak": self._streak,
             "result": [self.result.alarm, self.result.kind, self.result.ratio,
                        self.result.chi2],
+            "held": {"holding": self._holding, "rows": [list(r) for r in self._held_rows],
+                     "skip": self._held_skip, "S": self._held_S.tolist(),
+                     "info": self._held_info.tolist(), "n": self._held_n},
         }
 
     def set_state(self, state: dict[str, Any]) -> None:
@@ -363,6 +413,25 @@ class PhysicalTest:
         self._streak = int(state["streak"])
         alarm, kind, ratio, chi2 = state["result"]
         self.result = PhysicalResult(bool(alarm), str(kind), float(ratio), float(chi2))
+        held = state["held"]
+        self._clear_held()
+        self._holding = False
+        if held is not None:
+            self._holding = bool(held["holding"])
+            self._held_rows = [tuple(float(v) for v in r) for r in held["rows"]]
+            self._held_skip = int(held["skip"])
+            self._held_S = np.array(held["S"], dtype=float).reshape(4)
+            self._held_info = np.array(held["info"], dtype=float).reshape(4, 4)
+            self._held_n = int(held["n"])
+
+
+def _block_sums(rows: list[tuple[float, ...]]
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Per axis, the normal matrix (5, 5) and right-hand side (5,) of a block's rows."""
+    a = np.array(rows)
+    A = np.stack([a[:, 0:5].T @ a[:, 0:5], a[:, 6:11].T @ a[:, 6:11]])
+    r = np.stack([a[:, 0:5].T @ a[:, 5], a[:, 6:11].T @ a[:, 11]])
+    return A, r
 
 
 def _sandwich(Mi: NDArray[np.float64], V: NDArray[np.float64]) -> NDArray[np.float64]:
