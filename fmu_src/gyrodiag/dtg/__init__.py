@@ -96,6 +96,7 @@ _EXPORTS = {
     "AXIS_Z": "readout_noise",
     "OTHER_AXIS_SHARE": "readout_noise",
     "renamed_noise": "readout_noise",
+    "attenuated_axis": "readout_noise",
     "physical_class": "patterns",
     "learn_patterns": "learning",
     "UNKNOWN_CODE": "decision",

@@ -33,7 +33,7 @@ from .patterns import (
     physical_class,
 )
 from .physical_test import PhysicalResult
-from .readout_noise import renamed_noise
+from .readout_noise import attenuated_axis, renamed_noise
 from .reference import (
     REFERENCE_STATUS,
     ClassificationStatistics,
@@ -240,6 +240,8 @@ class PatternRule(ChannelClassifier):
             self._held_physical = physical
         elif physical is None and not residual_alarm:
             self._held_physical = None
+        if self._held_physical is not None and residual_alarm and self._one_axis():
+            self._held_physical = None  # one axis's θ moved: a read-out's noise
         alarm = band_alarm or residual_alarm or physical is not None
         d = self.host.diagnosis
         if block_done or (alarm and d.fault_type == 0) or (not alarm and d.fault_type != 0):
@@ -250,6 +252,11 @@ class PatternRule(ChannelClassifier):
                     if d.signal_mask and d.fault_signal == -1
                     else self._class_code(d.class_name))
         return alarm, code, NO_FEATURE, d
+
+    def _one_axis(self) -> bool:
+        """The physical test's fit over the residual alarm moved one axis's θ only."""
+        test = self.host.physical_test
+        return test is not None and attenuated_axis(test.axis_evidence()) is not None
 
     def holds_physical_test(self) -> bool:
         """The residual tests alarm, or the case rate moved in the last block (a
@@ -307,7 +314,7 @@ class PatternRule(ChannelClassifier):
                         mon.window_statistics(self.host._long_blocks))
                     # the ratio band out and only the slow residual power up: a θ change
                     # (physical fault) explains both, a read-out noise not the band
-                    if physical.fault_type > 0 and (
+                    if physical.fault_type > 0 and not self._one_axis() and (
                             result.fault_type < 0 or physical.distance < result.distance
                             or (band_alarm and mon.power_only)
                             or (band_alarm and not stats.raw_signals

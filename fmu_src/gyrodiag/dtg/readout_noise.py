@@ -1,7 +1,8 @@
 """Which read-out a noise class names: the residual tests confuse a torquer read-out's
 noise with the pick-off of the same axis (Ux with Utx, Uy with Uty), but the noise
 attenuates θ of a different axis in each (Ux, Uty: x; Uy, Utx: y), and the physical
-test's fit over the alarm shows which (docs/methods.md §2)."""
+test's fit over the alarm shows which (docs/methods.md §2). The same fit tells a
+read-out's noise from a spin or torquer change, which moves both axes alike."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from dataclasses import replace
 
 from .patterns import FAULT_TYPES, SIGNALS, PatternLibrary, PatternResult, signal_bit
 
-__all__ = ["AXIS_Z", "OTHER_AXIS_SHARE", "renamed_noise"]
+__all__ = ["AXIS_Z", "OTHER_AXIS_SHARE", "attenuated_axis", "renamed_noise"]
 
 #: The attenuated axis must stand out by this many standard errors ...
 AXIS_Z = 5.0
@@ -22,6 +23,20 @@ _PARTNER = {"Utx": "Ux", "Ux": "Utx", "Uty": "Uy", "Uy": "Uty"}
 _ATTENUATED = {"Ux": 0, "Uty": 0, "Uy": 1, "Utx": 1}
 
 
+def attenuated_axis(evidence: tuple[float, float] | None) -> int | None:
+    """0 (x) or 1 (y) where one axis's θ shift stands out of ``evidence`` (largest |z|
+    on the x and y axes), None where neither does or both do (a spin or torquer change
+    moves both axes alike)."""
+    if evidence is None:
+        return None
+    zx, zy = evidence
+    if zx >= AXIS_Z and zy <= OTHER_AXIS_SHARE * zx:
+        return 0
+    if zy >= AXIS_Z and zx <= OTHER_AXIS_SHARE * zy:
+        return 1
+    return None
+
+
 def renamed_noise(library: PatternLibrary | None, result: PatternResult | None,
                   evidence: tuple[float, float] | None) -> PatternResult | None:
     """``result``, or its same-axis partner's noise class where ``evidence`` (largest
@@ -29,12 +44,8 @@ def renamed_noise(library: PatternLibrary | None, result: PatternResult | None,
     if (library is None or result is None or evidence is None
             or result.fault_type != _NOISE_TYPE or not 1 <= result.signal <= len(SIGNALS)):
         return result
-    zx, zy = evidence
-    if zx >= AXIS_Z and zy <= OTHER_AXIS_SHARE * zx:
-        axis = 0
-    elif zy >= AXIS_Z and zx <= OTHER_AXIS_SHARE * zy:
-        axis = 1
-    else:
+    axis = attenuated_axis(evidence)
+    if axis is None:
         return result
     signal = SIGNALS[result.signal - 1]
     if _ATTENUATED[signal] == axis:
