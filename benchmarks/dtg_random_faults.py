@@ -17,6 +17,9 @@ after it) from the master seed, and then:
 * pairs: steps of ±0.1–1 V on two signals at the same instant, or the second 2–5 s
   after the first.
 
+With ``--nominal-runs N --nominal-s S``, N fault-free runs of S seconds (bench seeds
+drawn too) count the alarms (rising edges) after the learning window.
+
 Right = the class named at the end of the run (a pair: both signals named). Writes
 ``summary.json`` (with every run) and ``summary.md`` under ``--out`` with the commit and
 the hash of the library sources, and prints the tables. Figures only, no assertions.
@@ -102,6 +105,21 @@ def plan(args: argparse.Namespace) -> list[dict[str, Any]]:
     return jobs
 
 
+def nominal_run(job: dict[str, Any]) -> dict[str, Any]:
+    """A fault-free run: the alarms' rising edges and the classes they named."""
+    seconds = job["seconds"]
+    rec = bench(seconds, job["seed"])
+    ch = DTGChannel(DTGChannelConfig(patterns=default_library()))
+    was, alarms, names = False, 0, []
+    for row in rec:
+        o = ch.update(*row)
+        if o.alarm and not was:
+            alarms += 1
+            names.append(o.diagnosis.class_name)
+        was = o.alarm
+    return {**job, "alarms": alarms, "names": names}
+
+
 def run(job: dict[str, Any]) -> dict[str, Any]:
     """One drawn run through the channel; what it named and when."""
     onset, seconds = job["onset"], job["onset"] + 12.0
@@ -185,6 +203,9 @@ def markdown(summary: dict[str, Any], meta: dict[str, Any]) -> str:
              f"command: `{meta['command']}`.", "",
              f"{summary['right']} of {summary['runs']} named right at the end; alarms "
              f"before the onset: {summary['alarms_before_onset']}.", "",
+             f"Fault-free: {summary['nominal']['runs']} runs, "
+             f"{summary['nominal']['hours']:.2f} h, {summary['nominal']['alarms']} alarms.",
+             "",
              "| fault | runs | detected | right at the end | median delay (s) |",
              "|---|---|---|---|---|"]
     for key, c in summary["cells"].items():
@@ -201,6 +222,8 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--signal-runs", type=int, default=100)
     ap.add_argument("--physical-runs", type=int, default=40)
+    ap.add_argument("--nominal-runs", type=int, default=0)
+    ap.add_argument("--nominal-s", type=float, default=1800.0)
     ap.add_argument("--master-seed", type=int, default=34)
     ap.add_argument("--out", type=Path, default=ROOT / "campaigns" / "results" /
                     "dtg_random_faults")
@@ -208,15 +231,23 @@ def main() -> None:
     jobs = plan(args)
     origin = provenance()  # the code the runs use, taken before they start
     start = time.perf_counter()
+    nominal_rng = np.random.default_rng([args.master_seed, 1])
+    nominal_jobs = [{"seed": int(nominal_rng.integers(10000, 99999)),
+                     "seconds": args.nominal_s} for _ in range(args.nominal_runs)]
     with ProcessPoolExecutor(args.workers) as pool:
+        nominal = list(pool.map(nominal_run, nominal_jobs))
         runs = list(pool.map(run, jobs))
     summary = summarise(runs)
+    summary["nominal"] = {"runs": len(nominal),
+                          "hours": round(sum(j["seconds"] for j in nominal) / 3600.0, 3),
+                          "alarms": sum(r["alarms"] for r in nominal)}
     meta = {**origin, "master_seed": args.master_seed,
             "wall_s": round(time.perf_counter() - start, 1),
             "command": "benchmarks/dtg_random_faults.py " + " ".join(sys.argv[1:])}
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "summary.json").write_text(json.dumps(
-        {"meta": meta, "summary": summary, "runs": runs}, indent=1) + "\n",
+        {"meta": meta, "summary": summary, "runs": runs, "nominal_runs": nominal},
+        indent=1) + "\n",
         encoding="utf-8")
     text = markdown(summary, meta)
     (args.out / "summary.md").write_text(text, encoding="utf-8")
