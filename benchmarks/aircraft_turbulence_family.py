@@ -28,9 +28,7 @@ the seed scenarios ``scenarios/aircraft_turbulence_*``.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
-import subprocess
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -38,6 +36,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from _provenance import library_provenance
 
 ROOT = Path(__file__).resolve().parents[1]
 for _sub in ("fmu_src", "tests"):
@@ -176,17 +175,6 @@ def summarise(nominal: list[dict[str, Any]], faults: list[dict[str, Any]]) -> di
             "faults": cells}
 
 
-def provenance() -> dict[str, str]:
-    def git(*a: str) -> str:
-        return subprocess.run(["git", *a], cwd=ROOT, capture_output=True, text=True,
-                              check=False, timeout=60).stdout.strip()
-    h = hashlib.sha256()
-    for p in sorted((ROOT / "fmu_src" / "gyrodiag").rglob("*.py")):
-        h.update(p.read_bytes())
-    return {"commit": git("rev-parse", "HEAD"), "dirty": str(bool(git("status", "--short"))),
-            "library_sha256": h.hexdigest()}
-
-
 def markdown(summary: dict[str, Any], meta: dict[str, Any]) -> str:
     lines = ["# Aircraft loop in turbulence (library level)", "",
              f"Commit {meta['commit']} (dirty: {meta['dirty']}), library sources sha256 "
@@ -220,7 +208,7 @@ def main() -> None:
                     "aircraft_turbulence")
     args = ap.parse_args()
     nominal_jobs, fault_jobs = plan(args)
-    origin = provenance()  # the code the runs use, taken before they start
+    origin = library_provenance(ROOT)  # the code the runs use, taken before they start
     start = time.perf_counter()
     with ProcessPoolExecutor(args.workers) as pool:
         faults = list(pool.map(fault_run, fault_jobs, chunksize=4))

@@ -28,9 +28,7 @@ the hash of the library sources, and prints the tables. Figures only, no asserti
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
-import subprocess
 import sys
 import time
 from collections import defaultdict
@@ -39,6 +37,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from _provenance import library_provenance
 
 ROOT = Path(__file__).resolve().parents[1]
 for _sub in ("fmu_src", "models/dtg"):
@@ -185,17 +184,6 @@ def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
                       for r in runs if not r["right"]]}
 
 
-def provenance() -> dict[str, str]:
-    def git(*a: str) -> str:
-        return subprocess.run(["git", *a], cwd=ROOT, capture_output=True, text=True,
-                              check=False, timeout=60).stdout.strip()
-    h = hashlib.sha256()
-    for p in sorted((ROOT / "fmu_src" / "gyrodiag").rglob("*.py")):
-        h.update(p.read_bytes())
-    return {"commit": git("rev-parse", "HEAD"), "dirty": str(bool(git("status", "--short"))),
-            "library_sha256": h.hexdigest()}
-
-
 def markdown(summary: dict[str, Any], meta: dict[str, Any]) -> str:
     lines = ["# DTG bench at the defaults: drawn faults (library level)", "",
              f"Commit {meta['commit']} (dirty: {meta['dirty']}), library sources sha256 "
@@ -229,7 +217,7 @@ def main() -> None:
                     "dtg_random_faults")
     args = ap.parse_args()
     jobs = plan(args)
-    origin = provenance()  # the code the runs use, taken before they start
+    origin = library_provenance(ROOT)  # the code the runs use, taken before they start
     start = time.perf_counter()
     nominal_rng = np.random.default_rng([args.master_seed, 1])
     nominal_jobs = [{"seed": int(nominal_rng.integers(10000, 99999)),

@@ -161,6 +161,7 @@ class PhysicalTest:
         self._held_S = np.zeros(4)
         self._held_info = np.zeros((4, 4))
         self._held_n = 0
+        self._evidence: tuple[int, tuple[float, float] | None] = (0, None)
 
     @property
     def ready(self) -> bool:
@@ -253,6 +254,13 @@ class PhysicalTest:
         it. Noise on one read-out attenuates one axis's θ (Ux: x; Utx: y)."""
         if self._held_n < HELD_MIN_BLOCKS or self._V is None or self._ML is None:
             return None
+        if self._evidence[0] == self._held_n:  # asked every sample, changes per block
+            return self._evidence[1]
+        self._evidence = (self._held_n, self._axis_evidence())
+        return self._evidence[1]
+
+    def _axis_evidence(self) -> tuple[float, float] | None:
+        assert self._V is not None and self._ML is not None
         try:
             Mi = np.linalg.inv(self._held_info)
             ref = self._nL * _sandwich(np.linalg.inv(self._ML), self._V)
